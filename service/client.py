@@ -1,0 +1,261 @@
+"""Python client for the replay server.
+
+The client pickles as its address (and token), so it can be handed to Ray actors
+without dragging a live channel along; each process opens its own channel lazily.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+import uuid
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Optional
+
+import grpc
+import numpy as np
+
+from service._proto import replay_pb2, replay_pb2_grpc
+from service.codec import DEFAULT_MAX_BYTES, Batch, decode_batch, encode_batch
+from service.server import TOKEN_METADATA_KEY
+
+
+class ReplayError(RuntimeError):
+    """Base of the typed errors the client raises; `code` is the gRPC status."""
+
+    code = grpc.StatusCode.UNKNOWN
+
+
+class InvalidArgument(ReplayError):
+    code = grpc.StatusCode.INVALID_ARGUMENT
+
+
+class TableNotFound(ReplayError):
+    code = grpc.StatusCode.NOT_FOUND
+
+
+class DeadlineExceeded(ReplayError):
+    code = grpc.StatusCode.DEADLINE_EXCEEDED
+
+
+class Unauthenticated(ReplayError):
+    code = grpc.StatusCode.UNAUTHENTICATED
+
+
+class ResourceExhausted(ReplayError):
+    code = grpc.StatusCode.RESOURCE_EXHAUSTED
+
+
+class Unavailable(ReplayError):
+    code = grpc.StatusCode.UNAVAILABLE
+
+
+_ERRORS = {cls.code: cls for cls in ReplayError.__subclasses__()}
+
+
+def _typed(error: grpc.RpcError) -> ReplayError:
+    cls = _ERRORS.get(error.code(), ReplayError)
+    return cls(f"{error.code().name}: {error.details()}")
+
+
+@dataclass(frozen=True)
+class TableStatus:
+    """What `info()` reports about one table."""
+
+    name: str
+    size: int
+    max_size: int
+    inserts: int
+    samples: int
+    sampler: str
+    remover: str
+    rate_limiter: str
+    signature: dict
+    bytes_in_memory: int
+    rate_limiter_blocked_s: float
+
+
+class ReplayClient:
+    """Inserts into and samples from one replay server.
+
+    Args:
+        address: "host:port" of the server.
+        token: shared secret for servers bound beyond loopback.
+        max_retries: how often an UNAVAILABLE insert is retried (with backoff) before
+            giving up; resends carry the same sequence number, so nothing is doubled.
+    """
+
+    def __init__(
+        self,
+        address: str,
+        *,
+        token: Optional[str] = None,
+        max_retries: int = 8,
+        max_message_bytes: int = DEFAULT_MAX_BYTES,
+    ) -> None:
+        self.address = address
+        self.token = token
+        self.max_retries = max_retries
+        self.max_message_bytes = max_message_bytes
+        self.writer_id = uuid.uuid4().hex
+        self._sequence = 0
+        self._channel: Optional[grpc.Channel] = None
+        self._stub: Optional[replay_pb2_grpc.ReplayServiceStub] = None
+
+    def __reduce__(self):
+        return (_rebuild_client, (self.address, self.token, self.max_retries, self.max_message_bytes))
+
+    @property
+    def stub(self) -> replay_pb2_grpc.ReplayServiceStub:
+        if self._stub is None:
+            self._channel = grpc.insecure_channel(
+                self.address,
+                options=[
+                    ("grpc.max_receive_message_length", self.max_message_bytes),
+                    ("grpc.max_send_message_length", self.max_message_bytes),
+                ],
+            )
+            self._stub = replay_pb2_grpc.ReplayServiceStub(self._channel)
+        return self._stub
+
+    @property
+    def _metadata(self) -> tuple[tuple[str, str], ...]:
+        return ((TOKEN_METADATA_KEY, self.token),) if self.token else ()
+
+    def close(self) -> None:
+        if self._channel is not None:
+            self._channel.close()
+        self._channel = self._stub = None
+
+    def insert(
+        self, table: str, columns: Mapping[str, np.ndarray], *, timeout: Optional[float] = None
+    ) -> int:
+        """Stores one batch of columns; blocks while the table's rate limiter says wait.
+
+        Returns:
+            Items stored (0 if the server already held this batch from a lost ack).
+        """
+        self._sequence += 1
+        request = replay_pb2.InsertRequest(
+            table=table,
+            batch=encode_batch(columns),
+            writer_id=self.writer_id,
+            sequence=self._sequence,
+            timeout_s=timeout or 0.0,
+        )
+        for attempt in range(self.max_retries + 1):
+            try:
+                response = self.stub.Insert(iter((request,)), metadata=self._metadata)
+                return response.items_inserted
+            except grpc.RpcError as error:
+                if error.code() != grpc.StatusCode.UNAVAILABLE or attempt == self.max_retries:
+                    raise _typed(error) from None
+                time.sleep(min(0.05 * 2**attempt, 2.0))
+        raise AssertionError("unreachable")
+
+    def sample(self, table: str, batch_size: int, *, timeout: Optional[float] = None) -> Batch:
+        """Draws one batch (blocks until the rate limiter admits it or `timeout`)."""
+        request = replay_pb2.SampleRequest(
+            table=table, batch_size=batch_size, num_batches=1, timeout_s=timeout or 0.0
+        )
+        try:
+            for response in self.stub.Sample(request, metadata=self._metadata):
+                return decode_batch(response.batch, max_bytes=self.max_message_bytes)
+        except grpc.RpcError as error:
+            raise _typed(error) from None
+        raise ReplayError("server closed the sample stream without a batch")
+
+    def sample_stream(self, table: str, batch_size: int, *, prefetch: int = 4) -> SampleStream:
+        """An endless iterator of batches, fetched ahead by a background thread."""
+        return SampleStream(self, table, batch_size, prefetch=prefetch)
+
+    def info(self) -> list[TableStatus]:
+        try:
+            response = self.stub.Info(replay_pb2.InfoRequest(), metadata=self._metadata)
+        except grpc.RpcError as error:
+            raise _typed(error) from None
+        return [
+            TableStatus(
+                name=t.name,
+                size=t.size,
+                max_size=t.max_size,
+                inserts=t.inserts,
+                samples=t.samples,
+                sampler=t.sampler,
+                remover=t.remover,
+                rate_limiter=t.rate_limiter,
+                signature=json.loads(t.signature_json),
+                bytes_in_memory=t.bytes_in_memory,
+                rate_limiter_blocked_s=t.rate_limiter_blocked_s,
+            )
+            for t in response.tables
+        ]
+
+    def wait_until_ready(self, timeout: float = 30.0) -> None:
+        """Blocks until the server answers, or raises Unavailable."""
+        channel = grpc.insecure_channel(self.address)
+        try:
+            grpc.channel_ready_future(channel).result(timeout=timeout)
+        except grpc.FutureTimeoutError:
+            raise Unavailable(f"replay server at {self.address} did not answer in {timeout}s") from None
+        finally:
+            channel.close()
+
+
+def _rebuild_client(address, token, max_retries, max_message_bytes) -> ReplayClient:
+    return ReplayClient(
+        address, token=token, max_retries=max_retries, max_message_bytes=max_message_bytes
+    )
+
+
+class SampleStream:
+    """Batches from one server-side stream, prefetched into a bounded queue.
+
+    `wait_s` accumulates the time the consumer spent waiting for a batch: the
+    learner reports it as time lost to the replay server.
+    """
+
+    def __init__(self, client: ReplayClient, table: str, batch_size: int, *, prefetch: int) -> None:
+        self.table_inserts = 0
+        self.wait_s = 0.0
+        self._queue: queue.Queue = queue.Queue(maxsize=max(prefetch, 1))
+        request = replay_pb2.SampleRequest(table=table, batch_size=batch_size, num_batches=0)
+        self._call = client.stub.Sample(request, metadata=client._metadata)
+        self._max_bytes = client.max_message_bytes
+        self._thread = threading.Thread(target=self._pump, daemon=True, name="replay-prefetch")
+        self._thread.start()
+
+    def _pump(self) -> None:
+        try:
+            for response in self._call:
+                batch = decode_batch(response.batch, max_bytes=self._max_bytes)
+                self._queue.put((batch, response.table_inserts))
+        except grpc.RpcError as error:
+            if error.code() != grpc.StatusCode.CANCELLED:
+                self._queue.put(_typed(error))
+        self._queue.put(None)
+
+    def __iter__(self) -> Iterator[Batch]:
+        return self
+
+    def __next__(self) -> Batch:
+        start = time.perf_counter()
+        item = self._queue.get()
+        self.wait_s += time.perf_counter() - start
+        if item is None:
+            raise StopIteration
+        if isinstance(item, ReplayError):
+            raise item
+        batch, self.table_inserts = item
+        return batch
+
+    def close(self) -> None:
+        self._call.cancel()
+        while True:  # unblock the pump if it is waiting on a full queue
+            try:
+                self._queue.get_nowait()
+            except queue.Empty:
+                break
