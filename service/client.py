@@ -162,7 +162,7 @@ class ReplayClient:
             table=table, batch_size=batch_size, num_batches=1, timeout_s=timeout or 0.0
         )
         try:
-            for response in self.stub.Sample(request, metadata=self._metadata):
+            for response in self.stub.Sample(iter((request,)), metadata=self._metadata):
                 return decode_batch(response.batch, max_bytes=self.max_message_bytes)
         except grpc.RpcError as error:
             raise _typed(error) from None
@@ -212,50 +212,60 @@ def _rebuild_client(address, token, max_retries, max_message_bytes) -> ReplayCli
 
 
 class SampleStream:
-    """Batches from one server-side stream, prefetched into a bounded queue.
+    """Batches prefetched over one bidirectional stream with credit-based flow control.
 
-    `wait_s` accumulates the time the consumer spent waiting for a batch: the
-    learner reports it as time lost to the replay server.
+    The client grants the server `prefetch` batches up front and one more per batch
+    it consumes, so the server never samples more than `prefetch` batches ahead:
+    the table's rate limiter then sees the learner's true pace. `wait_s` adds up the
+    time the consumer waited for a batch (time lost to the replay server).
     """
 
     def __init__(self, client: ReplayClient, table: str, batch_size: int, *, prefetch: int) -> None:
         self.table_inserts = 0
         self.wait_s = 0.0
-        self._queue: queue.Queue = queue.Queue(maxsize=max(prefetch, 1))
-        request = replay_pb2.SampleRequest(table=table, batch_size=batch_size, num_batches=0)
-        self._call = client.stub.Sample(request, metadata=client._metadata)
+        self._credits: queue.Queue = queue.Queue()
+        self._batches: queue.Queue = queue.Queue()
+        self._request = replay_pb2.SampleRequest(table=table, batch_size=batch_size, num_batches=1)
+        self._credits.put(
+            replay_pb2.SampleRequest(
+                table=table, batch_size=batch_size, num_batches=max(prefetch, 1)
+            )
+        )
+        self._call = client.stub.Sample(self._requests(), metadata=client._metadata)
         self._max_bytes = client.max_message_bytes
         self._thread = threading.Thread(target=self._pump, daemon=True, name="replay-prefetch")
         self._thread.start()
+
+    def _requests(self) -> Iterator[replay_pb2.SampleRequest]:
+        while (request := self._credits.get()) is not None:
+            yield request
 
     def _pump(self) -> None:
         try:
             for response in self._call:
                 batch = decode_batch(response.batch, max_bytes=self._max_bytes)
-                self._queue.put((batch, response.table_inserts))
+                self._batches.put((batch, response.table_inserts))
         except grpc.RpcError as error:
             if error.code() != grpc.StatusCode.CANCELLED:
-                self._queue.put(_typed(error))
-        self._queue.put(None)
+                self._batches.put(_typed(error))
+        self._batches.put(None)
 
     def __iter__(self) -> Iterator[Batch]:
         return self
 
     def __next__(self) -> Batch:
         start = time.perf_counter()
-        item = self._queue.get()
+        item = self._batches.get()
         self.wait_s += time.perf_counter() - start
         if item is None:
+            self._batches.put(None)  # stay exhausted
             raise StopIteration
         if isinstance(item, ReplayError):
             raise item
+        self._credits.put(self._request)  # one consumed, one more granted
         batch, self.table_inserts = item
         return batch
 
     def close(self) -> None:
+        self._credits.put(None)
         self._call.cancel()
-        while True:  # unblock the pump if it is waiting on a full queue
-            try:
-                self._queue.get_nowait()
-            except queue.Empty:
-                break

@@ -82,27 +82,28 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
             items_inserted=stored, batches_dropped_as_duplicates=dropped, acked_sequence=acked
         )
 
-    def Sample(self, request, context):  # noqa: N802
-        try:
-            table = self.core.table(request.table)
-            if request.batch_size < 1:
-                raise ValueError("batch_size must be >= 1")
-            if request.sequence_length > 1:
-                raise ValueError("sequence_length > 1 is not supported by this table")
-        except Exception as error:
-            _abort_for(context, error)
-        served = 0
-        while context.is_active() and (request.num_batches == 0 or served < request.num_batches):
+    def Sample(self, request_iterator, context):  # noqa: N802
+        for request in request_iterator:
             try:
-                batch = table.sample(request.batch_size, timeout=_timeout(request.timeout_s, context))
+                table = self.core.table(request.table)
+                if request.batch_size < 1:
+                    raise ValueError(f"batch_size must be >= 1, got {request.batch_size}")
+                if request.sequence_length > 1:
+                    raise ValueError("sequence_length > 1 is not supported by this table")
             except Exception as error:
                 _abort_for(context, error)
-            served += 1
-            yield replay_pb2.SampleResponse(
-                batch=encode_batch(batch),
-                table_inserts=table.stats.inserts,
-                table_size=table.size,
-            )
+            for _ in range(max(request.num_batches, 1)):
+                try:
+                    batch = table.sample(
+                        request.batch_size, timeout=_timeout(request.timeout_s, context)
+                    )
+                except Exception as error:
+                    _abort_for(context, error)
+                yield replay_pb2.SampleResponse(
+                    batch=encode_batch(batch),
+                    table_inserts=table.stats.inserts,
+                    table_size=table.size,
+                )
 
     def Info(self, request, context):  # noqa: N802
         tables = [

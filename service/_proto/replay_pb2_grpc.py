@@ -39,7 +39,7 @@ class ReplayServiceStub:
                 request_serializer=service_dot___proto_dot_replay__pb2.InsertRequest.SerializeToString,
                 response_deserializer=service_dot___proto_dot_replay__pb2.InsertResponse.FromString,
                 _registered_method=True)
-        self.Sample = channel.unary_stream(
+        self.Sample = channel.stream_stream(
                 '/graft.replay.v1.ReplayService/Sample',
                 request_serializer=service_dot___proto_dot_replay__pb2.SampleRequest.SerializeToString,
                 response_deserializer=service_dot___proto_dot_replay__pb2.SampleResponse.FromString,
@@ -72,8 +72,10 @@ class ReplayServiceServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
-    def Sample(self, request, context):
-        """Streams `num_batches` batches of `batch_size` items (0 = until cancelled).
+    def Sample(self, request_iterator, context):
+        """Credit-based sampling: each request asks for `num_batches` more batches, and the
+        server sends exactly that many, so a prefetching client bounds how far sampling
+        (and with it the rate limiter) runs ahead of the learner.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -105,7 +107,7 @@ def add_ReplayServiceServicer_to_server(servicer, server):
                     request_deserializer=service_dot___proto_dot_replay__pb2.InsertRequest.FromString,
                     response_serializer=service_dot___proto_dot_replay__pb2.InsertResponse.SerializeToString,
             ),
-            'Sample': grpc.unary_stream_rpc_method_handler(
+            'Sample': grpc.stream_stream_rpc_method_handler(
                     servicer.Sample,
                     request_deserializer=service_dot___proto_dot_replay__pb2.SampleRequest.FromString,
                     response_serializer=service_dot___proto_dot_replay__pb2.SampleResponse.SerializeToString,
@@ -164,7 +166,7 @@ class ReplayService:
             _registered_method=True)
 
     @staticmethod
-    def Sample(request,
+    def Sample(request_iterator,
             target,
             options=(),
             channel_credentials=None,
@@ -174,8 +176,8 @@ class ReplayService:
             wait_for_ready=None,
             timeout=None,
             metadata=None):
-        return grpc.experimental.unary_stream(
-            request,
+        return grpc.experimental.stream_stream(
+            request_iterator,
             target,
             '/graft.replay.v1.ReplayService/Sample',
             service_dot___proto_dot_replay__pb2.SampleRequest.SerializeToString,

@@ -1,0 +1,1 @@
+"""graft: actors/behaviour_trees."""

@@ -1,0 +1,161 @@
+"""Mission XML builders for the simulator (and for a real Malmo Minecraft).
+
+``obtain_diamond()`` is the sample mission shipped as ``missions/obtain_diamond.xml``:
+survival in a seeded default world, the observations issue 6's tree needs (full stats, a
+15×15×15 grid named ``cube``, full inventory, nearby entities, ray), every command
+handler it uses, a reward for the diamond and a 20-minute time limit.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+NS = "http://ProjectMalmo.microsoft.com"
+SAMPLE_PATH = Path(__file__).with_name("missions") / "obtain_diamond.xml"
+
+
+def mission_xml(
+    *,
+    width: Optional[int] = 64,
+    height: Optional[int] = 64,
+    ms_per_tick: int = 50,
+    time_limit_ms: Optional[int] = 1_200_000,
+    seed: Optional[int] = None,
+    flat: Optional[str] = None,
+    grid_radius: int = 7,
+    handlers: str = "continuous discrete inventory craft quit absolute",
+    placement: Optional[tuple[float, float, float]] = None,
+    inventory: tuple[tuple[int, str, int], ...] = (),
+    decorators: str = "",
+    rewards: str = "",
+    observations: str = "stats inventory ray entities",
+) -> str:
+    """Build a mission XML string.
+
+    Args:
+        width: frame width, or None for no VideoProducer (no rendering).
+        height: frame height.
+        ms_per_tick: ModSettings/MsPerTick.
+        time_limit_ms: ServerQuitFromTimeUp in game ms (50 per tick), None for none.
+        seed: DefaultWorldGenerator seed (None lets the server choose).
+        flat: a FlatWorldGenerator string instead of the default generator.
+        grid_radius: half-size of the ``cube`` grid (0 for no grid).
+        handlers: space-separated handler keys (continuous, discrete, inventory, craft,
+            quit, absolute).
+        placement: AgentStart Placement (x, y, z).
+        inventory: starting (slot, item, quantity).
+        decorators: raw DrawingDecorator children (``<DrawBlock .../>``...).
+        rewards: raw AgentHandlers reward/quit elements.
+        observations: space-separated producers besides the grid (stats, inventory,
+            ray, entities).
+    """
+    if flat is not None:
+        gen = f'<FlatWorldGenerator generatorString="{flat}" forceReset="true"/>'
+    else:
+        seed_attr = f' seed="{seed}"' if seed is not None else ""
+        gen = f'<DefaultWorldGenerator forceReset="true"{seed_attr}/>'
+    deco = f"<DrawingDecorator>{decorators}</DrawingDecorator>" if decorators else ""
+    limit = (
+        f'<ServerQuitFromTimeUp timeLimitMs="{time_limit_ms}"/>'
+        if time_limit_ms is not None
+        else ""
+    )
+    place = ""
+    if placement is not None:
+        place = '<Placement x="{}" y="{}" z="{}" yaw="0" pitch="0"/>'.format(*placement)
+    inv = ""
+    if inventory:
+        items = "".join(
+            f'<InventoryItem slot="{s}" type="{t}" quantity="{q}"/>' for s, t, q in inventory
+        )
+        inv = f"<Inventory>{items}</Inventory>"
+    video = ""
+    if width is not None and height is not None:
+        video = (
+            f'<VideoProducer want_depth="false"><Width>{width}</Width>'
+            f"<Height>{height}</Height></VideoProducer>"
+        )
+    grid = ""
+    if grid_radius > 0:
+        r = grid_radius
+        grid = (
+            f'<ObservationFromGrid><Grid name="cube"><min x="-{r}" y="-{r}" z="-{r}"/>'
+            f'<max x="{r}" y="{r}" z="{r}"/></Grid></ObservationFromGrid>'
+        )
+    producers = {
+        "stats": "<ObservationFromFullStats/>",
+        "inventory": '<ObservationFromFullInventory flat="false"/>',
+        "ray": "<ObservationFromRay/>",
+        "entities": "<ObservationFromNearbyEntities>"
+        '<Range name="entities" xrange="16" yrange="8" zrange="16"/>'
+        "</ObservationFromNearbyEntities>",
+    }
+    obs = "".join(producers[k] for k in observations.split())
+    keys = set(handlers.split())
+    cmd = ""
+    if "continuous" in keys:
+        cmd += '<ContinuousMovementCommands turnSpeedDegs="180"/>'
+    if "discrete" in keys:
+        cmd += (
+            '<DiscreteMovementCommands><ModifierList type="allow-list">'
+            "<command>movenorth</command><command>movesouth</command>"
+            "<command>moveeast</command><command>movewest</command>"
+            "<command>jumpnorth</command><command>jumpsouth</command>"
+            "<command>jumpeast</command><command>jumpwest</command>"
+            "<command>look</command></ModifierList></DiscreteMovementCommands>"
+        )
+    if "absolute" in keys:
+        cmd += "<AbsoluteMovementCommands/>"
+    if "inventory" in keys:
+        cmd += "<InventoryCommands/>"
+    if "craft" in keys:
+        cmd += "<SimpleCraftCommands/>"
+    if "quit" in keys:
+        cmd += "<MissionQuitCommands/>"
+    return f"""<?xml version="1.0" encoding="UTF-8" standalone="no" ?>
+<Mission xmlns="{NS}" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance">
+  <About><Summary>graft: obtain a diamond</Summary></About>
+  <ModSettings><MsPerTick>{ms_per_tick}</MsPerTick></ModSettings>
+  <ServerSection>
+    <ServerInitialConditions>
+      <Time><StartTime>1000</StartTime><AllowPassageOfTime>true</AllowPassageOfTime></Time>
+    </ServerInitialConditions>
+    <ServerHandlers>
+      {gen}{deco}
+      {limit}
+      <ServerQuitWhenAnyAgentFinishes/>
+    </ServerHandlers>
+  </ServerSection>
+  <AgentSection mode="Survival">
+    <Name>graft</Name>
+    <AgentStart>{place}{inv}</AgentStart>
+    <AgentHandlers>
+      {obs}
+      {grid}
+      {video}
+      {cmd}
+      {rewards}
+    </AgentHandlers>
+  </AgentSection>
+</Mission>
+"""
+
+
+def obtain_diamond(seed: Optional[int] = None) -> str:
+    """The sample obtain-diamond mission (reward 1 per log ... 1024 for the diamond)."""
+    rewards = (
+        "<RewardForCollectingItem>"
+        '<Item type="log" reward="1"/><Item type="planks" reward="2"/>'
+        '<Item type="stick" reward="4"/><Item type="crafting_table" reward="4"/>'
+        '<Item type="wooden_pickaxe" reward="8"/><Item type="cobblestone" reward="16"/>'
+        '<Item type="stone_pickaxe" reward="32"/><Item type="iron_ore" reward="64"/>'
+        '<Item type="furnace" reward="32"/><Item type="iron_ingot" reward="128"/>'
+        '<Item type="iron_pickaxe" reward="256"/><Item type="diamond" reward="1024"/>'
+        "</RewardForCollectingItem>"
+        '<AgentQuitFromCollectingItem><Item type="diamond"/></AgentQuitFromCollectingItem>'
+    )
+    # No AbsoluteMovementCommands: teleporting would make the quest trivial.
+    return mission_xml(
+        seed=seed, rewards=rewards, handlers="continuous discrete inventory craft quit"
+    )

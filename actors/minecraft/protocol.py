@@ -1,0 +1,206 @@
+"""The MalmoEnv wire protocol, shared by graft's server and client.
+
+Every message, both ways, is a 4-byte big-endian length then the payload. A connection
+opens with the hello ``<MalmoEnv0.37.0/>``. Requests are XML-ish strings
+(``<MissionInit ...>`` followed by a token message, ``<Peek/>``,
+``<StepN>commands</StepN >``, ``<Quit/>``, ``<Close>token</Close>``, ``<Init>token</Init>``,
+``<Exit>token</Exit>``, ``<Find>token</Find>``, ``<Status/>``, ``<Echo...>``); replies are
+binary (int32 flags, raw frames, a 10-byte ``!dbb`` reward/done/sent record) and UTF-8
+strings (info JSON, turn keys), each framed the same way.
+
+The token is ``exp_uid:role:reset:agent_count``; MineRL's fork adds a 5th field
+``synchronous`` (true/false). graft also accepts an optional 6th field, the world seed.
+"""
+
+from __future__ import annotations
+
+import re
+import socket
+import struct
+from dataclasses import dataclass
+from typing import Optional
+
+VERSION = "0.37.0"
+HELLO = f"<MalmoEnv{VERSION}/>"
+HELLO_PREFIX = "<MalmoEnv"
+MAX_HELLO = len(HELLO_PREFIX) + 8  # Malmo refuses longer hellos
+MAX_MESSAGE = 16 * 1024 * 1024  # requests larger than this are refused
+DEFAULT_PORT = 9000
+
+_LEN = struct.Struct("!I")
+_INT = struct.Struct("!i")
+_STEP_RECORD = struct.Struct("!dbb")
+_STEP_RE = re.compile(r"<Step([0-3])>(.*)</Step\1\s*>\s*$", re.DOTALL)
+
+
+class ProtocolError(Exception):
+    """A peer broke the protocol (bad hello, oversized or unknown message); the message
+    says what was wrong. The server closes that one connection, as Malmo does."""
+
+
+class ConnectionClosed(ConnectionError):
+    """The peer closed the connection."""
+
+
+def frame(payload: bytes) -> bytes:
+    """One framed message."""
+    return _LEN.pack(len(payload)) + payload
+
+
+def send(sock: socket.socket, *payloads: bytes) -> None:
+    """Send several framed messages with one system call."""
+    sock.sendall(b"".join(_LEN.pack(len(p)) + p for p in payloads))
+
+
+def recv_exact(sock: socket.socket, n: int) -> bytes:
+    """Read exactly ``n`` bytes.
+
+    Raises:
+        ConnectionClosed: the peer closed the connection first.
+    """
+    if n == 0:
+        return b""
+    buf = bytearray(n)
+    view = memoryview(buf)
+    got = 0
+    while got < n:
+        k = sock.recv_into(view[got:], n - got)
+        if k == 0:
+            raise ConnectionClosed(f"connection closed after {got} of {n} bytes")
+        got += k
+    return bytes(buf)
+
+
+def recv(sock: socket.socket, max_len: int = MAX_MESSAGE) -> bytes:
+    """Read one framed message.
+
+    Raises:
+        ProtocolError: the announced length exceeds ``max_len`` (the payload is not read).
+        ConnectionClosed: the peer closed the connection.
+    """
+    (n,) = _LEN.unpack(recv_exact(sock, 4))
+    if n > max_len:
+        raise ProtocolError(f"message of {n} bytes exceeds the limit of {max_len} bytes")
+    return recv_exact(sock, n)
+
+
+def pack_int(value: int) -> bytes:
+    """A big-endian int32 payload (ok flags, ports)."""
+    return _INT.pack(value)
+
+
+def unpack_int(payload: bytes) -> int:
+    """Decode an int32 payload."""
+    if len(payload) != 4:
+        raise ProtocolError(f"expected a 4-byte int, got {len(payload)} bytes")
+    return _INT.unpack(payload)[0]
+
+
+def pack_step_record(reward: float, done: bool, sent: bool) -> bytes:
+    """The 10-byte step record: double reward, byte done, byte sent."""
+    return _STEP_RECORD.pack(reward, 1 if done else 0, 1 if sent else 0)
+
+
+def unpack_step_record(payload: bytes) -> tuple[float, bool, bool]:
+    """Decode the step record into (reward, done, sent)."""
+    if len(payload) != _STEP_RECORD.size:
+        raise ProtocolError(f"step record must be 10 bytes, got {len(payload)}")
+    reward, done, sent = _STEP_RECORD.unpack(payload)
+    return reward, done == 1, sent == 1
+
+
+def step_flags(options: int) -> tuple[bool, bool]:
+    """(with_turn_key, with_info) for Step option 0..3, as Malmo defines them."""
+    return options < 2, options in (0, 2)
+
+
+def step_message(commands: str, options: int = 0) -> bytes:
+    """A step request (note Malmo's space before the closing ``>``)."""
+    return f"<Step{options}>{commands}</Step{options} >".encode()
+
+
+def parse_step(message: str) -> tuple[int, list[str]]:
+    """Split a step request into its option and commands (one per line).
+
+    Raises:
+        ProtocolError: the message is not a well-formed step.
+    """
+    m = _STEP_RE.match(message)
+    if m is None:
+        raise ProtocolError(f"malformed step message {message[:80]!r}")
+    body = m.group(2)
+    return int(m.group(1)), [c.strip() for c in body.split("\n") if c.strip()]
+
+
+def tag_body(message: str, tag: str) -> str:
+    """The text between ``<tag>`` and ``</tag>`` (tokens of Close, Init, Exit, Find)."""
+    m = re.match(rf"<{tag}>(.*)</{tag}\s*>\s*$", message, re.DOTALL)
+    if m is None:
+        raise ProtocolError(f"malformed <{tag}> message {message[:80]!r}")
+    return m.group(1)
+
+
+@dataclass(frozen=True)
+class Token:
+    """A mission token ``exp_uid:role:reset:agent_count[:synchronous[:seed]]``."""
+
+    exp_uid: str
+    role: int
+    reset: int
+    agent_count: int = 1
+    synchronous: bool = False
+    seed: Optional[int] = None
+
+    def encode(self) -> str:
+        """The token string (5th/6th fields only when set)."""
+        s = f"{self.exp_uid}:{self.role}:{self.reset}:{self.agent_count}"
+        if self.synchronous or self.seed is not None:
+            s += ":" + ("true" if self.synchronous else "false")
+        if self.seed is not None:
+            s += f":{self.seed}"
+        return s
+
+    @property
+    def key(self) -> str:
+        """``exp_uid:role:reset``, the part Close, Find and Malmo's token table use."""
+        return f"{self.exp_uid}:{self.role}:{self.reset}"
+
+    @staticmethod
+    def parse(text: str) -> Token:
+        """Parse a token.
+
+        Raises:
+            ProtocolError: fewer than 4 fields or non-integer role/reset/count/seed.
+        """
+        f = text.split(":")
+        if len(f) < 4:
+            raise ProtocolError(f"token {text!r} needs exp_uid:role:reset:agent_count")
+        try:
+            seed = int(f[5]) if len(f) > 5 and f[5] else None
+            return Token(
+                f[0], int(f[1]), int(f[2]), int(f[3]),
+                len(f) > 4 and f[4].strip().lower() == "true", seed,
+            )  # fmt: skip
+        except ValueError:
+            raise ProtocolError(f"token {text!r} has a non-integer field") from None
+
+
+def mission_init_xml(mission_xml: str, exp_uid: str, role: int = 0) -> str:
+    """Wrap a ``<Mission>`` in the ``<MissionInit>`` element a MalmoEnv client sends."""
+    i = mission_xml.find("<Mission")
+    if i < 0:
+        raise ValueError("mission XML must contain a <Mission> element")
+    body = mission_xml[i:]
+    return (
+        '<MissionInit xmlns="http://ProjectMalmo.microsoft.com" '
+        'xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+        f'SchemaVersion="" PlatformVersion="{VERSION}">'
+        f"{body}<ExperimentUID>{exp_uid}</ExperimentUID><ClientRole>{role}</ClientRole>"
+        "<ClientAgentConnection><ClientIPAddress>127.0.0.1</ClientIPAddress>"
+        "<ClientMissionControlPort>0</ClientMissionControlPort>"
+        "<ClientCommandsPort>0</ClientCommandsPort><AgentIPAddress>127.0.0.1</AgentIPAddress>"
+        "<AgentMissionControlPort>0</AgentMissionControlPort><AgentVideoPort>0</AgentVideoPort>"
+        "<AgentDepthPort>0</AgentDepthPort><AgentLuminancePort>0</AgentLuminancePort>"
+        "<AgentObservationsPort>0</AgentObservationsPort><AgentRewardsPort>0</AgentRewardsPort>"
+        "<AgentColourMapPort>0</AgentColourMapPort></ClientAgentConnection></MissionInit>"
+    )

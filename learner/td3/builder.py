@@ -1,0 +1,75 @@
+"""The one place that wires a `TD3Config` and gymnasium spaces into TD3 objects."""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from learner.td3.config import TD3Config
+from learner.td3.learning import TD3Learner
+from learner.td3.networks import Actor
+
+
+def _box_dim(space: spaces.Space, name: str) -> int:
+    """Returns the size of a flat Box space, refusing anything TD3 cannot handle."""
+    if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+        raise ValueError(
+            f"TD3 needs a 1-D gymnasium Box {name} space, got {space!r}; "
+            "flatten the space (gymnasium.wrappers.FlattenObservation) first."
+        )
+    return int(space.shape[0])
+
+
+def make_actor_network(
+    obs_dim: int,
+    act_dim: int,
+    low: np.ndarray,
+    high: np.ndarray,
+    config: TD3Config,
+) -> Actor:
+    """Builds the TD3 actor architecture, e.g. for an actor loading broadcast weights.
+
+    Args:
+        obs_dim: Observation size.
+        act_dim: Action size.
+        low: Lower action bounds, shape [act_dim].
+        high: Upper action bounds, shape [act_dim].
+        config: Supplies `hidden_sizes`.
+
+    Returns:
+        A freshly initialised `Actor` whose `state_dict` matches `TD3Learner.policy_state()`.
+    """
+    return Actor(obs_dim, act_dim, low, high, config.hidden_sizes)
+
+
+def make_td3_learner(
+    obs_space: spaces.Space,
+    action_space: spaces.Space,
+    config: TD3Config,
+    seed: int,
+) -> TD3Learner:
+    """Builds a CPU `TD3Learner` for the given spaces.
+
+    Args:
+        obs_space: 1-D Box observation space.
+        action_space: 1-D Box action space with finite bounds.
+        config: TD3 hyper-parameters.
+        seed: Seeds network initialisation and target smoothing noise.
+
+    Returns:
+        The learner.
+
+    Raises:
+        ValueError: If a space is not a 1-D Box, or the action bounds are not finite.
+    """
+    obs_dim = _box_dim(obs_space, "observation")
+    act_dim = _box_dim(action_space, "action")
+    assert isinstance(action_space, spaces.Box)
+    return TD3Learner(
+        obs_dim,
+        act_dim,
+        np.asarray(action_space.low, dtype=np.float32),
+        np.asarray(action_space.high, dtype=np.float32),
+        config=config,
+        seed=seed,
+    )

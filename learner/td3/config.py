@@ -1,0 +1,70 @@
+"""Hyper-parameters of TD3 (Fujimoto et al., 2018), as one frozen dataclass."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TD3Config:
+    """TD3 hyper-parameters; defaults follow Fujimoto et al. (2018).
+
+    Noise scales are fractions of the largest action, i.e. of the half-width
+    ``(high - low) / 2`` of the action box in each dimension (``high`` for a
+    symmetric box).
+    """
+
+    gamma: float = 0.99
+    """Discount factor gamma of the TD target, eq. (5)."""
+    tau: float = 0.005
+    """Polyak rate of the target networks: theta' <- tau * theta + (1 - tau) * theta'."""
+    policy_noise: float = 0.2
+    """Std of the target-policy smoothing noise, as a fraction of max action."""
+    noise_clip: float = 0.5
+    """Target-policy smoothing noise is clipped to +-noise_clip, a fraction of max action."""
+    policy_delay: int = 2
+    """Actor and target networks are updated once every `policy_delay` critic updates."""
+    actor_lr: float = 3e-4
+    """Adam learning rate of the actor."""
+    critic_lr: float = 3e-4
+    """Adam learning rate of the twin critic."""
+    hidden_sizes: tuple[int, ...] = (256, 256)
+    """Widths of the hidden ReLU layers of the actor and of each critic."""
+    batch_size: int = 256
+    """Transitions per learner update (sampled by the learner loop, not by `update`)."""
+    exploration_noise: float = 0.1
+    """Std of the behaviour noise actors add to pi(s), as a fraction of max action."""
+    frozen_actor_updates: int = 0
+    """Initial updates during which the actor is not trained (paper, fig. 3); targets still move."""
+
+    def __post_init__(self) -> None:
+        """Refuses settings that cannot train, with a message naming the field."""
+        # Presets parsed from YAML give lists; keep the dataclass hashable and immutable.
+        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError(f"gamma={self.gamma} must lie in [0, 1]; it discounts future reward.")
+        if not 0.0 < self.tau <= 1.0:
+            raise ValueError(
+                f"tau={self.tau} must lie in (0, 1]: 0 would freeze the target networks forever, "
+                "1 copies the online networks every delayed step."
+            )
+        for name in ("policy_noise", "noise_clip", "exploration_noise"):
+            if getattr(self, name) < 0.0:
+                raise ValueError(f"{name}={getattr(self, name)} is a std/bound and must be >= 0.")
+        if self.policy_delay < 1:
+            raise ValueError(
+                f"policy_delay={self.policy_delay} must be >= 1 (1 updates the actor every step)."
+            )
+        for name in ("actor_lr", "critic_lr"):
+            if getattr(self, name) <= 0.0:
+                raise ValueError(f"{name}={getattr(self, name)} must be > 0.")
+        if not self.hidden_sizes or any(h < 1 for h in self.hidden_sizes):
+            raise ValueError(
+                f"hidden_sizes={self.hidden_sizes} must be a non-empty tuple of positive widths."
+            )
+        if self.batch_size < 1:
+            raise ValueError(f"batch_size={self.batch_size} must be >= 1.")
+        if self.frozen_actor_updates < 0:
+            raise ValueError(
+                f"frozen_actor_updates={self.frozen_actor_updates} must be >= 0 (0 disables it)."
+            )

@@ -1,0 +1,103 @@
+"""TD3 networks: a deterministic tanh actor and a twin Q critic, plain MLPs."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+
+def mlp(in_dim: int, hidden_sizes: Sequence[int], out_dim: int) -> nn.Sequential:
+    """Builds ``Linear -> ReLU -> ... -> Linear`` with the given hidden widths.
+
+    Args:
+        in_dim: Input features.
+        hidden_sizes: Widths of the hidden layers, each followed by a ReLU.
+        out_dim: Output features (no activation on the last layer).
+
+    Returns:
+        The MLP.
+    """
+    layers: list[nn.Module] = []
+    for width in hidden_sizes:
+        layers += [nn.Linear(in_dim, width), nn.ReLU()]
+        in_dim = width
+    layers.append(nn.Linear(in_dim, out_dim))
+    return nn.Sequential(*layers)
+
+
+class Actor(nn.Module):
+    """Deterministic policy pi(s): an MLP whose tanh output is rescaled into [low, high]."""
+
+    action_low: torch.Tensor
+    action_high: torch.Tensor
+
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        hidden_sizes: Sequence[int],
+    ) -> None:
+        """Creates the actor.
+
+        Args:
+            obs_dim: Observation size.
+            act_dim: Action size.
+            action_low: Lower action bounds, shape [act_dim], finite.
+            action_high: Upper action bounds, shape [act_dim], finite and > low.
+            hidden_sizes: Widths of the hidden ReLU layers.
+
+        Raises:
+            ValueError: If the bounds have the wrong shape, are not finite or are empty.
+        """
+        super().__init__()
+        low = torch.as_tensor(np.asarray(action_low, dtype=np.float32))
+        high = torch.as_tensor(np.asarray(action_high, dtype=np.float32))
+        if low.shape != (act_dim,) or high.shape != (act_dim,):
+            raise ValueError(
+                f"action bounds have shapes {tuple(low.shape)} and {tuple(high.shape)}, "
+                f"expected ({act_dim},) each."
+            )
+        if not (torch.isfinite(low).all() and torch.isfinite(high).all() and (low < high).all()):
+            raise ValueError(
+                f"action bounds must be finite with low < high, got low={low.tolist()}, "
+                f"high={high.tolist()}; a tanh actor cannot cover an unbounded box."
+            )
+        self.net = mlp(obs_dim, hidden_sizes, act_dim)
+        self.register_buffer("action_low", low)
+        self.register_buffer("action_high", high)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        """Returns pi(obs) in [low, high], shape [B, act_dim]."""
+        centre = (self.action_high + self.action_low) / 2
+        half_width = (self.action_high - self.action_low) / 2
+        return centre + half_width * torch.tanh(self.net(obs))
+
+
+class TwinCritic(nn.Module):
+    """Two independent Q networks Q1(s, a), Q2(s, a) (clipped double Q learning)."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int]) -> None:
+        """Creates both critics.
+
+        Args:
+            obs_dim: Observation size.
+            act_dim: Action size.
+            hidden_sizes: Widths of the hidden ReLU layers of each critic.
+        """
+        super().__init__()
+        self.q1_net = mlp(obs_dim + act_dim, hidden_sizes, 1)
+        self.q2_net = mlp(obs_dim + act_dim, hidden_sizes, 1)
+
+    def forward(self, obs: torch.Tensor, act: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Returns (Q1(s, a), Q2(s, a)), each of shape [B]."""
+        x = torch.cat([obs, act], dim=-1)
+        return self.q1_net(x).squeeze(-1), self.q2_net(x).squeeze(-1)
+
+    def q1(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
+        """Returns Q1(s, a), shape [B]; the actor is trained against this head only."""
+        return self.q1_net(torch.cat([obs, act], dim=-1)).squeeze(-1)

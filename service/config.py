@@ -1,0 +1,109 @@
+"""Run configuration: a preset (YAML data) parsed once, at the entry point, into frozen dataclasses."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from learner.td3.config import TD3Config
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything a training run needs; one line per field, like a paper's hyper-parameter table."""
+
+    preset: str
+    """Name of the preset this run came from."""
+    env_id: str = "Pendulum-v1"
+    """Gymnasium environment id the actors step."""
+    algorithm: str = "td3"
+    """Learning algorithm: td3."""
+    env_steps: int = 20_000
+    """Budget of environment steps (transitions) over all actors."""
+    learning_starts: int = 1_000
+    """Uniform-random steps before the policy acts; also the table's minimum size to sample."""
+    updates_per_env_step: float = 1.0
+    """Learner updates per environment step, held by the replay table's rate limiter."""
+    slack_env_steps: int = 200
+    """How many env steps actors may run ahead of (or behind) the update ratio before waiting."""
+    num_actors: int = 2
+    """Ray actors stepping environments."""
+    envs_per_actor: int = 4
+    """Environments each actor steps side by side (one batched policy call per step)."""
+    steps_per_insert: int = 8
+    """Vectorised steps an actor collects before one insert (batch = steps × envs)."""
+    replay_max_size: int = 1_000_000
+    """Replay table capacity; the oldest transitions are evicted first."""
+    prefetch: int = 4
+    """Sampled batches the learner keeps in flight."""
+    publish_every: int = 50
+    """Learner updates between weight broadcasts."""
+    eval_every: int = 1_000
+    """Env steps between deterministic evaluations."""
+    eval_episodes: int = 10
+    """Episodes per evaluation."""
+    checkpoint_every: int = 5_000
+    """Learner updates between checkpoints (one more is written at the end)."""
+    seed: int = 0
+    """Seeds networks, actors' environments and exploration."""
+    td3: TD3Config = field(default_factory=TD3Config)
+    """TD3 hyper-parameters."""
+
+    def __post_init__(self) -> None:
+        for name in ("env_steps", "num_actors", "envs_per_actor", "steps_per_insert",
+                     "publish_every", "eval_every", "eval_episodes", "checkpoint_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        if not 0 < self.learning_starts < self.env_steps:
+            raise ValueError(
+                f"learning_starts={self.learning_starts} must lie in (0, env_steps={self.env_steps})"
+            )
+        if self.updates_per_env_step <= 0:
+            raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
+
+    @property
+    def total_updates(self) -> int:
+        """Updates the learner makes: one ratio's worth per env step after warm-up."""
+        return int((self.env_steps - self.learning_starts) * self.updates_per_env_step)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def _build(cls: type, data: dict[str, Any], where: str) -> Any:
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(names)}")
+    return cls(**data)
+
+
+def preset_names() -> list[str]:
+    folder = resources.files("service") / "presets"
+    return sorted(p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
+    """Reads a preset by name (service/presets/NAME.yaml) or path; `overrides` win.
+
+    Raises:
+        ValueError: unknown preset or keys, or values a run cannot use.
+    """
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        candidate = resources.files("service") / "presets" / f"{name_or_path}.yaml"
+        if not candidate.is_file():
+            raise ValueError(f"unknown preset {name_or_path!r}; presets: {preset_names()}")
+        text, name = candidate.read_text(), name_or_path
+    else:
+        text, name = path.read_text(), path.stem
+    data = yaml.safe_load(text) or {}
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    data.setdefault("preset", name)
+    td3 = _build(TD3Config, data.pop("td3", {}) or {}, f"preset {name}: td3")
+    return _build(TrainConfig, {**data, "td3": td3}, f"preset {name}")

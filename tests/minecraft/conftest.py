@@ -1,0 +1,67 @@
+"""Fixtures: a real world server (in a thread, on a free port) and synchronous clients on
+small flat worlds built from mission XML, so each test draws exactly the scene it needs."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Optional
+
+import pytest
+
+from actors.minecraft.client import MalmoClient
+from actors.minecraft.missions import mission_xml
+from actors.minecraft.server import WorldServer
+
+# Bedrock, two dirt, grass: the ground's top face is y=4, the agent stands at y=4.
+FLAT = "3;7,2*3,2;1;"
+GROUND = 4.0
+
+
+@pytest.fixture
+def server() -> Iterator[WorldServer]:
+    """A world server on a free port (ticks every 20 ms by default)."""
+    with WorldServer(port=0, seed=7, ms_per_tick=20) as s:
+        yield s
+
+
+def flat_mission(
+    *,
+    decorators: str = "",
+    inventory: tuple[tuple[int, str, int], ...] = (),
+    rewards: str = "",
+    placement: tuple[float, float, float] = (0.5, GROUND, 0.5),
+    video: bool = False,
+    ms_per_tick: int = 20,
+    grid_radius: int = 2,
+    time_limit_ms: Optional[int] = None,
+) -> str:
+    """A flat-world mission with every handler and the agent at (0.5, 4, 0.5) facing +z."""
+    return mission_xml(
+        width=16 if video else None,
+        height=12 if video else None,
+        ms_per_tick=ms_per_tick,
+        time_limit_ms=time_limit_ms,
+        flat=FLAT,
+        grid_radius=grid_radius,
+        placement=placement,
+        inventory=inventory,
+        decorators=decorators,
+        rewards=rewards,
+    )
+
+
+@pytest.fixture
+def sync_client(server: WorldServer) -> Iterator[Callable[..., MalmoClient]]:
+    """Factory: a synchronous graft client already reset into ``flat_mission(**kw)``."""
+    made: list[MalmoClient] = []
+
+    def make(**kw: object) -> MalmoClient:
+        c = MalmoClient("127.0.0.1", server.port, synchronous=True, timeout=10)
+        c.init(flat_mission(**kw))  # type: ignore[arg-type]
+        c.reset()
+        made.append(c)
+        return c
+
+    yield make
+    for c in made:
+        c.close()

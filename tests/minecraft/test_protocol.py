@@ -1,0 +1,150 @@
+"""The MalmoEnv wire protocol against a real server: framing, every message type, and
+malformed input that must close one connection without hurting the server."""
+
+from __future__ import annotations
+
+import json
+import socket
+
+import pytest
+
+from actors.minecraft import protocol as P
+from actors.minecraft.server import WorldServer
+from tests.minecraft.conftest import flat_mission
+
+
+def _connect(server: WorldServer, hello: bytes = P.HELLO.encode()) -> socket.socket:
+    s = socket.create_connection(("127.0.0.1", server.port), timeout=10)
+    P.send(s, hello)
+    return s
+
+
+def _init(s: socket.socket, xml: str, token: str = "exp:0:1:1") -> tuple[int, str]:
+    P.send(s, P.mission_init_xml(xml, "exp").encode(), token.encode())
+    return P.unpack_int(P.recv(s)), P.recv(s).decode()
+
+
+def _closed(s: socket.socket) -> bool:
+    s.settimeout(5)
+    try:
+        return s.recv(1) == b""
+    except ConnectionResetError:
+        return True
+
+
+def test_framing_round_trip_and_size_limit() -> None:
+    a, b = socket.socketpair()
+    with a, b:
+        P.send(a, b"hello", b"", "wörld".encode())
+        assert P.recv(b) == b"hello"
+        assert P.recv(b) == b""
+        assert P.recv(b).decode() == "wörld"
+        P.send(a, b"x" * 100)
+        with pytest.raises(P.ProtocolError, match="exceeds the limit of 10 bytes"):
+            P.recv(b, max_len=10)
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("u:0:3:1", P.Token("u", 0, 3, 1, False, None)),
+        ("u:0:3:1:true", P.Token("u", 0, 3, 1, True, None)),
+        ("u:0:3:1:false:42", P.Token("u", 0, 3, 1, False, 42)),
+    ],
+)
+def test_token_fields(text: str, expected: P.Token) -> None:
+    assert P.Token.parse(text) == expected
+    assert P.Token.parse(expected.encode()) == expected
+
+
+def test_step_message_parsing_keeps_malmo_space_and_newlines() -> None:
+    msg = P.step_message("move 1\nturn -0.5\n", 2).decode()
+    assert msg == "<Step2>move 1\nturn -0.5\n</Step2 >"
+    assert P.parse_step(msg) == (2, ["move 1", "turn -0.5"])
+    with pytest.raises(P.ProtocolError):
+        P.parse_step("<Step7>move 1</Step7 >")
+
+
+def test_every_message_type(server: WorldServer) -> None:
+    s = _connect(server)
+    with s:
+        ok, key = _init(s, flat_mission(video=True), "exp:0:1:1:true")
+        assert (ok, key) == (1, "")
+        # Peek: frame (16×12×3) and a one-byte done flag.
+        P.send(s, b"<Peek/>")
+        assert len(P.recv(s)) == 16 * 12 * 3
+        assert P.recv(s) == b"\x00"
+        # Step0: frame, record, info, turn key (turn key sent after the step).
+        P.send(s, P.step_message("move 1", 0), b"")
+        assert len(P.recv(s)) == 16 * 12 * 3
+        reward, done, sent = P.unpack_step_record(P.recv(s))
+        assert (reward, done, sent) == (0.0, False, True)
+        assert json.loads(P.recv(s))["TotalTime"] == 1
+        assert P.recv(s) == b""
+        # Step1: turn key, no info.  Step2: info, no turn key.  Step3: neither.
+        P.send(s, P.step_message("", 1), b"")
+        P.recv(s), P.recv(s)
+        assert P.recv(s) == b""
+        P.send(s, P.step_message("", 2))
+        P.recv(s), P.recv(s)
+        assert json.loads(P.recv(s))["TotalTime"] == 3
+        P.send(s, P.step_message("", 3))
+        P.recv(s)
+        assert len(P.recv(s)) == 10
+        P.send(s, b"<Find>exp:0:1</Find>")
+        assert P.unpack_int(P.recv(s)) == server.port
+        P.send(s, b"<Status/>")
+        status = json.loads(P.recv(s))
+        assert status["mission_running"] and status["synchronous"] and status["tick"] == 4
+        P.send(s, b"<Echo>hi</Echo>")
+        assert P.recv(s) == b"<Echo><Echo>hi</Echo></Echo>"
+        P.send(s, b"<Quit/>")
+        assert P.unpack_int(P.recv(s)) == 1  # synchronous: the quit is applied at once
+        P.send(s, P.step_message("move 1", 2))
+        P.recv(s)
+        assert P.unpack_step_record(P.recv(s))[1] is True  # done
+        P.recv(s)
+        P.send(s, b"<Close>exp:0:1</Close>")
+        assert P.unpack_int(P.recv(s)) == 1
+        P.send(s, b"<Init>exp:0:1</Init>")
+        assert P.unpack_int(P.recv(s)) == 1
+        P.send(s, b"<Exit>exp:0:1</Exit>")
+        assert P.unpack_int(P.recv(s)) == 1
+
+
+def test_bad_hello_oversized_and_unknown_messages_close_only_that_connection(
+    server: WorldServer,
+) -> None:
+    bad = [
+        _connect(server, b"<MalmoEnv0.1.0/>"),
+        _connect(server, b"x" * 200),
+    ]
+    big = _connect(server)
+    big.sendall((P.MAX_MESSAGE + 1).to_bytes(4, "big"))
+    unknown = _connect(server)
+    P.send(unknown, b"<Teleport/>")
+    malformed = _connect(server)
+    P.send(malformed, b"<Step9>move 1</Step9 >")
+    for s in [*bad, big, unknown, malformed]:
+        assert _closed(s)
+        s.close()
+    # The server is unharmed: a new connection runs a mission.
+    with _connect(server) as s:
+        assert _init(s, flat_mission(), "exp:0:1:1:true") == (1, "")
+    assert server.status()["protocol_errors"] == 5
+
+
+def test_unknown_commands_are_ignored_and_bad_missions_refused_with_reason(
+    server: WorldServer,
+) -> None:
+    with _connect(server) as s:
+        ok, reason = _init(s, "<Mission><oops", "exp:0:1:1:true")
+        assert ok == 0 and "does not parse" in reason
+        ok, reason = _init(s, flat_mission(), "exp:1:1:2:true")
+        assert ok == 0 and "multi-agent" in reason
+        assert _init(s, flat_mission(), "exp:0:1:1:true")[0] == 1
+        P.send(s, P.step_message("fly 1\nmove\nmove abc\ncraft", 2))
+        P.recv(s)
+        assert P.unpack_step_record(P.recv(s))[2] is True  # sent, bad commands ignored
+        P.recv(s)
+    assert server.status()["ignored_commands"] == 2  # "fly" unknown, "move abc" malformed

@@ -1,0 +1,98 @@
+"""Rate limiters admit calls by the ratio they hold, refuse settings that cannot work,
+and a table blocked by one times out cleanly."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from service.rate_limiters import MinSize, SampleToInsertRatio
+from service.signature import Signature
+from service.table import RateLimitTimeout, Table
+
+SIGNATURE = Signature.from_dict({"x": {"dtype": "float32", "shape": []}})
+
+
+def batch(n: int) -> dict[str, np.ndarray]:
+    return {"x": np.zeros(n, np.float32)}
+
+
+def test_min_size_blocks_samples_until_enough_items():
+    limiter = MinSize(10)
+    assert not limiter.sample_allowed(size=9, inserts=9, samples=0)
+    assert limiter.sample_allowed(size=10, inserts=10, samples=0)
+    assert limiter.insert_allowed(inserts=10**9, samples=0)
+
+
+@pytest.mark.parametrize(
+    ("inserts", "samples", "insert_ok", "sample_ok"),
+    [
+        (5, 0, True, False),  # below min_size: insert freely, never sample
+        (10, 0, True, True),  # at min_size: balanced
+        (13, 0, False, True),  # 3 inserts × 4 = 12 samples ahead > buffer 8: inserts wait
+        (12, 8, True, True),
+        (10, 9, True, False),  # learner 9 samples ahead > buffer 8: samples wait
+    ],
+)
+def test_sample_to_insert_ratio_admission(inserts, samples, insert_ok, sample_ok):
+    limiter = SampleToInsertRatio(samples_per_insert=4, min_size=10, error_buffer=8)
+    assert limiter.insert_allowed(inserts=inserts, samples=samples) is insert_ok
+    assert limiter.sample_allowed(size=inserts, inserts=inserts, samples=samples) is sample_ok
+
+
+def test_error_buffer_smaller_than_ratio_is_refused_with_reason():
+    with pytest.raises(ValueError, match="lock-step"):
+        SampleToInsertRatio(samples_per_insert=16, min_size=1, error_buffer=4)
+
+
+def test_min_size_above_max_size_is_refused():
+    with pytest.raises(ValueError, match="sampling could never start"):
+        Table("t", max_size=5, signature=SIGNATURE, rate_limiter=MinSize(6))
+
+
+def test_blocked_sample_times_out_and_table_still_works():
+    table = Table("t", max_size=100, signature=SIGNATURE, rate_limiter=MinSize(10))
+    table.insert(batch(5))
+    start = time.monotonic()
+    with pytest.raises(RateLimitTimeout, match="sample not admitted"):
+        table.sample(4, timeout=0.2)
+    assert 0.15 < time.monotonic() - start < 5
+    table.insert(batch(5))
+    assert table.sample(4, timeout=1)["x"].shape == (4,)
+
+
+def test_ratio_holds_under_concurrent_writers_and_sampler():
+    limiter = SampleToInsertRatio(samples_per_insert=2, min_size=20, error_buffer=40)
+    table = Table("t", max_size=10_000, signature=SIGNATURE, rate_limiter=limiter)
+    worst, errors = [0.0], []
+
+    def write():
+        try:
+            for _ in range(50):
+                table.insert(batch(10), timeout=10)
+        except Exception as error:
+            errors.append(error)
+
+    def read():
+        try:
+            # (2,000 inserts − min_size 20) × 2 = 3,960 samples, + the 40 buffer = 200 batches.
+            for _ in range(200):
+                table.sample(20, timeout=10)
+                s = table.stats
+                worst[0] = max(worst[0], abs(s.inserts * 2 - s.samples - 40))
+        except Exception as error:
+            errors.append(error)
+
+    threads = [threading.Thread(target=write) for _ in range(4)] + [threading.Thread(target=read)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert not any(t.is_alive() for t in threads)
+    assert errors == []
+    assert (table.stats.inserts, table.stats.samples) == (2000, 4000)
+    # Within the buffer plus one batch of overshoot on either side.
+    assert worst[0] <= 40 + max(10 * 2, 20)
