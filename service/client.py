@@ -106,7 +106,10 @@ class ReplayClient:
         self._stub: Optional[replay_pb2_grpc.ReplayServiceStub] = None
 
     def __reduce__(self):
-        return (_rebuild_client, (self.address, self.token, self.max_retries, self.max_message_bytes))
+        return (
+            _rebuild_client,
+            (self.address, self.token, self.max_retries, self.max_message_bytes),
+        )
 
     @property
     def stub(self) -> replay_pb2_grpc.ReplayServiceStub:
@@ -200,7 +203,9 @@ class ReplayClient:
         try:
             grpc.channel_ready_future(channel).result(timeout=timeout)
         except grpc.FutureTimeoutError:
-            raise Unavailable(f"replay server at {self.address} did not answer in {timeout}s") from None
+            raise Unavailable(
+                f"replay server at {self.address} did not answer in {timeout}s"
+            ) from None
         finally:
             channel.close()
 

@@ -1,4 +1,4 @@
-"""Run metrics: namespaced scalars to TensorBoard and to a long-format CSV, and the learning curve."""
+"""Run metrics: namespaced scalars to TensorBoard and a long-format CSV; the learning curve."""
 
 from __future__ import annotations
 

@@ -22,14 +22,21 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
     serve = commands.add_parser("serve", help="start a replay server")
     source = serve.add_mutually_exclusive_group()
     source.add_argument("--config", help="YAML/JSON file with a 'tables' list")
-    source.add_argument("--preset", default="pendulum-td3",
-                        help="derive the transition table from a training preset (default)")
+    source.add_argument(
+        "--preset",
+        default="pendulum-td3",
+        help="derive the transition table from a training preset (default)",
+    )
     serve.add_argument("--host", default="127.0.0.1", help="bind address (default loopback)")
     serve.add_argument("--port", type=int, default=9100)
-    serve.add_argument("--token", default=os.environ.get("GRAFT_TOKEN"),
-                       help="shared token clients must send (env GRAFT_TOKEN)")
-    serve.add_argument("--insecure", action="store_true",
-                       help="allow a non-loopback bind without a token")
+    serve.add_argument(
+        "--token",
+        default=os.environ.get("GRAFT_TOKEN"),
+        help="shared token clients must send (env GRAFT_TOKEN)",
+    )
+    serve.add_argument(
+        "--insecure", action="store_true", help="allow a non-loopback bind without a token"
+    )
     serve.add_argument("--ready-file", help="write {'address': ...} here once listening")
     serve.set_defaults(handler=_serve)
     info = commands.add_parser("info", help="print a server's tables and figures")
@@ -55,8 +62,14 @@ def _serve(args: argparse.Namespace) -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     try:
         core = ReplayCore(make_table(spec) for spec in _table_specs(args))
-        serve_forever(core, host=args.host, port=args.port, token=args.token,
-                      insecure=args.insecure, ready_file=args.ready_file)
+        serve_forever(
+            core,
+            host=args.host,
+            port=args.port,
+            token=args.token,
+            insecure=args.insecure,
+            ready_file=args.ready_file,
+        )
     except ValueError as error:
         raise SystemExit(f"graft replay serve: {error}") from None
 
@@ -70,10 +83,14 @@ def _info(args: argparse.Namespace) -> None:
     except ReplayError as error:
         raise SystemExit(f"graft replay info: {error}") from None
     for t in tables:
-        print(f"table {t.name}: {t.size}/{t.max_size} items, {t.inserts} inserted, "
-              f"{t.samples} sampled, {t.bytes_in_memory / 2**20:.1f} MiB")
-        print(f"  sampler={t.sampler} remover={t.remover} rate_limiter={t.rate_limiter} "
-              f"blocked={t.rate_limiter_blocked_s:.1f}s")
+        print(
+            f"table {t.name}: {t.size}/{t.max_size} items, {t.inserts} inserted, "
+            f"{t.samples} sampled, {t.bytes_in_memory / 2**20:.1f} MiB"
+        )
+        print(
+            f"  sampler={t.sampler} remover={t.remover} rate_limiter={t.rate_limiter} "
+            f"blocked={t.rate_limiter_blocked_s:.1f}s"
+        )
         print(f"  signature={json.dumps(t.signature)}")
 
 

@@ -29,8 +29,20 @@ class ReplayProcess:
         config = Path(self._dir.name) / "tables.json"
         config.write_text(json.dumps({"tables": tables}))
         ready = Path(self._dir.name) / "ready.json"
-        command = [sys.executable, "-m", "service.replay_cli", "serve", "--config", str(config),
-                   "--host", host, "--port", str(port), "--ready-file", str(ready)]
+        command = [
+            sys.executable,
+            "-m",
+            "service.replay_cli",
+            "serve",
+            "--config",
+            str(config),
+            "--host",
+            host,
+            "--port",
+            str(port),
+            "--ready-file",
+            str(ready),
+        ]
         if token:
             command += ["--token", token]
         self._log = open(log_path, "ab") if log_path else subprocess.DEVNULL

@@ -45,7 +45,9 @@ class Signature:
                 raise ValueError(f"column '{name}' has unsupported dtype {spec.dtype!r}")
 
     @classmethod
-    def from_dict(cls, columns: Mapping[str, Mapping], *, allow_nonfinite: bool = False) -> Signature:
+    def from_dict(
+        cls, columns: Mapping[str, Mapping], *, allow_nonfinite: bool = False
+    ) -> Signature:
         """Builds a signature from ``{name: {"dtype": "float32", "shape": [3]}}``."""
         return cls(
             {
@@ -76,9 +78,7 @@ class Signature:
         """
         unknown = sorted(set(batch) - set(self.columns) - extra)
         if unknown:
-            raise SignatureError(
-                f"unknown column(s) {unknown}; table has {sorted(self.columns)}"
-            )
+            raise SignatureError(f"unknown column(s) {unknown}; table has {sorted(self.columns)}")
         missing = sorted(set(self.columns) - set(batch))
         if missing:
             raise SignatureError(f"missing column(s) {missing}")

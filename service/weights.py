@@ -44,7 +44,9 @@ class WeightBroadcaster:
         self._stopped = True
         self._event().set()
 
-    async def wait_newer(self, version: int, timeout_s: float = 30.0) -> tuple[int, list[Any], bool]:
+    async def wait_newer(
+        self, version: int, timeout_s: float = 30.0
+    ) -> tuple[int, list[Any], bool]:
         """Returns (version, [weights_ref], stopped) once a version newer than `version` exists."""
         deadline = asyncio.get_running_loop().time() + timeout_s
         while self._version <= version and not self._stopped:
@@ -53,7 +55,7 @@ class WeightBroadcaster:
                 break
             try:
                 await asyncio.wait_for(self._event().wait(), remaining)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 break
         return self._version, self._weights_ref, self._stopped
 

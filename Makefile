@@ -1,0 +1,47 @@
+# graft: `make demo` trains TD3 on Pendulum through a local Ray cluster; `make test` runs the tests.
+# Both set everything up first (virtual environment, CPU torch on CPU-only machines, the package).
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+TORCH  := 2.13.0
+
+.PHONY: demo test setup lint proto proto-check bench clean
+
+demo: setup
+	$(BIN)/graft train --preset pendulum-td3
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	@# Never pull multi-GB CUDA wheels onto a machine without a GPU.
+	@if command -v nvidia-smi >/dev/null 2>&1; then \
+		$(BIN)/pip install "torch==$(TORCH)"; \
+	else \
+		$(BIN)/pip install "torch==$(TORCH)+cpu" 2>/dev/null || \
+		$(BIN)/pip install --index-url https://download.pytorch.org/whl/cpu "torch==$(TORCH)+cpu"; \
+	fi
+	$(BIN)/pip install -e ".[dev]"
+	touch $@
+
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+# Generated gRPC code is checked in; CI regenerates it and fails on drift.
+proto: setup
+	$(BIN)/python -m grpc_tools.protoc -Iservice/_proto=protos/graft/replay/v1 \
+		--python_out=. --grpc_python_out=. --pyi_out=. protos/graft/replay/v1/replay.proto
+
+proto-check: proto
+	git diff --exit-code -- service/_proto
+
+bench: setup
+	$(BIN)/python bench/replay.py
+	$(BIN)/python bench/pendulum.py
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache
