@@ -1,0 +1,103 @@
+"""The observation vector of the paper's sec. III-D: position and orientation, the
+15×15×15 occupancy cube as {0, 1}, and the k closest items by their coordinates.
+
+Layout (float32, ``size(k) = 8 + 3375 + 4k``; offsets for the default cube)::
+
+    [0:3]      x / 64, y / 64, z / 64          ObservationFromFullStats XPos, YPos, ZPos
+    [3:6]      sin(yaw), cos(yaw), pitch / 90   Yaw (degrees, 0 = +z), Pitch (> 0 looks down)
+    [6:8]      life / 20, food / 20             Life, Food
+    [8:3383]   cube occupancy, Malmo's order    1 = full (any solid block), 0 = empty
+               cell (dx, dy, dz) in -7..7 is at 8 + (dy+7)*225 + (dz+7)*15 + (dx+7)
+    [3383:]    k items, nearest first, 4 each:  (ix - x) / 16, (iy - y) / 16,
+               (iz - z) / 16, present           present = 1; absent items are all 0
+
+No distinction is made between block types (the paper: "0 means empty block and 1 means
+full block"); liquids, air and torches are empty. Names a real Minecraft has and the
+simulator does not count as full unless they are air. Items are the dropped-item
+entities of ObservationFromNearbyEntities (they carry ``quantity``), by Euclidean
+distance from the agent; animals are not items.
+
+The first 8 + 3375 entries are the same as the Ray actor's provisional
+``actors.minecraft.encoding.encode_observation`` (same stats and scaling), so that
+encoding is this one with k = 0.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from actors.minecraft import blocks as B
+
+STATS = ("x", "y", "z", "sin_yaw", "cos_yaw", "pitch", "life", "food")
+CUBE_RADIUS = 7
+CUBE_SIDE = 2 * CUBE_RADIUS + 1
+CUBE_CELLS = CUBE_SIDE**3
+ITEM_FIELDS = 4
+POSITION_SCALE = 64.0
+ITEM_SCALE = 16.0  # the mission's entity range
+
+_FULL: dict[str, float] = {name: float(B.SOLID[i]) for i, name in enumerate(B.NAMES)}
+
+
+def size(k: int, cube_cells: int = CUBE_CELLS) -> int:
+    """Length of the vector with ``k`` items."""
+    return len(STATS) + cube_cells + ITEM_FIELDS * k
+
+
+def cube_offset(dx: int, dy: int, dz: int) -> int:
+    """Index in the vector of the cube cell at (dx, dy, dz) from the agent's block."""
+    r, s = CUBE_RADIUS, CUBE_SIDE
+    return len(STATS) + (dy + r) * s * s + (dz + r) * s + (dx + r)
+
+
+def items_offset(cube_cells: int = CUBE_CELLS) -> int:
+    """Index of the first item field."""
+    return len(STATS) + cube_cells
+
+
+def encode(
+    info: Mapping[str, Any], *, k: int = 8, grid: str = "cube", entities: str = "entities"
+) -> np.ndarray:
+    """One step's decoded info JSON -> the float32 vector described above.
+
+    Args:
+        info: merged observation producers (full stats, the grid, nearby entities).
+        k: number of item slots.
+        grid: name of the ObservationFromGrid grid.
+        entities: name of the ObservationFromNearbyEntities range.
+
+    Raises:
+        KeyError: a stat or the grid is missing from ``info``.
+    """
+    x, y, z = float(info["XPos"]), float(info["YPos"]), float(info["ZPos"])
+    yaw = math.radians(float(info["Yaw"]))
+    stats = np.array(
+        [
+            x / POSITION_SCALE,
+            y / POSITION_SCALE,
+            z / POSITION_SCALE,
+            math.sin(yaw),
+            math.cos(yaw),
+            float(info["Pitch"]) / 90.0,
+            float(info.get("Life", 20.0)) / 20.0,
+            float(info.get("Food", 20)) / 20.0,
+        ],
+        dtype=np.float32,
+    )
+    cube = np.fromiter(
+        (_FULL.get(n, 0.0 if n == "air" else 1.0) for n in info[grid]), dtype=np.float32
+    )
+    items = np.zeros((k, ITEM_FIELDS), dtype=np.float32)
+    found = [
+        (e["x"] - x, e["y"] - y, e["z"] - z)
+        for e in info.get(entities, ())
+        if "quantity" in e  # dropped items (animals and the agent have no quantity)
+    ]
+    found.sort(key=lambda d: d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+    for i, (dx, dy, dz) in enumerate(found[:k]):
+        items[i] = (dx / ITEM_SCALE, dy / ITEM_SCALE, dz / ITEM_SCALE, 1.0)
+    return np.concatenate([stats, cube, items.reshape(-1)])
