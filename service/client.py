@@ -95,9 +95,11 @@ class ReplayClient:
         token: Optional[str] = None,
         max_retries: int = 8,
         max_message_bytes: int = DEFAULT_MAX_BYTES,
+        tls_root_cert: Optional[str] = None,
     ) -> None:
         self.address = address
         self.token = token
+        self.tls_root_cert = tls_root_cert
         self.max_retries = max_retries
         self.max_message_bytes = max_message_bytes
         self.writer_id = uuid.uuid4().hex
@@ -114,13 +116,16 @@ class ReplayClient:
     @property
     def stub(self) -> replay_pb2_grpc.ReplayServiceStub:
         if self._stub is None:
-            self._channel = grpc.insecure_channel(
-                self.address,
-                options=[
-                    ("grpc.max_receive_message_length", self.max_message_bytes),
-                    ("grpc.max_send_message_length", self.max_message_bytes),
-                ],
-            )
+            options = [
+                ("grpc.max_receive_message_length", self.max_message_bytes),
+                ("grpc.max_send_message_length", self.max_message_bytes),
+            ]
+            if self.tls_root_cert:
+                with open(self.tls_root_cert, "rb") as f:
+                    credentials = grpc.ssl_channel_credentials(root_certificates=f.read())
+                self._channel = grpc.secure_channel(self.address, credentials, options=options)
+            else:
+                self._channel = grpc.insecure_channel(self.address, options=options)
             self._stub = replay_pb2_grpc.ReplayServiceStub(self._channel)
         return self._stub
 
@@ -159,10 +164,25 @@ class ReplayClient:
                 time.sleep(min(0.05 * 2**attempt, 2.0))
         raise AssertionError("unreachable")
 
-    def sample(self, table: str, batch_size: int, *, timeout: Optional[float] = None) -> Batch:
-        """Draws one batch (blocks until the rate limiter admits it or `timeout`)."""
+    def sample(
+        self,
+        table: str,
+        batch_size: int,
+        *,
+        sequence_length: int = 1,
+        timeout: Optional[float] = None,
+    ) -> Batch:
+        """Draws one batch (blocks until the rate limiter admits it or `timeout`).
+
+        With `sequence_length` k > 1 each item is a window of k consecutive steps of one
+        episode: data columns come shaped [B, k, ...] and `_key` [B, k].
+        """
         request = replay_pb2.SampleRequest(
-            table=table, batch_size=batch_size, num_batches=1, timeout_s=timeout or 0.0
+            table=table,
+            batch_size=batch_size,
+            num_batches=1,
+            sequence_length=sequence_length,
+            timeout_s=timeout or 0.0,
         )
         try:
             for response in self.stub.Sample(iter((request,)), metadata=self._metadata):
@@ -171,9 +191,38 @@ class ReplayClient:
             raise _typed(error) from None
         raise ReplayError("server closed the sample stream without a batch")
 
-    def sample_stream(self, table: str, batch_size: int, *, prefetch: int = 4) -> SampleStream:
+    def sample_stream(
+        self, table: str, batch_size: int, *, prefetch: int = 4, sequence_length: int = 1
+    ) -> SampleStream:
         """An endless iterator of batches, fetched ahead by a background thread."""
-        return SampleStream(self, table, batch_size, prefetch=prefetch)
+        return SampleStream(
+            self, table, batch_size, prefetch=prefetch, sequence_length=sequence_length
+        )
+
+    def update_priorities(self, table: str, keys: np.ndarray, priorities: np.ndarray) -> int:
+        """Sets priorities by item key (from a sample's `_key`); returns how many were live."""
+        request = replay_pb2.UpdatePrioritiesRequest(
+            table=table,
+            keys=np.asarray(keys, dtype=np.uint64).reshape(-1).tolist(),
+            priorities=np.asarray(priorities, dtype=np.float64).reshape(-1).tolist(),
+        )
+        try:
+            return self.stub.UpdatePriorities(request, metadata=self._metadata).updated
+        except grpc.RpcError as error:
+            raise _typed(error) from None
+
+    def checkpoint(self) -> str:
+        """Asks the server to write a checkpoint now; returns its path."""
+        try:
+            return self.stub.Checkpoint(
+                replay_pb2.CheckpointRequest(), metadata=self._metadata
+            ).path
+        except grpc.RpcError as error:
+            raise _typed(error) from None
+
+    def writer(self, table: str, *, batch_items: int = 1024) -> BatchingWriter:
+        """A buffer that inserts once `batch_items` rows have accumulated."""
+        return BatchingWriter(self, table, batch_items=batch_items)
 
     def info(self) -> list[TableStatus]:
         try:
@@ -210,9 +259,13 @@ class ReplayClient:
             channel.close()
 
 
-def _rebuild_client(address, token, max_retries, max_message_bytes) -> ReplayClient:
+def _rebuild_client(address, token, max_retries, max_message_bytes, tls_root_cert) -> ReplayClient:
     return ReplayClient(
-        address, token=token, max_retries=max_retries, max_message_bytes=max_message_bytes
+        address,
+        token=token,
+        max_retries=max_retries,
+        max_message_bytes=max_message_bytes,
+        tls_root_cert=tls_root_cert,
     )
 
 
@@ -225,15 +278,28 @@ class SampleStream:
     time the consumer waited for a batch (time lost to the replay server).
     """
 
-    def __init__(self, client: ReplayClient, table: str, batch_size: int, *, prefetch: int) -> None:
+    def __init__(
+        self,
+        client: ReplayClient,
+        table: str,
+        batch_size: int,
+        *,
+        prefetch: int,
+        sequence_length: int = 1,
+    ) -> None:
         self.table_inserts = 0
         self.wait_s = 0.0
         self._credits: queue.Queue = queue.Queue()
         self._batches: queue.Queue = queue.Queue()
-        self._request = replay_pb2.SampleRequest(table=table, batch_size=batch_size, num_batches=1)
+        self._request = replay_pb2.SampleRequest(
+            table=table, batch_size=batch_size, num_batches=1, sequence_length=sequence_length
+        )
         self._credits.put(
             replay_pb2.SampleRequest(
-                table=table, batch_size=batch_size, num_batches=max(prefetch, 1)
+                table=table,
+                batch_size=batch_size,
+                num_batches=max(prefetch, 1),
+                sequence_length=sequence_length,
             )
         )
         self._call = client.stub.Sample(self._requests(), metadata=client._metadata)
@@ -274,3 +340,26 @@ class SampleStream:
     def close(self) -> None:
         self._credits.put(None)
         self._call.cancel()
+
+
+class BatchingWriter:
+    """Accumulates rows and inserts them in batches of `batch_items` (fewer RPCs)."""
+
+    def __init__(self, client: ReplayClient, table: str, *, batch_items: int) -> None:
+        self.client, self.table, self.batch_items = client, table, batch_items
+        self._parts: list[Mapping[str, np.ndarray]] = []
+        self._rows = 0
+
+    def append(self, columns: Mapping[str, np.ndarray]) -> None:
+        """Adds rows (columns sharing their leading dimension); flushes when full."""
+        self._parts.append(columns)
+        self._rows += len(next(iter(columns.values())))
+        if self._rows >= self.batch_items:
+            self.flush()
+
+    def flush(self) -> int:
+        if not self._parts:
+            return 0
+        batch = {k: np.concatenate([p[k] for p in self._parts]) for k in self._parts[0]}
+        self._parts, self._rows = [], 0
+        return self.client.insert(self.table, batch)

@@ -29,6 +29,10 @@ class CodecError(ValueError):
     """A payload is malformed; the message names the field and the limit."""
 
 
+class PayloadTooLarge(CodecError):
+    """A payload exceeds the configured size limit."""
+
+
 def encode_batch(columns: Mapping[str, np.ndarray]) -> bytes:
     """Packs columns (all sharing their leading dimension) into one payload."""
     packed = {}
@@ -53,7 +57,7 @@ def decode_batch(payload: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES) -> Batch
         CodecError: the payload is not a well-formed columnar batch.
     """
     if len(payload) > max_bytes:
-        raise CodecError(f"payload is {len(payload)} bytes, limit is {max_bytes}")
+        raise PayloadTooLarge(f"payload is {len(payload)} bytes, limit is {max_bytes}")
     try:
         message = msgpack.unpackb(
             payload,

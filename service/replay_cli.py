@@ -7,12 +7,13 @@ import json
 import logging
 import os
 import sys
+from pathlib import Path
 from typing import Optional
 
 import yaml
 
 from service.replay import ReplayCore
-from service.server import serve_forever
+from service.server import ServerOptions, serve_forever
 from service.table_config import make_table
 
 
@@ -36,6 +37,33 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     serve.add_argument(
         "--insecure", action="store_true", help="allow a non-loopback bind without a token"
+    )
+    serve.add_argument("--tls-cert", type=Path, help="PEM certificate chain (enables TLS)")
+    serve.add_argument("--tls-key", type=Path, help="PEM private key")
+    serve.add_argument(
+        "--max-message-mb",
+        type=float,
+        default=64.0,
+        help="largest request/response in MiB (default 64)",
+    )
+    serve.add_argument(
+        "--checkpoint-dir",
+        type=Path,
+        help="durable state: restored on start, write-ahead log, checkpoints",
+    )
+    serve.add_argument(
+        "--checkpoint-every-s",
+        type=float,
+        default=300.0,
+        help="seconds between periodic checkpoints (0 = only on demand/exit)",
+    )
+    serve.add_argument(
+        "--fsync",
+        action="store_true",
+        help="fsync every logged insert (survives power loss, slower)",
+    )
+    serve.add_argument(
+        "--metrics-port", type=int, help="serve Prometheus metrics on this HTTP port"
     )
     serve.add_argument("--ready-file", help="write {'address': ...} here once listening")
     serve.set_defaults(handler=_serve)
@@ -61,14 +89,26 @@ def _table_specs(args: argparse.Namespace) -> list[dict]:
 def _serve(args: argparse.Namespace) -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     try:
-        core = ReplayCore(make_table(spec) for spec in _table_specs(args))
-        serve_forever(
-            core,
+        core = ReplayCore(
+            (make_table(spec) for spec in _table_specs(args)),
+            checkpoint_dir=args.checkpoint_dir,
+            fsync=args.fsync,
+        )
+        options = ServerOptions(
             host=args.host,
             port=args.port,
             token=args.token,
             insecure=args.insecure,
+            tls_cert=args.tls_cert,
+            tls_key=args.tls_key,
+            max_message_bytes=int(args.max_message_mb * 2**20),
+        )
+        serve_forever(
+            core,
+            options,
             ready_file=args.ready_file,
+            metrics_port=args.metrics_port,
+            checkpoint_every_s=args.checkpoint_every_s if args.checkpoint_dir else 0.0,
         )
     except ValueError as error:
         raise SystemExit(f"graft replay serve: {error}") from None

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Optional
 
@@ -24,6 +25,7 @@ class ReplayProcess:
         token: Optional[str] = None,
         log_path: Optional[Path] = None,
         startup_timeout_s: float = 60.0,
+        extra_args: Sequence[str] = (),
     ) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix="graft-replay-")
         config = Path(self._dir.name) / "tables.json"
@@ -45,6 +47,7 @@ class ReplayProcess:
         ]
         if token:
             command += ["--token", token]
+        command += list(extra_args)
         self._log = open(log_path, "ab") if log_path else subprocess.DEVNULL
         self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT)
         deadline = time.monotonic() + startup_timeout_s
@@ -72,6 +75,11 @@ class ReplayProcess:
         if self._log is not subprocess.DEVNULL:
             self._log.close()
         self._dir.cleanup()
+
+    def kill(self) -> None:
+        """SIGKILL: no goodbye, no final checkpoint (for crash tests)."""
+        self.process.kill()
+        self.process.wait()
 
     def __enter__(self) -> ReplayProcess:
         return self

@@ -10,7 +10,7 @@ from service._proto import replay_pb2
 from service.client import InvalidArgument, ReplayClient, TableNotFound
 from service.codec import encode_batch
 from service.replay import ReplayCore
-from service.server import InsecureBindError, build_server
+from service.server import InsecureBindError, ServerOptions, build_server
 from service.table_config import make_table
 from tests.conftest import PENDULUM_SIGNATURE, pendulum_batch
 
@@ -121,13 +121,13 @@ def test_resent_batch_is_stored_once(replay_client: ReplayClient):
 def test_non_loopback_bind_without_token_is_refused():
     core = ReplayCore([make_table({"name": "t", "max_size": 10, "signature": PENDULUM_SIGNATURE})])
     with pytest.raises(InsecureBindError, match="needs a shared token"):
-        build_server(core, host="0.0.0.0", port=0)
+        build_server(core, ServerOptions(host="0.0.0.0"))
 
 
 def test_token_is_required_when_configured():
     core = ReplayCore([make_table({"name": "t", "max_size": 10, "signature": PENDULUM_SIGNATURE})])
-    server, port, _ = build_server(core, host="127.0.0.1", port=0, token="s3cret")
-    server.start()
+    running = build_server(core, ServerOptions(token="s3cret"))
+    server, port = running.server, running.port
     try:
         from service.client import Unauthenticated
 
