@@ -96,13 +96,14 @@ class ReplayClient:
         max_retries: int = 8,
         max_message_bytes: int = DEFAULT_MAX_BYTES,
         tls_root_cert: Optional[str] = None,
+        writer_id: Optional[str] = None,
     ) -> None:
         self.address = address
         self.token = token
         self.tls_root_cert = tls_root_cert
         self.max_retries = max_retries
         self.max_message_bytes = max_message_bytes
-        self.writer_id = uuid.uuid4().hex
+        self.writer_id = writer_id or uuid.uuid4().hex
         self._sequence = 0
         self._channel: Optional[grpc.Channel] = None
         self._stub: Optional[replay_pb2_grpc.ReplayServiceStub] = None
@@ -288,6 +289,7 @@ class SampleStream:
         sequence_length: int = 1,
     ) -> None:
         self.table_inserts = 0
+        self.table_size = 0
         self.wait_s = 0.0
         self._credits: queue.Queue = queue.Queue()
         self._batches: queue.Queue = queue.Queue()
@@ -315,7 +317,7 @@ class SampleStream:
         try:
             for response in self._call:
                 batch = decode_batch(response.batch, max_bytes=self._max_bytes)
-                self._batches.put((batch, response.table_inserts))
+                self._batches.put((batch, response.table_inserts, response.table_size))
         except grpc.RpcError as error:
             if error.code() != grpc.StatusCode.CANCELLED:
                 self._batches.put(_typed(error))
@@ -334,7 +336,7 @@ class SampleStream:
         if isinstance(item, ReplayError):
             raise item
         self._credits.put(self._request)  # one consumed, one more granted
-        batch, self.table_inserts = item
+        batch, self.table_inserts, self.table_size = item
         return batch
 
     def close(self) -> None:
