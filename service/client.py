@@ -276,7 +276,8 @@ class SampleStream:
     The client grants the server `prefetch` batches up front and one more per batch
     it consumes, so the server never samples more than `prefetch` batches ahead:
     the table's rate limiter then sees the learner's true pace. `wait_s` adds up the
-    time the consumer waited for a batch (time lost to the replay server).
+    time the consumer waited for a batch (time lost to the replay server). If the
+    server becomes UNAVAILABLE (restart), the stream reconnects with backoff.
     """
 
     def __init__(
@@ -291,36 +292,54 @@ class SampleStream:
         self.table_inserts = 0
         self.table_size = 0
         self.wait_s = 0.0
-        self._credits: queue.Queue = queue.Queue()
+        self._client = client
+        self._prefetch = max(prefetch, 1)
         self._batches: queue.Queue = queue.Queue()
         self._request = replay_pb2.SampleRequest(
             table=table, batch_size=batch_size, num_batches=1, sequence_length=sequence_length
         )
-        self._credits.put(
-            replay_pb2.SampleRequest(
-                table=table,
-                batch_size=batch_size,
-                num_batches=max(prefetch, 1),
-                sequence_length=sequence_length,
-            )
-        )
-        self._call = client.stub.Sample(self._requests(), metadata=client._metadata)
-        self._max_bytes = client.max_message_bytes
+        self._closed = threading.Event()
+        self._credits: queue.Queue = queue.Queue()
+        self._call = self._open()
         self._thread = threading.Thread(target=self._pump, daemon=True, name="replay-prefetch")
         self._thread.start()
 
-    def _requests(self) -> Iterator[replay_pb2.SampleRequest]:
-        while (request := self._credits.get()) is not None:
-            yield request
+    def _open(self):
+        """A new call, granted a full prefetch window (batches in flight were lost with the old)."""
+        credits: queue.Queue = queue.Queue()
+        first = replay_pb2.SampleRequest()
+        first.CopyFrom(self._request)
+        first.num_batches = self._prefetch
+        credits.put(first)
+        self._credits = credits
+
+        def requests() -> Iterator[replay_pb2.SampleRequest]:
+            while (request := credits.get()) is not None:
+                yield request
+
+        return self._client.stub.Sample(requests(), metadata=self._client._metadata)
 
     def _pump(self) -> None:
-        try:
-            for response in self._call:
-                batch = decode_batch(response.batch, max_bytes=self._max_bytes)
-                self._batches.put((batch, response.table_inserts, response.table_size))
-        except grpc.RpcError as error:
-            if error.code() != grpc.StatusCode.CANCELLED:
-                self._batches.put(_typed(error))
+        attempt = 0
+        while not self._closed.is_set():
+            try:
+                for response in self._call:
+                    attempt = 0
+                    batch = decode_batch(response.batch, max_bytes=self._client.max_message_bytes)
+                    self._batches.put((batch, response.table_inserts, response.table_size))
+                break
+            except grpc.RpcError as error:
+                if self._closed.is_set() or error.code() == grpc.StatusCode.CANCELLED:
+                    break
+                if (
+                    error.code() != grpc.StatusCode.UNAVAILABLE
+                    or attempt >= self._client.max_retries
+                ):
+                    self._batches.put(_typed(error))
+                    break
+                time.sleep(min(0.05 * 2**attempt, 2.0))
+                attempt += 1
+                self._call = self._open()
         self._batches.put(None)
 
     def __iter__(self) -> Iterator[Batch]:
@@ -340,6 +359,7 @@ class SampleStream:
         return batch
 
     def close(self) -> None:
+        self._closed.set()
         self._credits.put(None)
         self._call.cancel()
 

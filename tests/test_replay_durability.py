@@ -93,3 +93,18 @@ def test_non_loopback_bind_without_token_is_refused_by_the_cli():
     )
     assert result.returncode != 0
     assert "needs a shared token" in result.stderr
+
+
+def test_sample_stream_reconnects_after_a_server_restart(tmp_path):
+    port = free_port()
+    first = durable_server(tmp_path, port)
+    client = ReplayClient(first.address, max_retries=12)
+    client.insert("log", scalar_batch(range(20)))
+    stream = client.sample_stream("log", 5, prefetch=2)
+    assert next(stream)["x"].shape == (5,)
+    first.kill()
+    second = durable_server(tmp_path, port)
+    batches = [next(stream)["x"] for _ in range(6)]  # across the restart
+    stream.close()
+    assert all(b.shape == (5,) for b in batches)
+    second.stop()
