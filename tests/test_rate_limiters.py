@@ -96,3 +96,56 @@ def test_ratio_holds_under_concurrent_writers_and_sampler():
     assert (table.stats.inserts, table.stats.samples) == (2000, 4000)
     # Within the buffer plus one batch of overshoot on either side.
     assert worst[0] <= 40 + max(10 * 2, 20)
+
+
+def test_ratio_holds_over_grpc_with_concurrent_clients():
+    """A real server process: 4 writer clients and a sampling client, ratio 2 ± 40."""
+    from service.client import ReplayClient
+    from service.replay_process import ReplayProcess
+    from tests.replay_helpers import SCALAR_SIGNATURE, scalar_batch
+
+    limiter = {"kind": "sample_to_insert_ratio", "samples_per_insert": 2, "min_size": 20,
+               "error_buffer": 40}  # fmt: skip
+    table = [{"name": "t", "max_size": 10_000, "rate_limiter": limiter,
+              "signature": SCALAR_SIGNATURE}]  # fmt: skip
+    with ReplayProcess(table) as server:
+        errors, worst = [], [0]
+        done = threading.Event()
+
+        def write():
+            client = ReplayClient(server.address)
+            try:
+                for _ in range(50):
+                    client.insert("t", scalar_batch(range(10)), timeout=20)
+            except Exception as error:
+                errors.append(error)
+
+        def read():
+            client = ReplayClient(server.address)
+            try:
+                for _ in range(200):
+                    client.sample("t", 20, timeout=20)
+            except Exception as error:
+                errors.append(error)
+
+        def watch():
+            client = ReplayClient(server.address)
+            while not done.is_set():
+                t = client.info()[0]
+                worst[0] = max(worst[0], abs(t.inserts * 2 - t.samples - 40))
+                time.sleep(0.01)
+
+        threads = [threading.Thread(target=f) for f in [write] * 4 + [read]]
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        done.set()
+        watcher.join()
+        assert errors == []
+        t = ReplayClient(server.address).info()[0]
+        assert (t.inserts, t.samples) == (2000, 4000)
+        assert worst[0] <= 40 + 4 * 10 * 2  # buffer, plus one batch per concurrent writer
+        assert t.rate_limiter_blocked_s > 0  # someone actually had to wait
