@@ -67,8 +67,19 @@ def _view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tree(args: argparse.Namespace) -> int:
+    from actors.minecraft.diamond_tree import build_tree
+    from actors.minecraft.tree_render import ascii_tree, render_png
+
+    root, _ = build_tree()
+    print(ascii_tree(root))
+    if args.png:
+        print(f"wrote {render_png(root, Path(args.png))}")
+    return 0
+
+
 def add_minecraft_commands(subparsers: argparse._SubParsersAction) -> None:
-    """Register ``minecraft serve`` and ``minecraft view`` on a subparsers object.
+    """Register ``minecraft serve``, ``view`` and ``tree`` on a subparsers object.
 
     Each leaf parser sets ``func`` (``args.func(args) -> int``).
     """
@@ -89,6 +100,9 @@ def add_minecraft_commands(subparsers: argparse._SubParsersAction) -> None:
     view.add_argument("--height", type=int, default=64, help="frame height")
     view.add_argument("--scale", type=int, default=4, help="upscaling of saved PNGs")
     view.set_defaults(func=_view)
+    tree = sub.add_parser("tree", help="print the obtain-diamond behaviour tree, save a PNG")
+    tree.add_argument("--png", default="diamond_tree.png", help="PNG path ('' for none)")
+    tree.set_defaults(func=_tree)
 
 
 def main(argv: Optional[list[str]] = None) -> int:
