@@ -22,6 +22,7 @@ chosen from it directly, and no block touching a liquid is ever broken.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -32,7 +33,7 @@ from py_trees.composites import Selector, Sequence
 from actors.minecraft.behaviours import conditions as C
 from actors.minecraft.behaviours.context import CONTEXT_KEY, Context, new_namespace
 from actors.minecraft.behaviours.items import Craft
-from actors.minecraft.behaviours.percept import parse
+from actors.minecraft.behaviours.percept import Percept, parse
 from actors.minecraft.behaviours.survival import Eat, EscapeLiquid
 from actors.minecraft.behaviours.targets import (
     ChooseBlock,
@@ -192,33 +193,49 @@ class _Builder:
         )
         return Selector("Survive", memory=False, children=[escape, eat])
 
-    def root(self) -> Behaviour:
+    def logs(self, n: int) -> Behaviour:
+        gather = self.mine(("log",), fallbacks=[self.explore(level=False)])
+        return self.ensure("log", n, [gather])
+
+    def root(self, goal: str) -> Behaviour:
         drops = Sequence(
             "Pick up drops",
             memory=False,
             children=[ChooseDrop(WANTED, namespace=self.ns), travel_subtree(self.ns)],
         )
-        quest = Sequence(
-            "Quest",
-            memory=False,
-            children=[self.wood(), self.iron_pickaxe(), self.diamond()],
-        )
+        if goal == "planks":  # a short stage: one log, four planks
+            steps = [self.logs(1), self.planks(4)]
+        else:
+            steps = [self.wood(), self.iron_pickaxe(), self.diamond()]
+        quest = Sequence("Quest", memory=False, children=steps)
         return Selector("Obtain diamond", memory=False, children=[self.survive(), drops, quest])
 
 
-def build_tree(*, namespace: Optional[str] = None, seed: int = 0) -> tuple[Behaviour, Context]:
+GOALS = ("diamond", "planks")
+
+
+def build_tree(
+    *, namespace: Optional[str] = None, seed: int = 0, goal: str = "diamond"
+) -> tuple[Behaviour, Context]:
     """The obtain-diamond tree and its context (already on the blackboard).
 
     Args:
         namespace: blackboard namespace (a fresh one by default).
         seed: seeds the exploration headings.
+        goal: "diamond" (the whole quest) or "planks" (gather a log, craft planks: the
+            same leaves and survival/pick-up branches, for short integration runs).
+
+    Raises:
+        ValueError: an unknown goal.
     """
+    if goal not in GOALS:
+        raise ValueError(f"goal must be one of {GOALS}, got {goal!r}")
     ns = namespace or new_namespace()
     ctx = Context()
     bb = py_trees.blackboard.Client(name="diamond_tree", namespace=ns)
     bb.register_key(CONTEXT_KEY, access=py_trees.common.Access.WRITE)
     bb.set(CONTEXT_KEY, ctx)
-    return _Builder(ns, seed).root(), ctx
+    return _Builder(ns, seed).root(goal), ctx
 
 
 @dataclass
@@ -252,13 +269,23 @@ def run_episode(
     seed: int,
     max_ticks: int = 24_000,
     namespace: Optional[str] = None,
+    goal: str = "diamond",
+    stop_when: Optional[Callable[[Percept], bool]] = None,
 ) -> EpisodeResult:
     """Run the tree in the client's (already initialised) mission until it ends.
 
     Each tick: step with the commands the tree wrote, parse the observation into the
     context, tick the tree. Nothing but MalmoEnv steps reaches the world.
+
+    Args:
+        client: a client with the mission set (``init``); reset here.
+        seed: the world seed (for the record and the exploration headings).
+        max_ticks: steps before giving up (the mission's own time limit ends it too).
+        namespace: blackboard namespace.
+        goal: see ``build_tree``.
+        stop_when: end early when this returns True for a percept.
     """
-    root, ctx = build_tree(namespace=namespace, seed=seed)
+    root, ctx = build_tree(namespace=namespace, seed=seed, goal=goal)
     tree = py_trees.trees.BehaviourTree(root)
     client.reset()
     reply = client.step("")
@@ -275,6 +302,9 @@ def run_episode(
                 best = max(best, i)
         if reply.done:
             end = "done"
+            break
+        if stop_when is not None and stop_when(ctx.percept):
+            end = "stopped"
             break
         ctx.commands.still()
         ctx.commands.once = []
