@@ -26,6 +26,7 @@ training. When it exceeds ``MsPerTick`` the world ticks unobserved (skipped tick
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from typing import Any, Optional
@@ -71,6 +72,11 @@ class MinecraftAgent:
             updates on the actor's own buffer after every step, inside the acting loop.
         inline_learning_starts: the naive loop's buffer size before its first update.
         max_backoff_s: longest pause between reconnection attempts.
+        nice: CPU niceness of the acting thread, or None to leave it. Ray starts workers
+            at nice 15 (``RAY_worker_niceness``), below every ordinary process, so a busy
+            machine would starve a real-time client; 0 asks for an ordinary share.
+            Lowering niceness needs CAP_SYS_NICE or RLIMIT_NICE: without it the actor
+            keeps its niceness and reports it (``actor/nice``).
     """
 
     def __init__(
@@ -91,6 +97,7 @@ class MinecraftAgent:
         inline_updates_per_step: int = 0,
         inline_learning_starts: int = 256,
         max_backoff_s: float = 5.0,
+        nice: Optional[int] = 0,
     ) -> None:
         torch.set_num_threads(1)
         self.mission: Mission = parse_mission(mission_xml)
@@ -120,6 +127,8 @@ class MinecraftAgent:
         )
         self.max_episode_steps = max_episode_steps
         self.max_backoff_s = max_backoff_s
+        self.nice = nice
+        self.acting_nice = os.getpriority(os.PRIO_PROCESS, 0)
         self.address = f"{host}:{port}"
         self.meter = TickMeter()
         self._stop = threading.Event()
@@ -170,6 +179,7 @@ class MinecraftAgent:
         if duration_s is None and max_steps is None:
             raise ValueError("give duration_s or max_steps: run() would never return")
         self._stop.clear()
+        self._set_priority()
         start = time.monotonic()
         deadline = start + duration_s if duration_s is not None else float("inf")
         last_step = self.steps + max_steps if max_steps is not None else None
@@ -190,6 +200,15 @@ class MinecraftAgent:
         if self.writer is not None:
             self.writer.flush()
         return self.report()
+
+    def _set_priority(self) -> None:
+        # Linux niceness is per thread: set it on the thread that runs the loop.
+        if self.nice is not None:
+            try:
+                os.setpriority(os.PRIO_PROCESS, 0, self.nice)
+            except OSError as e:
+                self.last_error = f"cannot set nice {self.nice}: {e}"
+        self.acting_nice = os.getpriority(os.PRIO_PROCESS, 0)
 
     # ------------------------------------------------------------------ episode
     def _begin_episode(self, deadline: float) -> None:
@@ -303,6 +322,7 @@ class MinecraftAgent:
             "actor/address": self.address,
             "actor/steps": self.steps,
             "actor/episodes": self.episodes,
+            "actor/nice": self.acting_nice,
             "perf/steps_per_s": self._measure_steps / wall,
             "perf/world_ticks_per_s": (m.seen + m.skipped) / wall,
             "perf/ticks_seen": m.seen,
