@@ -1,12 +1,14 @@
 """Ray actor stepping several gymnasium environments with the current behaviour policy.
 
 It streams transitions (with the behaviour log-likelihood and policy version) to the
-replay server and adopts newer weights whenever the learner publishes them.
+replay server and adopts newer weights whenever the learner publishes them. What it
+acts with is a `Behaviour` (actors/behaviours/); the actor itself knows no algorithm.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -14,9 +16,7 @@ import numpy as np
 import ray
 import torch
 
-from actors.policies import GaussianExploration, UniformRandomPolicy
-from learner.td3.builder import make_actor_network
-from learner.td3.config import TD3Config
+from actors.behaviours.base import Behaviour
 from service.client import ReplayClient
 from service.weights import WeightSubscriber
 
@@ -58,10 +58,19 @@ class VectorStepper:
         }
 
 
+@dataclass(frozen=True)
+class Segment:
+    """A stretch of one actor's work: `steps` transitions into `table`, the first
+    `warmup_steps` of them with the behaviour's warm-up policy."""
+
+    table: str
+    steps: int
+    warmup_steps: int = 0
+
+
 @ray.remote(num_cpus=0.25)
 class EnvActor:
-    """Collects `num_steps` transitions: uniform-random for the first `random_steps`,
-    then the broadcast TD3 actor plus Gaussian exploration noise."""
+    """Collects transitions segment by segment with its behaviour policy."""
 
     def __init__(
         self,
@@ -70,69 +79,67 @@ class EnvActor:
         num_envs: int,
         seed: int,
         replay: ReplayClient,
-        table: str,
         broadcaster: Any,
-        td3: TD3Config,
+        behaviour: Behaviour,
         steps_per_insert: int,
     ) -> None:
         torch.set_num_threads(1)
         self.stepper = VectorStepper(env_id, num_envs, seed)
-        space = self.stepper.envs[0].action_space
-        self.low, self.high = space.low, space.high
         self.rng = np.random.default_rng(seed)
-        self.replay, self.table = replay, table
+        self.replay = replay
         self.weights = WeightSubscriber(broadcaster)
-        obs_dim = self.stepper.envs[0].observation_space.shape[0]
-        self.network = make_actor_network(obs_dim, space.shape[0], self.low, self.high, td3)
-        self.network.eval()
-        max_action = float(np.max(np.abs(self.high)))
-        self.exploration = GaussianExploration(td3.exploration_noise * max_action, self.low, self.high)
-        self.uniform = UniformRandomPolicy(self.low, self.high)
+        self.behaviour = behaviour
         self.steps_per_insert = steps_per_insert
         self.versions_seen: list[int] = []
+        self.stats: list[dict[str, float]] = []
 
     def _adopt_new_weights(self, block_s: float = 0.0) -> None:
         weights = self.weights.poll(block_s=block_s)
         if weights is not None:
-            self.network.load_state_dict(weights)
+            self.behaviour.load(weights)
             self.versions_seen.append(self.weights.version)
 
-    def _act(self, obs: np.ndarray, random: bool) -> tuple[np.ndarray, np.ndarray, int]:
-        if random:
-            action, log_prob = self.uniform.sample(len(obs), self.rng)
-            return action, log_prob, -1  # version -1: the uniform warm-up policy
-        with torch.no_grad():
-            mean = self.network(torch.as_tensor(obs, dtype=torch.float32)).numpy()
-        action, log_prob = self.exploration.sample(mean, self.rng)
-        return action, log_prob, self.weights.version
+    def _wait_for_first_weights(self) -> None:
+        """Blocks until the learner publishes (it may pre-train first) or says stop."""
+        while self.weights.version < 0 and not self.weights.stopped:
+            self._adopt_new_weights(block_s=5.0)
 
-    def run(self, num_steps: int, random_steps: int) -> dict[str, Any]:
-        """Steps until `num_steps` transitions were inserted (or the learner says stop)."""
+    def run(self, segments: list[Segment]) -> dict[str, Any]:
+        """Steps through `segments` in order (or until the learner says stop)."""
         n = len(self.stepper.envs)
-        buffer: list[dict[str, np.ndarray]] = []
         done_steps, insert_wait_s, start = 0, 0.0, time.perf_counter()
-        while done_steps < num_steps and not self.weights.stopped:
-            if self.weights.version < 0 and done_steps >= random_steps:
-                self._adopt_new_weights(block_s=60.0)  # the learner publishes version 0 at start
-            else:
+        for segment in segments:
+            buffer: list[dict[str, np.ndarray]] = []
+            seg_steps = 0
+            while seg_steps < segment.steps and not self.weights.stopped:
+                warmup = seg_steps < segment.warmup_steps
+                if not warmup:
+                    self._wait_for_first_weights()
                 self._adopt_new_weights()
-            action, log_prob, version = self._act(self.stepper.obs, done_steps < random_steps)
-            record = self.stepper.step(np.clip(action, self.low, self.high))
-            record["action"] = action.astype(np.float32)
-            record["log_prob"] = log_prob.astype(np.float32)
-            record["policy_version"] = np.full(n, version, np.int64)
-            buffer.append(record)
-            done_steps += n
-            if len(buffer) >= self.steps_per_insert or done_steps >= num_steps:
-                batch = {k: np.concatenate([r[k] for r in buffer]) for k in buffer[0]}
-                t = time.perf_counter()
-                self.replay.insert(self.table, batch)
-                insert_wait_s += time.perf_counter() - t
-                buffer.clear()
+                env_action, record = self.behaviour.act(self.stepper.obs, self.rng, warmup=warmup)
+                record.update(self.stepper.step(env_action))
+                self.behaviour.end_episodes(record["terminated"] | record["truncated"])
+                version = -1 if warmup else self.weights.version  # -1: the warm-up policy
+                record["policy_version"] = np.full(n, version, np.int64)
+                # Each environment is one stream: the table links its steps into episodes,
+                # so sampled windows never mix environments or cross an episode end.
+                record["_stream"] = np.arange(n, dtype=np.int64)
+                buffer.append(record)
+                seg_steps += n
+                if len(buffer) >= self.steps_per_insert or seg_steps >= segment.steps:
+                    batch = {k: np.concatenate([r[k] for r in buffer]) for k in buffer[0]}
+                    t = time.perf_counter()
+                    self.replay.insert(segment.table, batch)
+                    insert_wait_s += time.perf_counter() - t
+                    buffer.clear()
+                    if stats := self.behaviour.stats():
+                        self.stats.append({"actor_steps": done_steps + seg_steps, **stats})
+            done_steps += seg_steps
         return {
             "env_steps": done_steps,
             "wall_s": time.perf_counter() - start,
             "insert_s": insert_wait_s,
             "versions_seen": self.versions_seen,
             "episode_returns": self.stepper.finished_returns,
+            "behaviour_stats": self.stats,
         }

@@ -1,11 +1,13 @@
 """The learner loop: sample from replay, update, publish weights, evaluate, checkpoint.
 
-    stream = replay.sample_stream(table, batch_size)
-    for batch in stream:                      # prefetched by a background thread
-        metrics = algorithm.update(batch)
+for phase in phases:                          # e.g. pre-training on demos, then online
+    stream = replay.sample_stream(phase.name, batch_size)  # prefetched in the background
+    for batch in stream (phase.updates of them):
+        metrics = getattr(algorithm, phase.step)(batch)
         every publish_every updates: broadcaster.publish(version + 1, weights)
         every eval_every env steps:  evaluator.evaluate(weights)   (asynchronous)
         every checkpoint_every:      save model + optimiser + counters
+    evaluate at the end of every phase
 """
 
 from __future__ import annotations
@@ -14,25 +16,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Protocol
+from typing import Any, Optional
 
 import numpy as np
 import ray
 import torch
 
+from learner.agent import Algorithm, Phase
 from learner.checkpoint import save_checkpoint
 from service.client import SampleStream
 from service.metrics import MetricsLogger
-
-
-class Algorithm(Protocol):
-    """What the loop needs from a learning algorithm (TD3Learner satisfies it)."""
-
-    num_updates: int
-
-    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]: ...
-    def policy_state(self) -> dict[str, torch.Tensor]: ...
-    def state_dict(self) -> dict[str, Any]: ...
 
 
 def to_tensors(batch: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
@@ -63,7 +56,6 @@ class LoopState:
 class LoopSettings:
     """When the loop publishes, evaluates, logs and checkpoints."""
 
-    total_updates: int
     publish_every: int
     eval_every: int
     eval_episodes: int
@@ -72,13 +64,14 @@ class LoopSettings:
 
 
 class LearnerLoop:
-    """Drives one algorithm from a sample stream until `total_updates`."""
+    """Drives one algorithm through its phases, each from its own sample stream."""
 
     def __init__(
         self,
         algorithm: Algorithm,
         *,
-        stream: SampleStream,
+        phases: list[Phase],
+        open_stream: Callable[[Phase], SampleStream],
         broadcaster: Any,
         evaluator: Any,
         logger: MetricsLogger,
@@ -88,7 +81,8 @@ class LearnerLoop:
         on_progress: Optional[Callable[[LoopState], None]] = None,
     ) -> None:
         self.algorithm = algorithm
-        self.stream = stream
+        self.phases = phases
+        self.open_stream = open_stream
         self.broadcaster = broadcaster
         self.evaluator = evaluator
         self.logger = logger
@@ -99,17 +93,24 @@ class LearnerLoop:
         self._pending_evals: list[Any] = []
         # A resumed run starts a fresh table: its insert counter restarts at zero.
         self._env_steps_offset = self.state.env_steps
+        self._started = time.perf_counter()
+        self._published = False
         self._next_eval = (self.state.env_steps // settings.eval_every + 1) * settings.eval_every
 
     def publish(self) -> dict[str, torch.Tensor]:
         """Broadcasts the current policy under the next version number."""
         weights = self.algorithm.policy_state()
         self.state.version += 1 if self.state.updates else 0
+        self._published = True
         ray.get(self.broadcaster.publish.remote(self.state.version, [ray.put(weights)]))
         return weights
 
     def _evaluate(self, weights: dict[str, torch.Tensor]) -> None:
-        tag = {"env_steps": self.state.env_steps, "updates": self.state.updates}
+        tag = {
+            "env_steps": self.state.env_steps,
+            "updates": self.state.updates,
+            "wall_s": time.perf_counter() - self._started,
+        }
         self._pending_evals.append(
             self.evaluator.evaluate.remote(weights, episodes=self.settings.eval_episodes, tag=tag)
         )
@@ -125,11 +126,9 @@ class LearnerLoop:
         for result in ray.get(ready):
             self.state.evaluations.append(result)
             tag = result["tag"]
-            self.logger.log(
-                {"eval/return_mean": result["mean"], "eval/return_std": result["std"]},
-                env_steps=tag["env_steps"],
-                updates=tag["updates"],
-            )
+            scalars = {"eval/return_mean": result["mean"], "eval/return_std": result["std"]}
+            scalars.update({f"eval/{k}": v for k, v in result.get("stats", {}).items()})
+            self.logger.log(scalars, env_steps=tag["env_steps"], updates=tag["updates"])
 
     def checkpoint(self) -> Path:
         s = self.state
@@ -143,44 +142,73 @@ class LearnerLoop:
         )
 
     def run(self) -> LoopState:
-        s, cfg = self.state, self.settings
-        weights = self.publish()
-        window_start, window_updates = time.perf_counter(), 0
-        first_batch = True
-        while s.updates < cfg.total_updates:
-            wait_before = self.stream.wait_s
-            batch = next(self.stream)
-            waited = self.stream.wait_s - wait_before
-            if first_batch:
-                s.warmup_s, first_batch = waited, False  # filling to min_size is not starvation
-            else:
-                s.wait_s += waited
-            s.env_steps = self._env_steps_offset + self.stream.table_inserts
-            t = time.perf_counter()
-            metrics = self.algorithm.update(to_tensors(batch))
-            s.update_s += time.perf_counter() - t
-            s.updates += 1
-            window_updates += 1
-            if s.updates % cfg.publish_every == 0:
-                weights = self.publish()
-            if s.env_steps >= self._next_eval:
-                self._evaluate(weights)
-                self._next_eval = (s.env_steps // cfg.eval_every + 1) * cfg.eval_every
-            self._collect_evaluations()
-            if s.updates % cfg.log_every == 0:
-                elapsed = time.perf_counter() - window_start
-                metrics["perf/updates_per_s"] = window_updates / elapsed
-                metrics["perf/learner_wait_fraction"] = s.wait_s / max(
-                    s.wait_s + s.update_s, 1e-9
-                )
-                self.logger.log(metrics, env_steps=s.env_steps, updates=s.updates)
-                window_start, window_updates = time.perf_counter(), 0
-            if s.updates % cfg.checkpoint_every == 0:
-                self.checkpoint()
-            if self.on_progress is not None:
-                self.on_progress(s)
+        """Runs every phase to its update count; the state's `updates` count across phases.
+
+        A resumed run (state.updates > 0) resumes inside the phase its counter falls in.
+        """
+        s = self.state
+        done_before, weights = 0, None
+        for phase in self.phases:
+            end = done_before + phase.updates
+            if s.updates < end:
+                if phase.acts_with_weights and not self._published:
+                    weights = self.publish()  # actors wait for these before acting
+                weights = self._run_phase(phase, end, weights)
+            done_before = end
+            self._env_steps_offset = max(self._env_steps_offset, s.env_steps)
         weights = self.publish()
         self._evaluate(weights)  # the final policy is always evaluated
         self._collect_evaluations(wait=True)
         self.checkpoint()
         return s
+
+    def _run_phase(
+        self, phase: Phase, end: int, weights: Optional[dict[str, torch.Tensor]]
+    ) -> Optional[dict[str, torch.Tensor]]:
+        s, cfg = self.state, self.settings
+        stream = self.open_stream(phase)
+        offset = self._env_steps_offset
+        window_start, window_updates = time.perf_counter(), 0
+        first_batch = True
+        try:
+            while s.updates < end:
+                wait_before = stream.wait_s
+                batch = next(stream)
+                waited = stream.wait_s - wait_before
+                if first_batch:
+                    s.warmup_s += waited  # filling to min_size is not starvation
+                    first_batch = False
+                else:
+                    s.wait_s += waited
+                s.env_steps = offset + stream.table_inserts
+                t = time.perf_counter()
+                metrics = getattr(self.algorithm, phase.step)(to_tensors(batch))
+                s.update_s += time.perf_counter() - t
+                s.updates += 1
+                window_updates += 1
+                if self._published and s.updates % cfg.publish_every == 0:
+                    weights = self.publish()
+                if self._published and s.env_steps >= self._next_eval:
+                    self._evaluate(weights)
+                    self._next_eval = (s.env_steps // cfg.eval_every + 1) * cfg.eval_every
+                self._collect_evaluations()
+                if s.updates % cfg.log_every == 0:
+                    elapsed = time.perf_counter() - window_start
+                    metrics["perf/updates_per_s"] = window_updates / elapsed
+                    metrics["perf/learner_wait_fraction"] = s.wait_s / max(
+                        s.wait_s + s.update_s, 1e-9
+                    )
+                    self.logger.log(metrics, env_steps=s.env_steps, updates=s.updates)
+                    window_start, window_updates = time.perf_counter(), 0
+                if s.updates % cfg.checkpoint_every == 0:
+                    self.checkpoint()
+                if self.on_progress is not None:
+                    self.on_progress(s)
+        finally:
+            stream.close()
+        if phase is not self.phases[-1]:
+            # The policy at the end of a phase (e.g. right after pre-training) is a point
+            # on the curve: evaluate it before the next phase changes it.
+            weights = self.publish() if self._published else self.algorithm.policy_state()
+            self._evaluate(weights)
+        return weights

@@ -16,21 +16,50 @@ def _train(args: argparse.Namespace) -> None:
     from service.launcher import train
 
     try:
-        config = load_preset(args.preset, num_actors=args.actors, seed=args.seed,
-                             env_steps=args.env_steps)
+        config = load_preset(
+            args.preset,
+            num_actors=args.actors,
+            seed=args.seed,
+            env_steps=args.env_steps,
+            **parse_settings(args.set),
+        )
     except ValueError as error:
         raise SystemExit(f"graft train: {error}") from None
-    result = train(config, address=args.address, run_dir=args.run_dir, resume=args.resume,
-                   progress=not args.no_progress)
+    result = train(
+        config,
+        address=args.address,
+        run_dir=args.run_dir,
+        resume=args.resume,
+        progress=not args.no_progress,
+    )
     s = result.summary
     print(f"\nrun folder: {result.run_dir}")
-    print(f"final evaluation return: {s['final_eval_return_mean']:.1f} ± "
-          f"{s['final_eval_return_std']:.1f} after {s['env_steps']} env steps, "
-          f"{s['updates']} updates, {s['wall_s']} s")
-    print(f"learner: {s['learner_updates_per_s']} updates/s, "
-          f"{100 * s['learner_wait_fraction']:.1f}% of its time waiting on replay")
+    print(
+        f"final evaluation return: {s['final_eval_return_mean']:.1f} ± "
+        f"{s['final_eval_return_std']:.1f} after {s['env_steps']} env steps, "
+        f"{s['updates']} updates, {s['wall_s']} s"
+    )
+    print(
+        f"learner: {s['learner_updates_per_s']} updates/s, "
+        f"{100 * s['learner_wait_fraction']:.1f}% of its time waiting on replay"
+    )
     print(f"actors adopted weight versions up to {s['actor_last_version']}")
     print(f"learning curve: {result.run_dir / 'learning_curve.png'}")
+
+
+def parse_settings(pairs: list[str]) -> dict[str, object]:
+    """`--set section.field=value` pairs as preset overrides (values parsed as YAML)."""
+    import yaml
+
+    out: dict[str, object] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise ValueError(
+                f"--set {pair!r}: expected key=value, e.g. backbone.correction_limit=0.5"
+            )
+        out[key.strip()] = yaml.safe_load(value)
+    return out
 
 
 def _eval(args: argparse.Namespace) -> None:
@@ -38,32 +67,40 @@ def _eval(args: argparse.Namespace) -> None:
 
     from actors.evaluation import random_policy_for, run_episodes
 
+    env_id = args.env_id or "Pendulum-v1"
     if args.policy == "hardcoded":
-        if args.env_id != "Pendulum-v1":
+        if env_id != "Pendulum-v1":
             raise SystemExit("graft eval: the hard-coded policy is for Pendulum-v1")
         from actors.behaviour_trees.pendulum import HardCodedPendulumPolicy
 
         policy = HardCodedPendulumPolicy()
     elif args.policy == "random":
-        policy = random_policy_for(args.env_id, seed=args.seed)
+        policy = random_policy_for(env_id, seed=args.seed)
     else:
-        policy = _checkpoint_policy(Path(args.policy), args.env_id)
-    returns = run_episodes(policy, env_id=args.env_id, episodes=args.episodes, seed=args.seed)
-    result = {"policy": args.policy, "env_id": args.env_id, "episodes": args.episodes,
-              "mean": float(np.mean(returns)), "std": float(np.std(returns))}
-    print(json.dumps(result) if args.json else
-          f"{args.policy} on {args.env_id}: mean return {result['mean']:.1f} ± "
-          f"{result['std']:.1f} over {args.episodes} episodes")
+        policy, env_id = _checkpoint_policy(Path(args.policy), args.env_id)
+    returns = run_episodes(policy, env_id=env_id, episodes=args.episodes, seed=args.seed)
+    result = {
+        "policy": args.policy,
+        "env_id": env_id,
+        "episodes": args.episodes,
+        "mean": float(np.mean(returns)),
+        "std": float(np.std(returns)),
+    }
+    print(
+        json.dumps(result)
+        if args.json
+        else f"{args.policy} on {env_id}: mean return {result['mean']:.1f} ± "
+        f"{result['std']:.1f} over {args.episodes} episodes"
+    )
 
 
-def _checkpoint_policy(path: Path, env_id: str):
-    """A deterministic policy from a run folder or checkpoint file."""
-    import gymnasium as gym
+def _checkpoint_policy(path: Path, env_id: Optional[str]):
+    """The greedy policy of a run folder or checkpoint file (any algorithm), and its env."""
     import torch
     import yaml
 
     from learner.checkpoint import latest_checkpoint, load_checkpoint
-    from learner.td3.builder import make_td3_learner
+    from learner.registry import make_builder
     from service.config import load_preset
 
     if path.is_dir():
@@ -76,35 +113,53 @@ def _checkpoint_policy(path: Path, env_id: str):
     if not path.exists():
         raise SystemExit(f"graft eval: {path} is neither 'hardcoded', 'random' nor a checkpoint")
     data = yaml.safe_load(config_path.read_text())
-    config = load_preset(data.pop("preset"), **{k: v for k, v in data.items() if k != "td3"})
-    env = gym.make(env_id)
-    learner = make_td3_learner(env.observation_space, env.action_space, config.td3, 0)
+    config = load_preset(data.pop("preset"), **data)
+    if env_id not in (None, config.env_id):
+        raise SystemExit(f"graft eval: {path} was trained on {config.env_id}, not {env_id}")
+    builder = make_builder(config)
+    learner = builder.make_learner()
     learner.load_state_dict(load_checkpoint(path)["algorithm"])
+    behaviour = builder.make_behaviour(num_actors=1)
+    behaviour.load(learner.policy_state())
     torch.set_num_threads(1)
-    return learner.act
+    return behaviour.greedy, config.env_id
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="graft", description="Improve hard-coded policies with distributed off-policy RL.")
+        prog="graft", description="Improve hard-coded policies with distributed off-policy RL."
+    )
     commands = parser.add_subparsers(dest="command", required=True)
 
     train = commands.add_parser("train", help="train a preset on a Ray cluster")
     train.add_argument("--preset", default="pendulum-td3")
     train.add_argument("--actors", type=int, help="number of env actors (preset default)")
-    train.add_argument("--address", default="local",
-                       help="'local' starts a Ray instance; 'auto' or ray://host:port joins one")
+    train.add_argument(
+        "--address",
+        default="local",
+        help="'local' starts a Ray instance; 'auto' or ray://host:port joins one",
+    )
     train.add_argument("--seed", type=int)
     train.add_argument("--env-steps", type=int, help="override the preset's env-step budget")
+    train.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a preset field, e.g. --set backbone.teacher=runs/teacher (repeatable)",
+    )
     train.add_argument("--run-dir", type=Path, help="default runs/<preset>-s<seed>-<time>")
     train.add_argument("--resume", action="store_true", help="continue from --run-dir's checkpoint")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.set_defaults(handler=_train)
 
     evaluate = commands.add_parser("eval", help="mean return of a policy over episodes")
-    evaluate.add_argument("--policy", default="hardcoded",
-                          help="'hardcoded', 'random', or a run folder / checkpoint path")
-    evaluate.add_argument("--env-id", default="Pendulum-v1")
+    evaluate.add_argument(
+        "--policy",
+        default="hardcoded",
+        help="'hardcoded', 'random', or a run folder / checkpoint path",
+    )
+    evaluate.add_argument("--env-id", help="default: the run's env, or Pendulum-v1")
     evaluate.add_argument("--episodes", type=int, default=100)
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--json", action="store_true")

@@ -1,4 +1,4 @@
-"""Run configuration: a preset (YAML data) parsed once, at the entry point, into frozen dataclasses."""
+"""Run configuration: a preset (YAML data) parsed once, at the entry point, into dataclasses."""
 
 from __future__ import annotations
 
@@ -10,7 +10,20 @@ from typing import Any
 
 import yaml
 
+from learner.backbone.config import BackboneConfig
+from learner.dqn.config import DQNConfig
+from learner.options.config import OptionsConfig
+from learner.pretrain.config import PretrainConfig
 from learner.td3.config import TD3Config
+
+ALGORITHMS = ("td3", "ddqn", "backbone_td3", "pretrain_td3", "options")
+SECTIONS = {
+    "td3": TD3Config,
+    "dqn": DQNConfig,
+    "backbone": BackboneConfig,
+    "pretrain": PretrainConfig,
+    "options": OptionsConfig,
+}
 
 
 @dataclass(frozen=True)
@@ -22,7 +35,7 @@ class TrainConfig:
     env_id: str = "Pendulum-v1"
     """Gymnasium environment id the actors step."""
     algorithm: str = "td3"
-    """Learning algorithm: td3."""
+    """Learning algorithm: td3, ddqn, backbone_td3, pretrain_td3 or options."""
     env_steps: int = 20_000
     """Budget of environment steps (transitions) over all actors."""
     learning_starts: int = 1_000
@@ -52,24 +65,49 @@ class TrainConfig:
     seed: int = 0
     """Seeds networks, actors' environments and exploration."""
     td3: TD3Config = field(default_factory=TD3Config)
-    """TD3 hyper-parameters."""
+    """TD3 hyper-parameters (td3, backbone_td3, pretrain_td3, the RL option)."""
+    dqn: DQNConfig = field(default_factory=DQNConfig)
+    """Double DQN hyper-parameters (ddqn, the policy over options)."""
+    backbone: BackboneConfig = field(default_factory=BackboneConfig)
+    """Backbone TD3: correction range, prefill noise, teacher (backbone_td3)."""
+    pretrain: PretrainConfig = field(default_factory=PretrainConfig)
+    """Demonstrations and pre-training losses (pretrain_td3)."""
+    options: OptionsConfig = field(default_factory=OptionsConfig)
+    """Option length and Retrace λ (options)."""
 
     def __post_init__(self) -> None:
-        for name in ("env_steps", "num_actors", "envs_per_actor", "steps_per_insert",
-                     "publish_every", "eval_every", "eval_episodes", "checkpoint_every"):
+        for name in (
+            "env_steps",
+            "num_actors",
+            "envs_per_actor",
+            "steps_per_insert",
+            "publish_every",
+            "eval_every",
+            "eval_episodes",
+            "checkpoint_every",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
-        if not 0 < self.learning_starts < self.env_steps:
+        if self.algorithm not in ALGORITHMS:
+            raise ValueError(f"algorithm={self.algorithm!r} is unknown; choose from {ALGORITHMS}")
+        online = self.online_env_steps
+        if online < 0:
             raise ValueError(
-                f"learning_starts={self.learning_starts} must lie in (0, env_steps={self.env_steps})"
+                f"env_steps={self.env_steps} is below pretrain.demo_steps="
+                f"{self.pretrain.demo_steps}: the demonstrations count against the budget"
+            )
+        if online > 0 and not 0 < self.learning_starts < online:
+            raise ValueError(
+                f"learning_starts={self.learning_starts} must lie in (0, online env steps={online})"
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
 
     @property
-    def total_updates(self) -> int:
-        """Updates the learner makes: one ratio's worth per env step after warm-up."""
-        return int((self.env_steps - self.learning_starts) * self.updates_per_env_step)
+    def online_env_steps(self) -> int:
+        """Env steps after the demonstrations (all of them unless pretrain_td3)."""
+        demos = self.pretrain.demo_steps if self.algorithm == "pretrain_td3" else 0
+        return self.env_steps - demos
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -85,11 +123,16 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
 
 def preset_names() -> list[str]:
     folder = resources.files("service") / "presets"
-    return sorted(p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml"))
+    return sorted(
+        p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml")
+    )
 
 
 def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
     """Reads a preset by name (service/presets/NAME.yaml) or path; `overrides` win.
+
+    An override key "section.field" (e.g. "pretrain.demo_noise") sets one field of a
+    section; pass such keys with `**{"pretrain.demo_noise": 0.1}`.
 
     Raises:
         ValueError: unknown preset or keys, or values a run cannot use.
@@ -103,7 +146,18 @@ def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
     else:
         text, name = path.read_text(), path.stem
     data = yaml.safe_load(text) or {}
-    data.update({k: v for k, v in overrides.items() if v is not None})
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        section, _, field_name = key.rpartition(".")  # "pretrain.demo_noise" -> section
+        if section:
+            data[section] = {**(data.get(section) or {}), field_name: value}
+        else:
+            data[key] = value
     data.setdefault("preset", name)
-    td3 = _build(TD3Config, data.pop("td3", {}) or {}, f"preset {name}: td3")
-    return _build(TrainConfig, {**data, "td3": td3}, f"preset {name}")
+    for key, cls in SECTIONS.items():
+        section = data.pop(key, {}) or {}
+        if not isinstance(section, cls):
+            section = _build(cls, section, f"preset {name}: {key}")
+        data[key] = section
+    return _build(TrainConfig, data, f"preset {name}")

@@ -1,15 +1,19 @@
 """Orchestration of one training run: Ray, the replay server, actors, evaluator and learner.
 
-    graft train --preset pendulum-td3
-      ├─ replay server      (child process, gRPC on loopback)
-      ├─ weight broadcaster (Ray actor)
-      ├─ N env actors       (Ray actors) ──insert──▶ replay
-      ├─ evaluator          (Ray actor)
-      └─ learner loop       (this process) ◀──sample── replay, ──publish──▶ broadcaster
+graft train --preset pendulum-td3
+  ├─ replay server      (child process, gRPC on loopback; one table per phase)
+  ├─ weight broadcaster (Ray actor)
+  ├─ N env actors       (Ray actors, the algorithm's behaviour) ──insert──▶ replay
+  ├─ evaluator          (Ray actor, the behaviour's greedy policy)
+  └─ learner loop       (this process) ◀──sample── replay, ──publish──▶ broadcaster
+
+What differs between algorithms (phases, tables' columns, learner, behaviour) comes
+from the algorithm's builder (learner/registry.py); this module knows none of them.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import secrets
 import time
@@ -23,38 +27,107 @@ import torch
 import yaml
 from tqdm import tqdm
 
-from actors.env_actor import EnvActor
+from actors.env_actor import EnvActor, Segment
 from actors.evaluator import Evaluator
-from actors.transitions import transition_signature
+from actors.transitions import replay_signature
+from learner.agent import Phase
 from learner.checkpoint import latest_checkpoint, load_checkpoint
 from learner.loop import LearnerLoop, LoopSettings, LoopState
-from learner.td3.builder import make_td3_learner
+from learner.registry import make_builder
 from service.client import ReplayClient
 from service.config import TrainConfig
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay_process import ReplayProcess
 from service.weights import WeightBroadcaster
 
-TABLE = "transitions"
 # Reference levels drawn on learning curves (measured with `graft eval`, 100 episodes).
 REFERENCE_LEVELS = {"Pendulum-v1": {"hard-coded policy": -429.0}}
 
 
-def transition_table_spec(config: TrainConfig) -> dict[str, Any]:
-    """The replay table a preset trains from, with the rate limiter holding its update ratio."""
-    env = gym.make(config.env_id)
-    samples_per_insert = config.updates_per_env_step * config.td3.batch_size
-    return {
-        "name": TABLE,
-        "max_size": config.replay_max_size,
-        "signature": transition_signature(env.observation_space, env.action_space),
-        "rate_limiter": {
+def table_spec(
+    phase: Phase, *, signature: dict[str, Any], max_size: int, slack_env_steps: int
+) -> dict[str, Any]:
+    """The replay table of one phase, its rate limiter holding the phase's update ratio."""
+    if phase.samples_per_insert is None:
+        limiter: dict[str, Any] = {"kind": "min_size", "min_size": phase.min_size}
+    else:
+        limiter = {
             "kind": "sample_to_insert_ratio",
-            "samples_per_insert": samples_per_insert,
-            "min_size": config.learning_starts,
-            "error_buffer": config.slack_env_steps * samples_per_insert,
-        },
-    }
+            "samples_per_insert": phase.samples_per_insert,
+            "min_size": phase.min_size,
+            "error_buffer": slack_env_steps * phase.samples_per_insert,
+        }
+    spec = {"name": phase.name, "max_size": max_size, "signature": signature}
+    if phase.sequence_length > 1:
+        spec["max_sequence_length"] = phase.sequence_length
+    return {**spec, "rate_limiter": limiter}
+
+
+def _signature(env_id: str, behaviour: Any) -> dict[str, Any]:
+    env = gym.make(env_id)
+    signature = replay_signature(env.observation_space, behaviour.columns())
+    env.close()
+    return signature
+
+
+def preset_tables(
+    config: TrainConfig,
+    *,
+    phases: Optional[list[Phase]] = None,
+    signature: Optional[dict[str, Any]] = None,
+) -> list[dict[str, Any]]:
+    """Every replay table a preset's run uses, one per phase (built when not given)."""
+    if phases is None or signature is None:
+        builder = make_builder(config)
+        behaviour = builder.make_behaviour(num_actors=config.num_actors)
+        phases, signature = builder.phases(), _signature(config.env_id, behaviour)
+    return [
+        table_spec(
+            p,
+            signature=signature,
+            max_size=config.replay_max_size,
+            slack_env_steps=config.slack_env_steps,
+        )
+        for p in phases
+    ]
+
+
+def transition_table_spec(config: TrainConfig) -> dict[str, Any]:
+    """The table of a preset's last (online) phase, e.g. for `graft replay serve --preset`."""
+    return preset_tables(config)[-1]
+
+
+def _resumed_phases(phases: list[Phase], state: LoopState, config: TrainConfig) -> list[Phase]:
+    """The phases left after a checkpoint: the fresh table refills, then updates resume."""
+    if len(phases) != 1:
+        raise ValueError(
+            f"resume is supported for single-phase algorithms; {config.algorithm} has "
+            f"{len(phases)} phases (its pre-training data is not in the checkpoint)"
+        )
+    remaining = config.env_steps - state.env_steps
+    if remaining <= config.learning_starts:
+        raise ValueError(
+            f"nothing left to train: the checkpoint is at {state.env_steps} env steps, "
+            f"the budget is {config.env_steps} and refilling replay takes "
+            f"{config.learning_starts}; raise --env-steps"
+        )
+    # Replay contents are not in the learner checkpoint: the new table refills to
+    # learning_starts with the restored policy before updates resume.
+    more = int((remaining - config.learning_starts) * config.updates_per_env_step)
+    return [
+        dataclasses.replace(
+            phases[0], env_steps=remaining, warmup_steps=0, updates=state.updates + more
+        )
+    ]
+
+
+def _segments(phases: list[Phase], num_actors: int) -> list[Segment]:
+    """Each actor's share of every phase's env steps (rounded up)."""
+    return [
+        Segment(p.name, -(-p.env_steps // num_actors), -(-p.warmup_steps // num_actors))
+        for p in phases
+        if p.env_steps > 0
+    ]
 
 
 def connect_ray(address: str) -> bool:
@@ -94,90 +167,99 @@ def train(
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
+    start = time.perf_counter()
+    builder = make_builder(config)
+    behaviour = builder.make_behaviour(num_actors=config.num_actors)
+    signature = _signature(config.env_id, behaviour)
+    algorithm = builder.make_learner()
+    state = LoopState()
+    phases = builder.phases()
+    if resume and (found := latest_checkpoint(run_dir / "checkpoints")):
+        saved = load_checkpoint(found)
+        algorithm.load_state_dict(saved["algorithm"])
+        state = LoopState(**saved["loop"])
+        phases = _resumed_phases(phases, state, config)
+        print(f"resumed from {found} at {state.updates} updates, {state.env_steps} env steps")
+    tables = preset_tables(config, phases=phases, signature=signature)
     started_ray = connect_ray(address)
     # Beyond one machine the replay server must listen on the network: then it needs a token.
     host = "127.0.0.1" if address == "local" else "0.0.0.0"
     token = None if address == "local" else secrets.token_urlsafe(24)
-    start = time.perf_counter()
-    replay = ReplayProcess(
-        [transition_table_spec(config)], host=host, token=token, log_path=run_dir / "replay.log"
-    )
+    replay = ReplayProcess(tables, host=host, token=token, log_path=run_dir / "replay.log")
     actors: list[Any] = []
     try:
         connect_to = replay.address
         if host == "0.0.0.0":
             connect_to = f"{ray.util.get_node_ip_address()}:{replay.address.rsplit(':', 1)[1]}"
         client = ReplayClient(connect_to, token=token)
-        env = gym.make(config.env_id)
-        algorithm = make_td3_learner(env.observation_space, env.action_space, config.td3, config.seed)
-        state = LoopState()
-        if resume and (found := latest_checkpoint(run_dir / "checkpoints")):
-            saved = load_checkpoint(found)
-            algorithm.load_state_dict(saved["algorithm"])
-            state = LoopState(**saved["loop"])
-            print(f"resumed from {found} at {state.updates} updates, {state.env_steps} env steps")
         broadcaster = WeightBroadcaster.remote()
-        evaluator = Evaluator.remote(env_id=config.env_id, td3=config.td3, seed=10_000 + config.seed)
+        evaluator = Evaluator.remote(
+            env_id=config.env_id,
+            behaviour=builder.make_behaviour(num_actors=1),
+            seed=10_000 + config.seed,
+        )
         resumed_env_steps = state.env_steps
-        remaining = config.env_steps - state.env_steps
-        total_updates = config.total_updates
-        if state.updates:
-            # Replay contents are not in the learner checkpoint: the new table refills to
-            # learning_starts with the restored policy before updates resume.
-            if remaining <= config.learning_starts:
-                raise ValueError(
-                    f"nothing left to train: the checkpoint is at {state.env_steps} env steps, "
-                    f"the budget is {config.env_steps} and refilling replay takes "
-                    f"{config.learning_starts}; raise --env-steps"
-                )
-            total_updates = state.updates + int(
-                (remaining - config.learning_starts) * config.updates_per_env_step
-            )
-        per_actor = -(-remaining // config.num_actors)
-        random_per_actor = 0 if state.updates else -(-config.learning_starts // config.num_actors)
+        segments = _segments(phases, config.num_actors)
         for i in range(config.num_actors):
             actor = EnvActor.remote(
                 env_id=config.env_id,
                 num_envs=config.envs_per_actor,
                 seed=config.seed * 1000 + i * config.envs_per_actor,
                 replay=client,
-                table=TABLE,
                 broadcaster=broadcaster,
-                td3=config.td3,
+                behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
             )
             actors.append(actor)
-        runs = [a.run.remote(per_actor, random_per_actor) for a in actors]
+        runs = [a.run.remote(segments) for a in actors]
         logger = MetricsLogger(run_dir)
-        stream = client.sample_stream(TABLE, config.td3.batch_size, prefetch=config.prefetch)
+
+        def open_stream(phase: Phase) -> Any:
+            return client.sample_stream(
+                phase.name, builder.batch_size, prefetch=config.prefetch, **_window(phase)
+            )
+
         settings = LoopSettings(
-            total_updates=total_updates,
             publish_every=config.publish_every,
             eval_every=config.eval_every,
             eval_episodes=config.eval_episodes,
             checkpoint_every=config.checkpoint_every,
         )
-        with tqdm(total=settings.total_updates, initial=state.updates, unit="upd",
-                  disable=not progress, dynamic_ncols=True) as bar:
+        with tqdm(
+            total=sum(p.updates for p in phases),
+            initial=state.updates,
+            unit="upd",
+            disable=not progress,
+            dynamic_ncols=True,
+        ) as bar:
 
             def on_progress(s: LoopState) -> None:
                 if s.updates % 100 == 0:
                     bar.update(s.updates - bar.n)
                     last = s.evaluations[-1]["mean"] if s.evaluations else float("nan")
-                    bar.set_postfix(env_steps=s.env_steps, eval_return=f"{last:.0f}",
-                                    version=s.version)
+                    bar.set_postfix(
+                        env_steps=s.env_steps, eval_return=f"{last:.0f}", version=s.version
+                    )
 
-            loop = LearnerLoop(algorithm, stream=stream, broadcaster=broadcaster,
-                               evaluator=evaluator, logger=logger,
-                               checkpoint_dir=run_dir / "checkpoints", settings=settings,
-                               state=state, on_progress=on_progress)
+            loop = LearnerLoop(
+                algorithm,
+                phases=phases,
+                open_stream=open_stream,
+                broadcaster=broadcaster,
+                evaluator=evaluator,
+                logger=logger,
+                checkpoint_dir=run_dir / "checkpoints",
+                settings=settings,
+                state=state,
+                on_progress=on_progress,
+            )
             final = loop.run()
             bar.update(final.updates - bar.n)
-        stream.close()
         ray.get(broadcaster.stop.remote())
         actor_reports = ray.get(runs, timeout=120)
         # The learner may stop before it sees the actors' last inserts: count them directly.
         final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)
+        _log_behaviour_stats(logger, actor_reports, config.num_actors, resumed_env_steps)
         logger.close()
     finally:
         for actor in actors:
@@ -188,14 +270,36 @@ def train(
     wall = time.perf_counter() - start
     summary = _summarise(config, final, actor_reports, wall)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-    plot_learning_curve(run_dir / "metrics.csv", run_dir / "learning_curve.png",
-                        title=f"{config.preset} (seed {config.seed})",
-                        reference=REFERENCE_LEVELS.get(config.env_id))
+    plot_learning_curve(
+        run_dir / "metrics.csv",
+        run_dir / "learning_curve.png",
+        title=f"{config.preset} (seed {config.seed})",
+        reference=REFERENCE_LEVELS.get(config.env_id),
+    )
     return RunResult(run_dir, summary, final.evaluations)
 
 
-def _summarise(config: TrainConfig, s: LoopState, reports: list[dict[str, Any]],
-               wall: float) -> dict[str, Any]:
+def _window(phase: Phase) -> dict[str, int]:
+    """Sampling arguments for a phase: windows of k steps when it asks for them."""
+    return {"sequence_length": phase.sequence_length} if phase.sequence_length > 1 else {}
+
+
+def _log_behaviour_stats(
+    logger: MetricsLogger, reports: list[dict[str, Any]], num_actors: int, offset: int
+) -> None:
+    """Actor-side behaviour scalars (ε, option usage), placed at the run's env-step scale."""
+    for report in reports:
+        for row in report.get("behaviour_stats", []):
+            steps = offset + row["actor_steps"] * num_actors
+            scalars = {k: v for k, v in row.items() if k != "actor_steps"}
+            logger.log(
+                {f"behaviour/{k}": v for k, v in scalars.items()}, env_steps=steps, updates=0
+            )
+
+
+def _summarise(
+    config: TrainConfig, s: LoopState, reports: list[dict[str, Any]], wall: float
+) -> dict[str, Any]:
     final_eval = s.evaluations[-1] if s.evaluations else {"mean": float("nan"), "std": float("nan")}
     busy = s.wait_s + s.update_s
     return {

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
+from actors.behaviours.gaussian import GaussianBehaviour
+from learner.agent import Budget, Phase, online_phase
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
 from learner.td3.networks import Actor
@@ -73,3 +75,47 @@ def make_td3_learner(
         config=config,
         seed=seed,
     )
+
+
+class TD3Builder:
+    """TD3 as a run: one online phase, uniform warm-up, Gaussian exploration."""
+
+    def __init__(
+        self,
+        obs_space: spaces.Space,
+        action_space: spaces.Space,
+        *,
+        config: TD3Config,
+        budget: Budget,
+        seed: int,
+    ) -> None:
+        self.obs_dim = _box_dim(obs_space, "observation")
+        self.act_dim = _box_dim(action_space, "action")
+        self.obs_space, self.action_space = obs_space, action_space
+        assert isinstance(action_space, spaces.Box)
+        self.low = np.asarray(action_space.low, dtype=np.float32)
+        self.high = np.asarray(action_space.high, dtype=np.float32)
+        self.config, self.budget, self.seed = config, budget, seed
+        self.batch_size = config.batch_size
+
+    def phases(self) -> list[Phase]:
+        return [
+            online_phase(
+                self.budget,
+                batch_size=self.batch_size,
+                env_steps=self.budget.env_steps,
+                warmup=True,
+            )
+        ]
+
+    def make_learner(self) -> TD3Learner:
+        return make_td3_learner(self.obs_space, self.action_space, self.config, self.seed)
+
+    def make_behaviour(self, *, num_actors: int) -> GaussianBehaviour:
+        network = make_actor_network(self.obs_dim, self.act_dim, self.low, self.high, self.config)
+        return GaussianBehaviour(network, std=self.exploration_std, low=self.low, high=self.high)
+
+    @property
+    def exploration_std(self) -> float:
+        """Absolute std of the behaviour noise: `exploration_noise` times the max action."""
+        return self.config.exploration_noise * float(np.max(np.abs(self.high)))

@@ -7,7 +7,7 @@ Equation numbers refer to the seed paper (sec. II-B2, III-A); the TD3 specifics
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 import torch
@@ -193,11 +193,21 @@ class TD3Learner:
             ``losses/critic`` and ``values/q1_mean``, plus ``losses/actor`` when the actor
             was updated on this call.
         """
+        self.num_updates += 1
+        # The actor stays fixed for the first `frozen_actor_updates` calls (paper fig. 3)
+        # while the targets keep moving.
+        return self._step(
+            batch,
+            step=self.num_updates,
+            train_actor=self.num_updates > self._frozen_actor_updates,
+        )
+
+    def _step(
+        self, batch: dict[str, torch.Tensor], *, step: int, train_actor: bool
+    ) -> dict[str, float]:
+        """Critic step; actor (if `train_actor`) and targets when `step % policy_delay == 0`."""
         dev = self.device
         obs = batch["obs"].to(dev, non_blocking=True)
-        next_obs = batch["next_obs"].to(dev, non_blocking=True)
-        reward = batch["reward"].to(dev, non_blocking=True)
-        terminated = batch["terminated"].to(dev, non_blocking=True)
         # Actors store the *unclipped* sampled action, so that importance ratios can be
         # taken on it later; the environment applied clip(action, low, high), and that is
         # the action whose value the critic must learn.
@@ -206,45 +216,63 @@ class TD3Learner:
             self.actor.action_low,
             self.actor.action_high,
         )
-
-        target = td3_target(
-            reward,
-            terminated,
-            next_obs,
-            gamma=self._gamma,
-            target_actor=self.target_actor,
-            target_critic=self.target_critic,
-            policy_noise=self._policy_noise,
-            noise_clip=self._noise_clip,
-            action_low=self.actor.action_low,
-            action_high=self.actor.action_high,
-            generator=self._generator,
-        )
+        target = self._critic_target(batch)
         q1, q2 = self.critic(obs, action)
+        baseline = self._critic_baseline(batch)
+        if baseline is not None:
+            q1, q2 = q1 + baseline, q2 + baseline
         loss_critic = critic_loss(q1, q2, target)
         self.critic_optimizer.zero_grad(set_to_none=True)
         loss_critic.backward()
         self.critic_optimizer.step()
-        self.num_updates += 1
 
         scalars = [loss_critic.detach(), q1.detach().mean()]
         names = ["losses/critic", "values/q1_mean"]
-        if self.num_updates % self._policy_delay == 0:
-            # Delayed policy update; the actor stays fixed for the first
-            # `frozen_actor_updates` calls (paper fig. 3) while the targets keep moving.
-            if self.num_updates > self._frozen_actor_updates:
-                scalars.append(self._actor_step(obs))
+        if step % self._policy_delay == 0:
+            if train_actor:
+                scalars.append(self._actor_step(obs, batch))
                 names.append("losses/actor")
             soft_update(self.target_critic, self.critic, self._tau)
             soft_update(self.target_actor, self.actor, self._tau)
         # One host transfer for all metrics (a single sync on an accelerator).
         return dict(zip(names, torch.stack(scalars).tolist(), strict=True))
 
-    def _actor_step(self, obs: torch.Tensor) -> torch.Tensor:
-        """One gradient step on `actor_loss`; returns the detached loss."""
+    def _critic_target(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The critics' regression target y, [B]; TD3's eq. (5) (hook: eq. 11, eq. 14)."""
+        dev = self.device
+        return td3_target(
+            batch["reward"].to(dev, non_blocking=True),
+            batch["terminated"].to(dev, non_blocking=True),
+            batch["next_obs"].to(dev, non_blocking=True),
+            gamma=self._gamma,
+            **self._smoothing(),
+        )
+
+    def _smoothing(self) -> dict[str, Any]:
+        """The target networks and target-policy smoothing that `td3_target` needs."""
+        return {
+            "target_actor": self.target_actor,
+            "target_critic": self.target_critic,
+            "policy_noise": self._policy_noise,
+            "noise_clip": self._noise_clip,
+            "action_low": self.actor.action_low,
+            "action_high": self.actor.action_high,
+            "generator": self._generator,
+        }
+
+    def _critic_baseline(self, batch: dict[str, torch.Tensor]) -> Optional[torch.Tensor]:
+        """A fixed value added to both critics' outputs before the loss (hook: eq. 11)."""
+        return None
+
+    def _actor_loss(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The actor's loss (hook: imitation eq. 8, TD3+BC)."""
+        return actor_loss(self.critic, self.actor, obs)
+
+    def _actor_step(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """One gradient step on `_actor_loss`; returns the detached loss."""
         # The critic is only differentiated through, not trained here: skip its weight grads.
         self.critic.requires_grad_(False)
-        loss = actor_loss(self.critic, self.actor, obs)
+        loss = self._actor_loss(obs, batch)
         self.actor_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.actor_optimizer.step()

@@ -1,0 +1,1 @@
+"""Behaviour policies: how an env actor turns observations into actions and replay columns."""

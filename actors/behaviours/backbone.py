@@ -1,0 +1,116 @@
+"""The backbone behaviour (sec. III-B): a = μ(s) + clip(π(s), [−L, L]), eq. (10).
+
+μ is the hard-coded policy (or a trained teacher actor μ̂, eq. 11) and drives behaviour;
+π learns the correction. Exploration noise is added to the correction only, so the
+backbone keeps steering the trajectories. Replay stores μ(s) (``backbone_action``) and
+the sampled correction (``action``, unclipped) separately.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from actors.behaviours.base import Columns
+from actors.behaviours.gaussian import box_column
+from actors.behaviours.hardcoded import HardCodedPolicy
+from actors.policies import gaussian_log_prob
+
+
+def compose_action(
+    backbone: np.ndarray,
+    correction: np.ndarray,
+    *,
+    limit: float,
+    low: np.ndarray,
+    high: np.ndarray,
+) -> np.ndarray:
+    """Eq. (10) with clipping: clip(μ(s) + clip(c, −limit, limit), low, high).
+
+    Args:
+        backbone: μ(s), [B, A].
+        correction: c (e.g. π(s) + noise), [B, A].
+        limit: Half-width L of the correction range [−L, L].
+        low: Lower action bounds [A].
+        high: Upper action bounds [A].
+
+    Returns:
+        float32 actions the environment applies, [B, A].
+    """
+    corrected = np.asarray(backbone) + np.clip(correction, -limit, limit)
+    return np.clip(corrected, low, high).astype(np.float32)
+
+
+class BackboneBehaviour:
+    """Acts μ(s) + clip(c), c ~ N(π(s), σ²); warm-up c ~ N(0, σ_prefill²) (a = μ(s) + ε)."""
+
+    def __init__(
+        self,
+        correction: nn.Module,
+        backbone: HardCodedPolicy,
+        *,
+        limit: float,
+        std: float,
+        prefill_std: float,
+        low: np.ndarray,
+        high: np.ndarray,
+    ) -> None:
+        """Initialises the behaviour.
+
+        Args:
+            correction: The correction network π, outputs in [−limit, limit].
+            backbone: μ, batched [B, obs_dim] -> [B, A].
+            limit: Half-width of the correction range.
+            std: Exploration noise std on the correction, in action units.
+            prefill_std: Std of ε in the prefill actions μ(s) + ε.
+            low: Lower action bounds [A].
+            high: Upper action bounds [A].
+        """
+        self.correction = correction.eval()
+        self.backbone = backbone
+        self.limit = float(limit)
+        self.low, self.high = np.asarray(low), np.asarray(high)
+        self.std, self.prefill_std = float(std), float(prefill_std)
+        for name in ("std", "prefill_std"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name}={getattr(self, name)} must be > 0 (log_prob needs it)")
+
+    def columns(self) -> dict[str, dict[str, Any]]:
+        shape = tuple(self.low.shape)
+        return {
+            "action": box_column(shape),
+            "backbone_action": box_column(shape),
+            "log_prob": {"dtype": "float32", "shape": []},
+        }
+
+    def load(self, weights: dict[str, Any]) -> None:
+        self.correction.load_state_dict(weights)
+
+    def _pi(self, obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.correction(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+    def greedy(self, obs: np.ndarray) -> np.ndarray:
+        mu = np.asarray(self.backbone(obs), dtype=np.float32)
+        return compose_action(mu, self._pi(obs), limit=self.limit, low=self.low, high=self.high)
+
+    def act(
+        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+    ) -> tuple[np.ndarray, Columns]:
+        mu = np.asarray(self.backbone(obs), dtype=np.float32)
+        mean = np.zeros_like(mu) if warmup else self._pi(obs)
+        std = self.prefill_std if warmup else self.std
+        # Noise on the correction only; the sample is stored unclipped (ratios are taken on it).
+        correction = (mean + std * rng.standard_normal(mean.shape)).astype(np.float32)
+        log_prob = gaussian_log_prob(correction, mean, std).astype(np.float32)
+        action = compose_action(mu, correction, limit=self.limit, low=self.low, high=self.high)
+        return action, {"action": correction, "backbone_action": mu, "log_prob": log_prob}
+
+    def end_episodes(self, ended: np.ndarray) -> None:
+        pass  # memoryless
+
+    def stats(self) -> dict[str, float]:
+        return {}

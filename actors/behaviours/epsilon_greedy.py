@@ -1,0 +1,111 @@
+"""ε-greedy over a Q network (DQN, sec. II-B1): greedy with probability 1 − ε, else uniform."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from actors.behaviours.base import Columns
+
+
+def linear_epsilon(step: int, *, start: float, end: float, decay_steps: int) -> float:
+    """ε decayed linearly from `start` to `end` over `decay_steps`, then held at `end`."""
+    frac = min(step / max(decay_steps, 1), 1.0)
+    return start + frac * (end - start)
+
+
+def epsilon_greedy(
+    q_values: np.ndarray, epsilon: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Samples ε-greedy actions and their log-likelihoods.
+
+    P(a) = 1 − ε + ε/n for the greedy action and ε/n for every other one.
+
+    Args:
+        q_values: Q(s, ·), [B, n].
+        epsilon: Exploration probability in [0, 1].
+        rng: The only source of randomness.
+
+    Returns:
+        ``(action, log_prob)``: int64 [B] and float32 [B].
+    """
+    batch, n = q_values.shape
+    greedy = q_values.argmax(axis=1)
+    explore = rng.random(batch) < epsilon
+    action = np.where(explore, rng.integers(0, n, size=batch), greedy).astype(np.int64)
+    prob = np.where(action == greedy, 1.0 - epsilon + epsilon / n, epsilon / n)
+    return action, np.log(prob).astype(np.float32)
+
+
+class EpsilonGreedyBehaviour:
+    """ε-greedy actions of the broadcast Q network; ε follows a linear schedule.
+
+    The schedule counts this actor's steps times `num_actors`, an estimate of the run's
+    global env steps that needs no round trip to the learner.
+    """
+
+    def __init__(
+        self,
+        q_network: nn.Module,
+        *,
+        epsilon_start: float,
+        epsilon_end: float,
+        decay_env_steps: int,
+        num_actors: int,
+    ) -> None:
+        """Initialises the behaviour.
+
+        Args:
+            q_network: Maps [B, obs_dim] to Q values [B, n].
+            epsilon_start: ε at the first policy step.
+            epsilon_end: ε after `decay_env_steps` global env steps.
+            decay_env_steps: Length of the linear decay, in the run's env steps.
+            num_actors: Actors sharing the run (scales this actor's step count).
+        """
+        self.q_network = q_network.eval()
+        self.start, self.end, self.decay = epsilon_start, epsilon_end, decay_env_steps
+        self.num_actors = num_actors
+        self.steps = 0
+        self._epsilons: list[float] = []
+
+    @property
+    def epsilon(self) -> float:
+        return linear_epsilon(
+            self.steps * self.num_actors, start=self.start, end=self.end, decay_steps=self.decay
+        )
+
+    def columns(self) -> dict[str, dict[str, Any]]:
+        return {
+            "action": {"dtype": "int64", "shape": []},
+            "log_prob": {"dtype": "float32", "shape": []},
+        }
+
+    def load(self, weights: dict[str, Any]) -> None:
+        self.q_network.load_state_dict(weights)
+
+    def _q(self, obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.q_network(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+    def greedy(self, obs: np.ndarray) -> np.ndarray:
+        return self._q(obs).argmax(axis=1)
+
+    def act(
+        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+    ) -> tuple[np.ndarray, Columns]:
+        epsilon = 1.0 if warmup else self.epsilon
+        self._epsilons.append(epsilon)
+        self.steps += len(obs)
+        action, log_prob = epsilon_greedy(self._q(obs), epsilon, rng)
+        return action, {"action": action, "log_prob": log_prob}
+
+    def end_episodes(self, ended: np.ndarray) -> None:
+        pass  # memoryless
+
+    def stats(self) -> dict[str, float]:
+        out = {"charts/epsilon": float(np.mean(self._epsilons))} if self._epsilons else {}
+        self._epsilons.clear()
+        return out

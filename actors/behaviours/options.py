@@ -1,0 +1,155 @@
+"""The hierarchical behaviour (sec. III-C): a policy over options picks, every k steps,
+the hard-coded option or the RL option, which then acts for k steps.
+
+The policy over options is ε-greedy on Q_Ω(s, ·) (option 0 hard-coded, 1 RL). The RL
+option acts a ~ N(π(s), σ²), unclipped, with its log-likelihood recorded for the Retrace
+ratios of eq. (14); the hard-coded option acts μ(s) deterministically (its steps train
+no RL critic, so it records log_prob 0). Each environment keeps its own option clock,
+restarted when its episode ends.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from actors.behaviours.base import Columns
+from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
+from actors.behaviours.gaussian import box_column
+from actors.behaviours.hardcoded import HardCodedPolicy
+from actors.policies import GaussianExploration, UniformRandomPolicy
+
+HARDCODED, RL = 0, 1
+"""Option indices: the column `option` and the outputs of Q_Ω."""
+
+
+def split_weights(weights: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Splits broadcast weights into (Q_Ω, RL actor) state dicts by their prefixes."""
+    options = {
+        k.removeprefix("options."): v for k, v in weights.items() if k.startswith("options.")
+    }
+    actor = {k.removeprefix("actor."): v for k, v in weights.items() if k.startswith("actor.")}
+    return options, actor
+
+
+class OptionsBehaviour:
+    """ε-greedy over {hard-coded, RL} every `option_length` steps; the option then acts."""
+
+    def __init__(
+        self,
+        option_q: nn.Module,
+        actor: nn.Module,
+        hardcoded: HardCodedPolicy,
+        *,
+        option_length: int,
+        std: float,
+        low: np.ndarray,
+        high: np.ndarray,
+        epsilon_start: float,
+        epsilon_end: float,
+        decay_env_steps: int,
+        num_actors: int,
+    ) -> None:
+        self.option_q, self.actor = option_q.eval(), actor.eval()
+        self.hardcoded = hardcoded
+        self.k = option_length
+        self.exploration = GaussianExploration(std, low, high)
+        self.uniform = UniformRandomPolicy(low, high)
+        self.action_shape = tuple(np.shape(low))
+        self.eps = (epsilon_start, epsilon_end, decay_env_steps)
+        self.num_actors = num_actors
+        self.steps = 0
+        self._option = np.zeros(0, np.int64)
+        self._clock = np.zeros(0, np.int64)  # step within the running option, 0..k-1
+        self._greedy_option = np.zeros(0, np.int64)
+        self._greedy_clock = np.zeros(0, np.int64)
+        self._used: list[np.ndarray] = []
+
+    def columns(self) -> dict[str, dict[str, Any]]:
+        return {
+            "action": box_column(self.action_shape),
+            "log_prob": {"dtype": "float32", "shape": []},
+            "option": {"dtype": "int64", "shape": []},
+            "option_step": {"dtype": "int64", "shape": []},
+        }
+
+    def load(self, weights: dict[str, Any]) -> None:
+        options, actor = split_weights(weights)
+        self.option_q.load_state_dict(options)
+        self.actor.load_state_dict(actor)
+        self._greedy_clock = np.zeros(0, np.int64)  # an evaluation starts fresh options
+
+    @property
+    def epsilon(self) -> float:
+        start, end, decay = self.eps
+        return linear_epsilon(self.steps * self.num_actors, start=start, end=end, decay_steps=decay)
+
+    def _net(self, net: nn.Module, obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+    def _choose(
+        self, obs: np.ndarray, option: np.ndarray, clock: np.ndarray, epsilon: float, rng: Any
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Re-chooses the option where the clock is at 0 (fresh option or new episode)."""
+        if len(option) != len(obs):
+            option, clock = np.zeros(len(obs), np.int64), np.zeros(len(obs), np.int64)
+        due = clock == 0
+        if due.any():
+            q = self._net(self.option_q, obs[due])
+            if rng is None:
+                option[due] = q.argmax(axis=1)
+            else:
+                option[due] = epsilon_greedy(q, epsilon, rng)[0]
+        return option, clock
+
+    def act(
+        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+    ) -> tuple[np.ndarray, Columns]:
+        epsilon = 1.0 if warmup else self.epsilon
+        self._option, self._clock = self._choose(obs, self._option, self._clock, epsilon, rng)
+        self.steps += len(obs)
+        mu = np.asarray(self.hardcoded(obs), dtype=np.float32)
+        if warmup:
+            rl_action, rl_log_prob = self.uniform.sample(len(obs), rng)
+        else:
+            rl_action, rl_log_prob = self.exploration.sample(self._net(self.actor, obs), rng)
+        use_rl = self._option == RL
+        action = np.where(use_rl[:, None], rl_action, mu).astype(np.float32)
+        log_prob = np.where(use_rl, rl_log_prob, 0.0).astype(np.float32)
+        columns = {
+            "action": action,
+            "log_prob": log_prob,
+            "option": self._option.copy(),
+            "option_step": self._clock.copy(),
+        }
+        if not warmup:
+            self._used.append(use_rl)
+        self._clock = (self._clock + 1) % self.k
+        return self.exploration.clip(action), columns
+
+    def end_episodes(self, ended: np.ndarray) -> None:
+        self._clock[ended] = 0  # a new episode starts a new option
+
+    def greedy(self, obs: np.ndarray) -> np.ndarray:
+        """Greedy options, each held k calls; a change of batch size restarts the clocks."""
+        option, clock = self._choose(obs, self._greedy_option, self._greedy_clock, 0.0, None)
+        use_rl = option == RL
+        action = np.where(
+            use_rl[:, None], self._net(self.actor, obs), np.asarray(self.hardcoded(obs))
+        )
+        self._used.append(use_rl)
+        self._greedy_option, self._greedy_clock = option, (clock + 1) % self.k
+        return self.exploration.clip(action)
+
+    def stats(self) -> dict[str, float]:
+        if not self._used:
+            return {}
+        out = {"options/rl_fraction": float(np.concatenate(self._used).mean())}
+        if self.steps:
+            out["options/epsilon"] = self.epsilon
+        self._used.clear()
+        return out

@@ -1,0 +1,94 @@
+"""What an algorithm provides to a run: its phases, its learner and its actors' behaviour.
+
+The launcher wires a preset into a run like this::
+
+    builder = make_builder(config, env)              # learner/registry.py
+    for phase in builder.phases():                   # one replay table per phase
+        tables.append(table_spec(phase, builder.signature(...)))
+    learner = builder.make_learner()                 # lives in the learner process
+    behaviour = builder.make_behaviour(num_actors=N) # pickled to every actor and the evaluator
+    actors insert phase by phase; the learner loop runs `getattr(learner, phase.step)`
+    on `phase.updates` batches drawn from that phase's table.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Optional, Protocol
+
+import torch
+
+from actors.behaviours.base import Behaviour
+
+
+class Algorithm(Protocol):
+    """What the learner loop needs from a learning algorithm (TD3Learner satisfies it)."""
+
+    num_updates: int
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]: ...
+    def policy_state(self) -> dict[str, torch.Tensor]: ...
+    def state_dict(self) -> dict[str, Any]: ...
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One stage of a run, seen from both sides of the replay table it goes through.
+
+    Actors insert `env_steps` transitions into table `name`, the first `warmup_steps`
+    with the behaviour's warm-up policy; the learner draws `updates` batches (windows
+    of `sequence_length` steps when > 1) and hands each to `learner.<step>(batch)`.
+    """
+
+    name: str
+    """Table name, and the phase's name in logs."""
+    env_steps: int
+    """Transitions the actors insert in this phase (over all actors)."""
+    updates: int
+    """Learner updates drawn from this phase's table."""
+    min_size: int
+    """Items the table holds before the first sample."""
+    samples_per_insert: Optional[float] = None
+    """Held sample/insert ratio (None: sample freely once `min_size` is reached)."""
+    warmup_steps: int = 0
+    """Leading env steps acted by the warm-up policy (uniform, μ(s) + ε, ε = 1)."""
+    step: str = "update"
+    """Learner method each batch goes to."""
+    acts_with_weights: bool = True
+    """Actors need learner weights in this phase (the learner publishes at its start)."""
+    sequence_length: int = 1
+    """Steps per sampled window (1: single transitions)."""
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The run-level numbers every builder shapes its phases from."""
+
+    env_steps: int
+    learning_starts: int
+    updates_per_env_step: float
+    slack_env_steps: int
+
+
+def online_phase(budget: Budget, *, batch_size: int, env_steps: int, warmup: bool) -> Phase:
+    """The standard off-policy phase: `learning_starts` steps fill the table, then one
+    `updates_per_env_step` ratio of updates per env step, held by the rate limiter."""
+    return Phase(
+        name="transitions",
+        env_steps=env_steps,
+        updates=int((env_steps - budget.learning_starts) * budget.updates_per_env_step),
+        min_size=budget.learning_starts,
+        samples_per_insert=budget.updates_per_env_step * batch_size,
+        warmup_steps=budget.learning_starts if warmup else 0,
+    )
+
+
+class AgentBuilder(Protocol):
+    """One algorithm's wiring (Acme's builder): config in, run objects out."""
+
+    batch_size: int
+
+    def phases(self) -> list[Phase]: ...
+    def make_learner(self) -> Algorithm: ...
+    def make_behaviour(self, *, num_actors: int) -> Behaviour: ...

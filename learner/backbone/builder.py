@@ -1,0 +1,72 @@
+"""The one place that wires backbone TD3 (sec. III-B, eq. 11) into run objects."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from actors.behaviours.backbone import BackboneBehaviour
+from actors.behaviours.hardcoded import HardCodedPolicy, hardcoded_policy
+from learner.agent import Phase
+from learner.backbone.config import BackboneConfig
+from learner.backbone.learning import TeacherBackboneLearner
+from learner.backbone.networks import TeacherActor, load_teacher, zero_output_
+from learner.td3.builder import TD3Builder, make_actor_network
+from learner.td3.learning import TD3Learner
+
+
+class BackboneBuilder:
+    """Backbone TD3: prefill with μ(s) + ε, then μ(s) + clip(π(s) + noise)."""
+
+    def __init__(self, env_id: str, td3: TD3Builder, *, config: BackboneConfig) -> None:
+        """`td3` holds the spaces and the TD3 side; `config` this method's own settings."""
+        self.td3, self.env_id, self.config = td3, env_id, config
+        self.batch_size = td3.batch_size
+        limit = config.correction_limit
+        self.bound = np.full(self.td3.act_dim, limit, dtype=np.float32)
+        self.teacher = (
+            load_teacher(
+                config.teacher, self.td3.obs_dim, self.td3.act_dim, self.td3.low, self.td3.high
+            )
+            if config.teacher
+            else None
+        )
+
+    def phases(self) -> list[Phase]:
+        return self.td3.phases()  # TD3's, its warm-up being the prefill a = μ(s) + ε
+
+    def make_learner(self) -> TD3Learner:
+        t = self.td3
+        if self.teacher is not None:
+            learner: TD3Learner = TeacherBackboneLearner(
+                t.obs_dim,
+                self.config.correction_limit,
+                teacher=self.teacher,
+                config=t.config,
+                seed=t.seed,
+            )
+        else:
+            learner = TD3Learner(
+                t.obs_dim, t.act_dim, -self.bound, self.bound, config=t.config, seed=t.seed
+            )
+        # The correction starts at zero output: at first the agent is the backbone.
+        zero_output_(learner.actor)
+        learner.target_actor.load_state_dict(learner.actor.state_dict())
+        return learner
+
+    def _backbone(self) -> HardCodedPolicy:
+        if self.teacher is not None:
+            return TeacherActor(self.teacher[0])
+        return hardcoded_policy(self.env_id)
+
+    def make_behaviour(self, *, num_actors: int) -> BackboneBehaviour:
+        t = self.td3
+        correction = make_actor_network(t.obs_dim, t.act_dim, -self.bound, self.bound, t.config)
+        return BackboneBehaviour(
+            correction,
+            self._backbone(),
+            limit=self.config.correction_limit,
+            std=t.exploration_std,
+            prefill_std=self.config.prefill_noise,
+            low=t.low,
+            high=t.high,
+        )

@@ -1,0 +1,27 @@
+"""Hyper-parameters of backbone TD3 beyond TD3's own."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+
+@dataclass(frozen=True)
+class BackboneConfig:
+    """Backbone TD3 (sec. III-B); the TD3 part is `TD3Config`."""
+
+    correction_limit: float = 1.0
+    """L: the correction is clipped to [−L, L] (action units); narrow = stable, wide = room."""
+    prefill_noise: float = 0.5
+    """Std of ε in the prefill actions a = μ(s) + ε (action units)."""
+    teacher: Optional[str] = None
+    """A trained TD3 run folder (or checkpoint) as backbone μ̂ with critic Q̂: eq. (11)."""
+
+    def __post_init__(self) -> None:
+        if not self.correction_limit > 0.0:
+            raise ValueError(
+                f"correction_limit={self.correction_limit} must be > 0: the correction range "
+                "[-L, L] would be empty and the policy could never improve on the backbone"
+            )
+        if not self.prefill_noise > 0.0:
+            raise ValueError(f"prefill_noise={self.prefill_noise} must be > 0 (log_prob needs it)")

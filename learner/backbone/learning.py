@@ -1,0 +1,85 @@
+"""Backbone TD3 learning: TD3 on the correction, plus the teacher target of eq. (11).
+
+Without a teacher the learner is plain TD3 whose action box is the correction range
+[−L, L] and whose critic values (s, π(s)) (sec. III-B): the replay column ``action``
+holds the sampled correction. With a teacher (μ̂, Q̂) the critic learns to correct Q̂:
+its prediction is Q̂(s, μ̂(s)) + Q_θ(s, c) and its target is eq. (11).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from learner.td3.config import TD3Config
+from learner.td3.learning import TD3Learner, td3_target
+from learner.td3.networks import Actor, TwinCritic
+
+
+def teacher_target(
+    reward: torch.Tensor,
+    terminated: torch.Tensor,
+    *,
+    gamma: float,
+    teacher_next_value: torch.Tensor,
+    next_correction_value: torch.Tensor,
+) -> torch.Tensor:
+    """Eq. (11): y = r + γ (Q̂(s', μ̂(s')) + Q_θ(s', π_φ(s'))), no bootstrap past a terminal.
+
+    Args:
+        reward: r, [B].
+        terminated: [B] bool; a time-limit truncation is not termination.
+        gamma: Discount.
+        teacher_next_value: Q̂(s', μ̂(s')), [B].
+        next_correction_value: Q_θ(s', π_φ(s')) from the target networks, [B].
+
+    Returns:
+        y, [B].
+    """
+    not_done = 1.0 - terminated.to(reward.dtype)
+    return reward + gamma * not_done * (teacher_next_value + next_correction_value)
+
+
+class TeacherBackboneLearner(TD3Learner):
+    """TD3 on the correction of a trained teacher (μ̂, Q̂), eq. (11)."""
+
+    def __init__(
+        self,
+        obs_dim: int,
+        limit: float,
+        *,
+        teacher: tuple[Actor, TwinCritic],
+        config: TD3Config,
+        seed: int,
+    ) -> None:
+        act_dim = teacher[0].action_low.shape[0]
+        bound = np.full(act_dim, limit, dtype=np.float32)
+        super().__init__(obs_dim, act_dim, -bound, bound, config=config, seed=seed)
+        self.teacher_actor, self.teacher_critic = teacher
+
+    @torch.no_grad()
+    def _teacher_value(self, obs: torch.Tensor) -> torch.Tensor:
+        """Q̂(s, μ̂(s)), the smaller of the teacher's twin estimates."""
+        return torch.min(*self.teacher_critic(obs, self.teacher_actor(obs)))
+
+    def _critic_target(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        reward, terminated = batch["reward"], batch["terminated"]
+        # Q_θ(s', π'(s') + smoothing): TD3's target with r = 0, γ = 1 and no terminal.
+        next_correction_value = td3_target(
+            torch.zeros_like(reward),
+            torch.zeros_like(terminated),
+            batch["next_obs"],
+            gamma=1.0,
+            **self._smoothing(),
+        )
+        return teacher_target(
+            reward,
+            terminated,
+            gamma=self._gamma,
+            teacher_next_value=self._teacher_value(batch["next_obs"]),
+            next_correction_value=next_correction_value,
+        )
+
+    def _critic_baseline(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        # The critic learns the correction to Q̂: its estimate of the return is the sum.
+        return self._teacher_value(batch["obs"])

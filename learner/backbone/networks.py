@@ -1,0 +1,66 @@
+"""Backbone networks: the correction actor π (zero output at start) and a loaded teacher."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from learner.td3.config import TD3Config
+from learner.td3.networks import Actor, TwinCritic
+
+
+def zero_output_(actor: Actor) -> Actor:
+    """Zeroes the actor's last layer so π(s) = 0 everywhere: training starts as μ itself.
+
+    The tanh squashing keeps 0 at 0 for the symmetric range [−L, L]; gradients still reach
+    the last layer (through the hidden activations) and, after one step, the rest.
+    """
+    last = actor.net[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+    return actor
+
+
+class TeacherActor:
+    """μ̂ as a batched numpy policy (picklable, for actors): a trained TD3 actor."""
+
+    def __init__(self, actor: Actor) -> None:
+        self.actor = actor.eval().requires_grad_(False)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.actor(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+
+def load_teacher(
+    path: str, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray
+) -> tuple[Actor, TwinCritic]:
+    """Loads μ̂ and Q̂ from a TD3 run folder (its latest checkpoint) or a checkpoint file.
+
+    Raises:
+        ValueError: If there is no checkpoint, or it is not a TD3 learner's.
+    """
+    from learner.checkpoint import latest_checkpoint, load_checkpoint
+
+    where = Path(path)
+    found = latest_checkpoint(where / "checkpoints") if where.is_dir() else where
+    if found is None or not found.is_file():
+        raise ValueError(f"teacher {path!r}: no checkpoint found (a TD3 run folder or .pt file)")
+    run_dir = where if where.is_dir() else found.parent.parent
+    td3_data: dict[str, Any] = {}
+    if (run_dir / "config.yaml").is_file():
+        td3_data = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("td3", {})
+    hidden = tuple(td3_data.get("hidden_sizes", TD3Config().hidden_sizes))
+    state = load_checkpoint(found)["algorithm"]
+    if "actor" not in state or "critic" not in state:
+        raise ValueError(f"teacher {found}: not a TD3 checkpoint (no actor/critic)")
+    actor = Actor(obs_dim, act_dim, low, high, hidden)
+    actor.load_state_dict(state["actor"])
+    critic = TwinCritic(obs_dim, act_dim, hidden)
+    critic.load_state_dict(state["critic"])
+    return actor.requires_grad_(False), critic.requires_grad_(False)

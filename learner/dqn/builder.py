@@ -1,0 +1,56 @@
+"""The one place that wires a `DQNConfig` and gymnasium spaces into Double DQN objects."""
+
+from __future__ import annotations
+
+from gymnasium import spaces
+
+from actors.behaviours.epsilon_greedy import EpsilonGreedyBehaviour
+from learner.agent import Budget, Phase, online_phase
+from learner.dqn.config import DQNConfig
+from learner.dqn.learning import DQNLearner
+from learner.dqn.networks import make_q_network
+
+
+class DQNBuilder:
+    """Double DQN as a run: one online phase, ε = 1 warm-up, then decaying ε-greedy."""
+
+    def __init__(
+        self,
+        obs_space: spaces.Space,
+        action_space: spaces.Space,
+        *,
+        config: DQNConfig,
+        budget: Budget,
+        seed: int,
+    ) -> None:
+        if not isinstance(action_space, spaces.Discrete):
+            raise ValueError(
+                f"Double DQN needs a Discrete action space, got {action_space!r}; "
+                "use a TD3-family algorithm for continuous actions"
+            )
+        if not isinstance(obs_space, spaces.Box) or len(obs_space.shape) != 1:
+            raise ValueError(f"Double DQN needs a 1-D Box observation space, got {obs_space!r}")
+        self.obs_dim, self.num_actions = int(obs_space.shape[0]), int(action_space.n)
+        self.config, self.budget, self.seed = config, budget, seed
+        self.batch_size = config.batch_size
+
+    def phases(self) -> list[Phase]:
+        budget = self.budget
+        return [
+            online_phase(
+                budget, batch_size=self.batch_size, env_steps=budget.env_steps, warmup=True
+            )
+        ]
+
+    def make_learner(self) -> DQNLearner:
+        return DQNLearner(self.obs_dim, self.num_actions, config=self.config, seed=self.seed)
+
+    def make_behaviour(self, *, num_actors: int) -> EpsilonGreedyBehaviour:
+        c = self.config
+        return EpsilonGreedyBehaviour(
+            make_q_network(self.obs_dim, self.num_actions, c.hidden_sizes),
+            epsilon_start=c.epsilon_start,
+            epsilon_end=c.epsilon_end,
+            decay_env_steps=c.epsilon_decay_env_steps,
+            num_actors=num_actors,
+        )

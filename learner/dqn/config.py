@@ -1,0 +1,48 @@
+"""Hyper-parameters of Double DQN, as one frozen dataclass."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class DQNConfig:
+    """Double DQN hyper-parameters (sec. II-B1); also the policy-over-options learner."""
+
+    gamma: float = 0.99
+    """Discount factor of the target, eq. (4)."""
+    learning_rate: float = 1e-3
+    """Adam learning rate of the Q network."""
+    hidden_sizes: tuple[int, ...] = (128, 128)
+    """Widths of the hidden ReLU layers of the Q network."""
+    batch_size: int = 64
+    """Transitions per learner update."""
+    target_update_every: int = 200
+    """Updates between hard copies of the online network into the target network."""
+    max_grad_norm: float = 10.0
+    """Gradients are clipped to this global norm (Huber loss keeps them bounded too)."""
+    epsilon_start: float = 1.0
+    """ε of the ε-greedy behaviour at the first policy step."""
+    epsilon_end: float = 0.05
+    """ε after the decay."""
+    epsilon_decay_env_steps: int = 10_000
+    """Env steps (over all actors) over which ε decays linearly."""
+
+    def __post_init__(self) -> None:
+        """Refuses settings that cannot train, naming the field."""
+        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError(f"gamma={self.gamma} must lie in [0, 1]")
+        if self.learning_rate <= 0.0 or self.max_grad_norm <= 0.0:
+            raise ValueError("learning_rate and max_grad_norm must be > 0")
+        if not self.hidden_sizes or any(h < 1 for h in self.hidden_sizes):
+            raise ValueError(f"hidden_sizes={self.hidden_sizes} must be positive widths")
+        if self.batch_size < 1 or self.target_update_every < 1:
+            raise ValueError("batch_size and target_update_every must be >= 1")
+        if not 0.0 <= self.epsilon_end <= self.epsilon_start <= 1.0:
+            raise ValueError(
+                f"need 0 <= epsilon_end ({self.epsilon_end}) <= epsilon_start "
+                f"({self.epsilon_start}) <= 1: ε is a probability and decays"
+            )
+        if self.epsilon_decay_env_steps < 1:
+            raise ValueError(f"epsilon_decay_env_steps={self.epsilon_decay_env_steps} must be >= 1")

@@ -1,0 +1,102 @@
+"""Double DQN learning step: the target (eq. 4 with Double Q-learning) and `DQNLearner`."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from learner.dqn.config import DQNConfig
+from learner.dqn.networks import make_q_network
+
+
+@torch.no_grad()
+def double_q_target(
+    returns: torch.Tensor,
+    discount: torch.Tensor,
+    next_obs: torch.Tensor,
+    *,
+    online: nn.Module,
+    target: nn.Module,
+) -> torch.Tensor:
+    """y = R + D · Q_target(s', argmax_a' Q_online(s', a')) (van Hasselt et al. 2016).
+
+    The online network picks the action, the target network values it: eq. (4) without
+    the max's overestimation. One-step DQN passes R = r, D = γ(1 − terminated); the
+    option learner passes the k-step return of eq. (13), R = Σ_i γ^i r_i, D = γ^k(1 − d).
+
+    Args:
+        returns: R, [B].
+        discount: D, [B] (zero where the window ended in a terminal state).
+        next_obs: s', [B, obs_dim].
+        online: Q_θ, [B, obs_dim] -> [B, n].
+        target: Q_φ, same shapes.
+
+    Returns:
+        y, [B], without gradient.
+    """
+    best = online(next_obs).argmax(dim=1, keepdim=True)
+    return returns + discount * target(next_obs).gather(1, best).squeeze(1)
+
+
+class DQNLearner:
+    """Online and target Q networks, Adam, hard target copies every `target_update_every`."""
+
+    def __init__(self, obs_dim: int, num_actions: int, *, config: DQNConfig, seed: int) -> None:
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
+            self.q = make_q_network(obs_dim, num_actions, config.hidden_sizes)
+        self.target_q = copy.deepcopy(self.q).requires_grad_(False)
+        self.optimizer = torch.optim.Adam(self.q.parameters(), lr=config.learning_rate)
+        self._gamma = config.gamma
+        self._target_every = config.target_update_every
+        self._max_grad_norm = config.max_grad_norm
+        self.num_updates = 0
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        """One gradient step on the Huber loss against the Double DQN target.
+
+        Args:
+            batch: ``obs`` [B, obs_dim], ``action`` [B] int64, ``reward`` [B],
+                ``terminated`` [B] bool, ``next_obs`` [B, obs_dim].
+        """
+        # Truncation is not termination: only a terminal s' stops the bootstrap.
+        discount = self._gamma * (1.0 - batch["terminated"].float())
+        y = double_q_target(
+            batch["reward"], discount, batch["next_obs"], online=self.q, target=self.target_q
+        )
+        return self.fit(batch["obs"], batch["action"], y)
+
+    def fit(self, obs: torch.Tensor, action: torch.Tensor, y: torch.Tensor) -> dict[str, float]:
+        """One Huber-loss step of Q(obs, action) towards a target y; counts an update."""
+        q = self.q(obs).gather(1, action.long().unsqueeze(1)).squeeze(1)
+        loss = F.smooth_l1_loss(q, y)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.q.parameters(), self._max_grad_norm)
+        self.optimizer.step()
+        self.num_updates += 1
+        if self.num_updates % self._target_every == 0:
+            self.target_q.load_state_dict(self.q.state_dict())
+        return {"losses/q": float(loss.detach()), "values/q_mean": float(q.detach().mean())}
+
+    def policy_state(self) -> dict[str, torch.Tensor]:
+        return {k: v.detach().clone() for k, v in self.q.state_dict().items()}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "q": self.q.state_dict(),
+            "target_q": self.target_q.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "num_updates": self.num_updates,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.q.load_state_dict(state["q"])
+        self.target_q.load_state_dict(state["target_q"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.num_updates = int(state["num_updates"])

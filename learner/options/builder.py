@@ -1,0 +1,60 @@
+"""The one place that wires the hierarchical options method (sec. III-C) into run objects."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from actors.behaviours.hardcoded import hardcoded_policy
+from actors.behaviours.options import OptionsBehaviour
+from learner.agent import Phase
+from learner.dqn.config import DQNConfig
+from learner.options.config import OptionsConfig
+from learner.options.learning import OptionsLearner
+from learner.options.networks import make_option_network
+from learner.td3.builder import TD3Builder, make_actor_network
+
+
+class OptionsBuilder:
+    """One online phase whose table serves k-step windows; batches are `td3.batch_size` windows."""
+
+    def __init__(
+        self, env_id: str, td3: TD3Builder, *, dqn: DQNConfig, config: OptionsConfig
+    ) -> None:
+        """`td3` holds the spaces and the RL option; `dqn` the policy over options."""
+        self.td3, self.env_id, self.dqn, self.config = td3, env_id, dqn, config
+        self.batch_size = td3.batch_size
+
+    def phases(self) -> list[Phase]:
+        k = self.config.option_length
+        return [dataclasses.replace(p, sequence_length=k) for p in self.td3.phases()]
+
+    def make_learner(self) -> OptionsLearner:
+        t = self.td3
+        return OptionsLearner(
+            t.obs_dim,
+            t.act_dim,
+            t.low,
+            t.high,
+            td3=t.config,
+            dqn=self.dqn,
+            option_length=self.config.option_length,
+            retrace_lambda=self.config.retrace_lambda,
+            behaviour_std=self.td3.exploration_std,
+            seed=t.seed,
+        )
+
+    def make_behaviour(self, *, num_actors: int) -> OptionsBehaviour:
+        t, d = self.td3, self.dqn
+        return OptionsBehaviour(
+            make_option_network(t.obs_dim, d.hidden_sizes),
+            make_actor_network(t.obs_dim, t.act_dim, t.low, t.high, t.config),
+            hardcoded_policy(self.env_id),
+            option_length=self.config.option_length,
+            std=self.td3.exploration_std,
+            low=t.low,
+            high=t.high,
+            epsilon_start=d.epsilon_start,
+            epsilon_end=d.epsilon_end,
+            decay_env_steps=d.epsilon_decay_env_steps,
+            num_actors=num_actors,
+        )

@@ -1,0 +1,130 @@
+"""The hierarchical learner: Double DQN on eq. (13) for Q_Ω, TD3 with Retrace (eq. 14) for
+the RL option. Every batch is windows [B, k] of consecutive steps of one episode.
+
+V(s_{t+1}) in eq. (14) comes from the option-value network, as the paper specifies:
+max_o Q_Ω(s_{t+1}, o) where the option ends after step t, Q_Ω(s_{t+1}, o_t) otherwise.
+The traces are cut (c = 0) where the next step starts a new option or belongs to the
+hard-coded option: there a' was not drawn from π.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from actors.behaviours.options import RL
+from learner.dqn.config import DQNConfig
+from learner.dqn.learning import DQNLearner, double_q_target
+from learner.options.networks import NUM_OPTIONS
+from learner.options.targets import importance_ratio, k_step_return, retrace_targets, retrace_traces
+from learner.td3.config import TD3Config
+from learner.td3.learning import TD3Learner
+
+
+class RetraceTD3Learner(TD3Learner):
+    """TD3 whose critic target is given with the batch (``retrace_target``, eq. 14)."""
+
+    def _critic_target(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        return batch["retrace_target"]
+
+
+class OptionsLearner:
+    """Q_Ω by Double DQN over k-step option windows; the RL option by TD3 + Retrace."""
+
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        *,
+        td3: TD3Config,
+        dqn: DQNConfig,
+        option_length: int,
+        retrace_lambda: float,
+        behaviour_std: float,
+        seed: int,
+    ) -> None:
+        option_seed, rl_seed = np.random.SeedSequence(seed).generate_state(2)
+        # Q_Ω(s, ·) is a Double DQN learner whose "actions" are the two options.
+        self.options = DQNLearner(obs_dim, NUM_OPTIONS, config=dqn, seed=int(option_seed))
+        self.rl = RetraceTD3Learner(
+            obs_dim, act_dim, action_low, action_high, config=td3, seed=int(rl_seed)
+        )
+        self.k, self.lam, self.std = option_length, retrace_lambda, behaviour_std
+        self.gamma = dqn.gamma
+        self.num_updates = 0
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        """One step of each learner on a batch of windows [B, k, ...]."""
+        self.num_updates += 1
+        metrics: dict[str, float] = {}
+        starts = batch["option_step"][:, 0] == 0
+        if starts.any():
+            metrics.update(self._update_options({c: v[starts] for c, v in batch.items()}))
+        rl_rows = batch["option"] == RL
+        if rl_rows.any():
+            metrics.update(self._update_rl(batch, rl_rows))
+        metrics["options/rl_fraction_sampled"] = float(rl_rows.float().mean())
+        return metrics
+
+    def _update_options(self, w: dict[str, torch.Tensor]) -> dict[str, float]:
+        """Eq. (13) with Double Q-learning, on windows that start an option."""
+        returns, discount = k_step_return(w["reward"], w["terminated"], self.gamma)
+        y = double_q_target(
+            returns,
+            discount,
+            w["next_obs"][:, -1],
+            online=self.options.q,
+            target=self.options.target_q,
+        )
+        out = self.options.fit(w["obs"][:, 0], w["option"][:, 0], y)
+        return {"losses/option_q": out["losses/q"], "values/option_q_mean": out["values/q_mean"]}
+
+    @torch.no_grad()
+    def retrace(self, w: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Q^ret for every step of every window, [B, k] (eq. 14)."""
+        rl, k = self.rl, self.k
+        obs, next_obs, option = w["obs"], w["next_obs"], w["option"]
+        action = torch.clamp(w["action"], rl.actor.action_low, rl.actor.action_high)
+        discounts = self.gamma * (1.0 - w["terminated"].float())
+        # V(s_{t+1}) from the option-value target network.
+        q_next = self.options.target_q(next_obs)  # [B, k, 2]
+        option_ends = w["option_step"] == k - 1
+        continuing = q_next.gather(-1, option.unsqueeze(-1)).squeeze(-1)
+        next_values = torch.where(option_ends, q_next.max(dim=-1).values, continuing)
+        # Q(s_{t+1}, a_{t+1}) from the TD3 target critic, on the stored (clipped) action.
+        q1, q2 = rl.target_critic(obs[:, 1:], action[:, 1:])
+        next_q = torch.cat([torch.min(q1, q2), torch.zeros_like(q1[:, :1])], dim=1)
+        # ρ on the UNCLIPPED sampled action, π a Gaussian around the current actor.
+        ratio = importance_ratio(w["action"], rl.actor(obs), self.std, w["log_prob"])
+        same_option = (option == RL) & (w["option_step"] != 0)
+        traces = torch.where(same_option, retrace_traces(ratio, self.lam), 0.0)
+        next_traces = torch.cat([traces[:, 1:], torch.zeros_like(traces[:, :1])], dim=1)
+        return retrace_targets(w["reward"], discounts, next_values, next_q, next_traces)
+
+    def _update_rl(self, w: dict[str, torch.Tensor], rows: torch.Tensor) -> dict[str, float]:
+        """TD3 on the RL option's steps, its critic regressed onto Q^ret."""
+        target = self.retrace(w)
+        flat = {"obs": w["obs"][rows], "action": w["action"][rows], "retrace_target": target[rows]}
+        return self.rl.update(flat)
+
+    def policy_state(self) -> dict[str, torch.Tensor]:
+        """Both acting networks, prefixed; `OptionsBehaviour.load` splits them."""
+        options = {f"options.{k}": v for k, v in self.options.policy_state().items()}
+        actor = {f"actor.{k}": v for k, v in self.rl.policy_state().items()}
+        return {**options, **actor}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "options": self.options.state_dict(),
+            "rl": self.rl.state_dict(),
+            "num_updates": self.num_updates,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.options.load_state_dict(state["options"])
+        self.rl.load_state_dict(state["rl"])
+        self.num_updates = int(state["num_updates"])

@@ -1,0 +1,63 @@
+"""The one place that wires pre-training from a hard-coded policy into run objects."""
+
+from __future__ import annotations
+
+from actors.behaviours.gaussian import GaussianBehaviour
+from actors.behaviours.hardcoded import hardcoded_policy
+from learner.agent import Phase, online_phase
+from learner.pretrain.config import PretrainConfig
+from learner.pretrain.learning import PretrainLearner
+from learner.td3.builder import TD3Builder, make_actor_network
+
+
+class PretrainBuilder:
+    """Two phases: N demonstrations μ(s) + N(0, σ²) and pre-training on them, then online
+    TD3 from the pre-trained networks (none if the budget is only the demonstrations)."""
+
+    def __init__(self, env_id: str, td3: TD3Builder, *, config: PretrainConfig) -> None:
+        """`td3` holds the spaces and the TD3 side; `config` this method's own settings."""
+        self.td3, self.env_id, self.config = td3, env_id, config
+        self.batch_size = td3.batch_size
+
+    def phases(self) -> list[Phase]:
+        c, budget = self.config, self.td3.budget
+        demos = Phase(
+            name="demos",
+            env_steps=c.demo_steps,
+            updates=c.pretrain_updates,
+            min_size=c.demo_steps,  # pre-training starts on the full data set
+            warmup_steps=c.demo_steps,
+            step="pretrain_update",
+            acts_with_weights=False,
+        )
+        if budget.env_steps == 0:
+            return [demos]
+        online = online_phase(
+            budget, batch_size=self.batch_size, env_steps=budget.env_steps, warmup=False
+        )
+        return [demos, online]
+
+    def make_learner(self) -> PretrainLearner:
+        t, c = self.td3, self.config
+        return PretrainLearner(
+            t.obs_dim,
+            t.act_dim,
+            t.low,
+            t.high,
+            config=t.config,
+            seed=t.seed,
+            pretrain_loss=c.pretrain_loss,
+            online_loss=c.online_loss,
+            bc_alpha=c.bc_alpha,
+        )
+
+    def make_behaviour(self, *, num_actors: int) -> GaussianBehaviour:
+        t = self.td3
+        return GaussianBehaviour(
+            make_actor_network(t.obs_dim, t.act_dim, t.low, t.high, t.config),
+            std=t.exploration_std,
+            low=self.td3.low,
+            high=self.td3.high,
+            hardcoded=hardcoded_policy(self.env_id),
+            warmup_std=self.config.demo_noise,
+        )

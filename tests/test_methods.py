@@ -1,0 +1,221 @@
+"""The paper's targets and losses, each against values computed by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from actors.behaviours.backbone import BackboneBehaviour, compose_action
+from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
+from actors.behaviours.options import HARDCODED, RL, OptionsBehaviour
+from learner.backbone.learning import teacher_target
+from learner.backbone.networks import zero_output_
+from learner.dqn.learning import double_q_target
+from learner.options.targets import (
+    gaussian_log_prob,
+    importance_ratio,
+    k_step_return,
+    retrace_targets,
+    retrace_traces,
+)
+from learner.pretrain.learning import imitation_loss, td3_bc_actor_loss
+from learner.td3.networks import Actor
+
+
+class Table(nn.Module):
+    """A "network" that returns fixed rows, whatever the input."""
+
+    def __init__(self, rows: list[list[float]]) -> None:
+        super().__init__()
+        self.rows = torch.tensor(rows)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.rows
+
+
+# --- Double DQN and eq. (13) ------------------------------------------------------------
+
+
+def test_double_dqn_target_lets_the_online_net_choose_and_the_target_net_value():
+    online = Table([[1.0, 3.0], [5.0, 2.0]])  # argmax: action 1, then action 0
+    target = Table([[10.0, 20.0], [30.0, 40.0]])
+    reward = torch.tensor([1.0, 2.0])
+    discount = 0.9 * (1.0 - torch.tensor([0.0, 1.0]))  # second s' is terminal
+    y = double_q_target(reward, discount, torch.zeros(2, 4), online=online, target=target)
+    # 1 + 0.9 * Q_target(s', 1) = 1 + 18; terminal: just r. (Plain DQN would take 40 for row 2.)
+    torch.testing.assert_close(y, torch.tensor([19.0, 2.0]))
+
+
+@pytest.mark.parametrize(
+    "terminated, expected",
+    [
+        # Σ γ^i r_i = 1 + 0.5·2 + 0.25·4 = 3; γ^3 = 0.125; Q_target(s_3, argmax online = 0) = 8.
+        (False, 3.0 + 0.125 * 8.0),
+        (True, 3.0),  # the window ends on a terminal state: no bootstrap
+    ],
+)
+def test_eq13_k_step_option_target(terminated, expected):
+    rewards = torch.tensor([[1.0, 2.0, 4.0]])
+    done = torch.tensor([[False, False, terminated]])
+    returns, discount = k_step_return(rewards, done, gamma=0.5)
+    y = double_q_target(
+        returns,
+        discount,
+        torch.zeros(1, 3),
+        online=Table([[2.0, 1.0]]),
+        target=Table([[8.0, 99.0]]),
+    )
+    torch.testing.assert_close(y, torch.tensor([expected]))
+
+
+# --- Retrace, eq. (14) ------------------------------------------------------------------
+
+
+def test_gaussian_log_likelihood_ratio():
+    # a = 0.5, σ = 0.5: under π (mean 0.5) z = 0, under π_old (mean 0) z = 1.
+    action, std = torch.tensor([[0.5]]), 0.5
+    behaviour_log_prob = torch.tensor([-0.5 - math.log(0.5) - 0.5 * math.log(2 * math.pi)])
+    torch.testing.assert_close(
+        gaussian_log_prob(action, torch.zeros(1, 1), std), behaviour_log_prob
+    )
+    ratio = importance_ratio(action, torch.tensor([[0.5]]), std, behaviour_log_prob)
+    torch.testing.assert_close(ratio, torch.tensor([math.exp(0.5)]))
+
+
+@pytest.mark.parametrize(
+    "last_terminated, expected",
+    [
+        # Q2 = 3 + 0.9·30 = 30;  Q1 = 2 + 0.9·(20 + 0.5·(30 − 18)) = 25.4;
+        # Q0 = 1 + 0.9·(10 + 1·(25.4 − 11)) = 22.96
+        (False, [22.96, 25.4, 30.0]),
+        # Q2 = 3 (terminal);  Q1 = 2 + 0.9·(20 + 0.5·(3 − 18)) = 13.25;
+        # Q0 = 1 + 0.9·(10 + 1·(13.25 − 11)) = 12.025
+        (True, [12.025, 13.25, 3.0]),
+    ],
+)
+def test_retrace_on_a_three_step_window(last_terminated, expected):
+    rewards = torch.tensor([[1.0, 2.0, 3.0]])
+    discounts = 0.9 * (1.0 - torch.tensor([[0.0, 0.0, float(last_terminated)]]))
+    next_values = torch.tensor([[10.0, 20.0, 30.0]])  # V(s1), V(s2), V(s3)
+    next_q = torch.tensor([[11.0, 18.0, 0.0]])  # Q(s1, a1), Q(s2, a2), unused
+    # ρ1 = 2 is truncated to c1 = 1; ρ2 = 0.5 passes as c2 = 0.5 (λ = 1).
+    traces = retrace_traces(torch.tensor([[9.0, 2.0, 0.5]]), lam=1.0)
+    torch.testing.assert_close(traces, torch.tensor([[1.0, 1.0, 0.5]]))
+    next_traces = torch.cat([traces[:, 1:], torch.zeros(1, 1)], dim=1)
+    q_ret = retrace_targets(rewards, discounts, next_values, next_q, next_traces)
+    torch.testing.assert_close(q_ret, torch.tensor([expected]))
+
+
+def test_retrace_with_zero_traces_is_the_one_step_target():
+    rewards, discounts = torch.tensor([[1.0, 2.0]]), torch.tensor([[0.9, 0.9]])
+    next_values = torch.tensor([[10.0, 20.0]])
+    q_ret = retrace_targets(
+        rewards, discounts, next_values, torch.tensor([[50.0, 0.0]]), torch.zeros(1, 2)
+    )
+    torch.testing.assert_close(q_ret, rewards + discounts * next_values)
+
+
+# --- Backbone, eqs. (10) and (11) -------------------------------------------------------
+
+
+def test_backbone_action_composition_clips_the_correction_then_the_action():
+    mu = np.array([[1.8], [-1.0], [0.0]], np.float32)
+    correction = np.array([[1.0], [-0.3], [-5.0]], np.float32)
+    action = compose_action(mu, correction, limit=0.5, low=np.array([-2.0]), high=np.array([2.0]))
+    # 1.8 + 0.5 = 2.3 -> 2.0;  -1.0 - 0.3 = -1.3;  0.0 + clip(-5) = -0.5
+    np.testing.assert_allclose(action, [[2.0], [-1.3], [-0.5]], rtol=1e-6)
+
+
+def test_correction_network_starts_at_zero_so_the_agent_starts_as_the_backbone():
+    correction = zero_output_(Actor(3, 1, np.array([-0.5]), np.array([0.5]), (8,)))
+    backbone = lambda obs: np.full((len(obs), 1), 1.7, np.float32)  # noqa: E731
+    behaviour = BackboneBehaviour(
+        correction,
+        backbone,
+        limit=0.5,
+        std=0.2,
+        prefill_std=0.3,
+        low=np.array([-2.0]),
+        high=np.array([2.0]),
+    )
+    obs = np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32)
+    np.testing.assert_allclose(behaviour.greedy(obs), np.full((5, 1), 1.7))
+    env_action, columns = behaviour.act(obs, np.random.default_rng(1), warmup=False)
+    # Replay stores μ(s) and the (unclipped) correction separately; noise is on the correction.
+    np.testing.assert_allclose(columns["backbone_action"], np.full((5, 1), 1.7))
+    expected = np.clip(1.7 + np.clip(columns["action"], -0.5, 0.5), -2.0, 2.0)
+    np.testing.assert_allclose(env_action, expected, rtol=1e-6)
+    assert np.abs(columns["action"]).max() > 0.0
+
+
+def test_eq11_teacher_target():
+    y = teacher_target(
+        torch.tensor([1.0, -1.0]),
+        torch.tensor([False, True]),
+        gamma=0.9,
+        teacher_next_value=torch.tensor([-10.0, -20.0]),
+        next_correction_value=torch.tensor([2.0, 3.0]),
+    )
+    # 1 + 0.9·(−10 + 2) = −6.2; the terminal row keeps only r.
+    torch.testing.assert_close(y, torch.tensor([-6.2, -1.0]))
+
+
+# --- Pre-training: eq. (8), TD3+BC ------------------------------------------------------
+
+
+def test_imitation_loss_eq8_and_td3_bc_actor_loss():
+    pi = torch.tensor([[1.0, 0.0], [0.0, 0.0]])
+    mu = torch.tensor([[0.0, 0.0], [0.0, 2.0]])
+    # per state Σ_j: 1 and 4; mean 2.5
+    torch.testing.assert_close(imitation_loss(pi, mu), torch.tensor(2.5))
+    q = torch.tensor([-4.0, -2.0])  # mean|Q| = 3 -> λ = 2.5 / 3
+    expected = -(2.5 / 3) * (-3.0) + 5.0 / 4  # −λ mean Q + mean over all elements of (π − μ)²
+    torch.testing.assert_close(td3_bc_actor_loss(q, pi, mu, alpha=2.5), torch.tensor(expected))
+
+
+# --- ε-greedy and the options behaviour -------------------------------------------------
+
+
+def test_epsilon_greedy_log_likelihoods_and_schedule():
+    q = np.array([[0.0, 1.0, 0.0]] * 4000)
+    action, log_prob = epsilon_greedy(q, 0.3, np.random.default_rng(0))
+    greedy = action == 1
+    np.testing.assert_allclose(log_prob[greedy], math.log(0.7 + 0.1), rtol=1e-6)
+    np.testing.assert_allclose(log_prob[~greedy], math.log(0.1), rtol=1e-6)
+    assert abs(greedy.mean() - 0.8) < 0.03
+    assert linear_epsilon(500, start=1.0, end=0.1, decay_steps=1000) == pytest.approx(0.55)
+    assert linear_epsilon(5000, start=1.0, end=0.1, decay_steps=1000) == pytest.approx(0.1)
+
+
+def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_end():
+    behaviour = OptionsBehaviour(
+        Table([[0.0, 1.0]]),  # Q_Ω prefers the RL option
+        Table([[0.25]]),
+        lambda obs: np.full((len(obs), 1), -1.0, np.float32),
+        option_length=3,
+        std=0.1,
+        low=np.array([-2.0]),
+        high=np.array([2.0]),
+        epsilon_start=0.0,
+        epsilon_end=0.0,
+        decay_env_steps=1,
+        num_actors=1,
+    )
+    rng, obs = np.random.default_rng(0), np.zeros((1, 3), np.float32)
+    steps = []
+    for t in range(5):
+        _, columns = behaviour.act(obs, rng, warmup=False)
+        steps.append((int(columns["option"][0]), int(columns["option_step"][0])))
+        if t == 3:
+            behaviour.end_episodes(np.array([True]))
+    assert steps == [(RL, 0), (RL, 1), (RL, 2), (RL, 0), (RL, 0)]
+    # The hard-coded option acts μ(s) and records no density.
+    behaviour.option_q = Table([[1.0, 0.0]])
+    behaviour.end_episodes(np.array([True]))
+    action, columns = behaviour.act(obs, rng, warmup=False)
+    assert columns["option"][0] == HARDCODED and columns["log_prob"][0] == 0.0
+    np.testing.assert_allclose(action, [[-1.0]])
