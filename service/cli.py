@@ -125,6 +125,34 @@ def _checkpoint_policy(path: Path, env_id: Optional[str]):
     return behaviour.greedy, config.env_id
 
 
+def _experiment(args: argparse.Namespace) -> None:
+    import ray
+
+    from service.experiments import report, run_experiment
+    from service.launcher import connect_ray
+
+    if args.replot:
+        csv_path, png_path = report(args.figure, args.out)
+        print(f"results: {csv_path}\nfigure: {png_path}")
+        return
+    started = connect_ray(args.address)
+    try:
+        csv_path, png_path = run_experiment(
+            args.figure,
+            seeds=args.seeds,
+            out_dir=args.out,
+            parallel=args.parallel,
+            overrides={"env_steps": args.env_steps, **parse_settings(args.set)},
+            address=args.address,
+        )
+    except ValueError as error:
+        raise SystemExit(f"graft experiment: {error}") from None
+    finally:
+        if started:
+            ray.shutdown()
+    print(f"results: {csv_path}\nfigure: {png_path}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="graft", description="Improve hard-coded policies with distributed off-policy RL."
@@ -164,6 +192,21 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--json", action="store_true")
     evaluate.set_defaults(handler=_eval)
+
+    experiment = commands.add_parser(
+        "experiment", help="reproduce a paper figure over seeds (runs in parallel on Ray)"
+    )
+    experiment.add_argument("figure", choices=["fig2", "fig3", "fig4", "fig5"])
+    experiment.add_argument("--seeds", type=int, default=5)
+    experiment.add_argument("--parallel", type=int, default=2, help="runs at a time")
+    experiment.add_argument("--env-steps", type=int, help="override every variant's budget")
+    experiment.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    experiment.add_argument("--address", default="local")
+    experiment.add_argument("--out", type=Path, default=Path("runs/experiments"))
+    experiment.add_argument(
+        "--replot", action="store_true", help="redraw figure and summary from results.csv"
+    )
+    experiment.set_defaults(handler=_experiment)
 
     add_replay_commands(commands)
     try:
