@@ -1,25 +1,43 @@
-"""Ticks per second of one simulated Minecraft world server in synchronous mode, through
-the MalmoEnv protocol, without and with rendering.
+"""Minecraft benchmarks: world server ticks per second, and the decoupling table.
 
-The server runs in its own process (``minecraft serve``), the client is graft's
-``MalmoClient``; each step advances exactly one tick and returns the observations of the
-sample obtain-diamond mission (full stats, 15×15×15 grid, inventory, entities, ray).
+1. Ticks per second of one simulated world server in synchronous mode, through the
+   MalmoEnv protocol, without and with rendering. The server runs in its own process
+   (``minecraft serve``), the client is graft's ``MalmoClient``; each step advances
+   exactly one tick and returns the observations of the sample obtain-diamond mission
+   (full stats, 15×15×15 grid, inventory, entities, ray).
+2. The decoupling table: 4 real-time clients (a pool of 4 world servers at 50 ms ticks)
+   on the same 2 cores as a TD3 learner, as graft runs them (Ray actors streaming to the
+   replay server, a learner sampling from it at full speed, weights broadcast) beside the
+   paper's naive loop (each client trains its own TD3 between two steps). Reported: the
+   fraction of world ticks the clients never observed (``TotalTime`` gaps).
 
-    python bench/minecraft.py [--ticks 3000] [--size 64]
-
-The decoupling table of issue 5 (4 asynchronous clients at 50 ms ticks beside a learner
-training at full speed, against the naive loop) needs the Minecraft Ray actors and the
-replay client; it is not measured here yet.
+    python bench/minecraft.py                       # both parts, about 3 minutes
+    python bench/minecraft.py --part decoupling [--warmup 20 --measure 40 --seed 1]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import threading
 import time
+from typing import Any
+
+import ray
+import torch
 
 from actors.minecraft.client import MalmoClient
+from actors.minecraft.encoding import ACTION_SPACE, observation_space
+from actors.minecraft.mission import parse_mission
 from actors.minecraft.missions import mission_xml
 from actors.minecraft.pool import ServerPool
+from actors.minecraft.ray_actor import MinecraftActor
+from actors.transitions import transition_signature
+from learner.td3.builder import make_td3_learner
+from learner.td3.config import TD3Config
+from service.client import ReplayClient
+from service.replay_process import ReplayProcess
+from service.weights import WeightBroadcaster
 
 
 def ticks_per_second(
@@ -55,14 +73,8 @@ def ticks_per_second(
     return ticks / elapsed
 
 
-def main() -> None:
-    """Print the table."""
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--ticks", type=int, default=3000, help="ticks without rendering")
-    ap.add_argument("--render-ticks", type=int, default=300, help="ticks with rendering")
-    ap.add_argument("--size", type=int, default=64, help="frame width = height")
-    ap.add_argument("--seed", type=int, default=1)
-    args = ap.parse_args()
+def ticks_table(args: argparse.Namespace) -> None:
+    """Part 1: print ticks per second of one server, synchronous."""
     with ServerPool(1, base_port=0, seed=args.seed) as pool:
         port = pool.ports[0]
         light = ticks_per_second(port, size=None, ticks=args.ticks, seed=args.seed, full=False)
@@ -73,8 +85,253 @@ def main() -> None:
     print(f"| no rendering, full stats only (target >= 2000) | {light:,.0f} |")
     print(f"| no rendering, + 15x15x15 grid, inventory, entities, ray | {plain:,.0f} |")
     print(f"| rendering {args.size}x{args.size} RGB, + all observations | {drawn:,.0f} |")
-    print("\ndecoupling table (4 async clients + learner vs naive loop): not yet measured; "
-          "needs the Minecraft Ray actors and the replay client.")  # fmt: skip
+
+
+# ------------------------------------------------------------------ decoupling table
+TABLE = "minecraft"
+CLIENTS = 4
+MS_PER_TICK = 50
+
+
+def bench_mission(seed: int) -> str:
+    """The sample mission's observations and handlers in real time, without video: the
+    actors' vectors do not use frames, and rendering 4 worlds would only load the cores."""
+    return mission_xml(
+        width=None, ms_per_tick=MS_PER_TICK, seed=seed, time_limit_ms=None,
+        handlers="continuous discrete inventory craft quit",
+    )  # fmt: skip
+
+
+@ray.remote(num_cpus=1, max_concurrency=2)
+class FullSpeedLearner:
+    """TD3 sampling from the replay server as fast as it can, publishing weights every
+    ``publish_every`` updates. ``nice`` raises its niceness above Ray's default 15."""
+
+    def __init__(
+        self, replay: ReplayClient, broadcaster: Any, *, obs_dim: int, td3: TD3Config,
+        seed: int, threads: int, nice: int, publish_every: int = 50,
+    ) -> None:  # fmt: skip
+        self.nice = nice
+        torch.set_num_threads(threads)
+        box = observation_space(parse_mission(bench_mission(seed)))
+        assert box.shape == (obs_dim,)
+        self.learner = make_td3_learner(box, ACTION_SPACE, td3, seed)
+        self.replay, self.broadcaster = replay, broadcaster
+        self.batch_size, self.publish_every = td3.batch_size, publish_every
+        self._stop = threading.Event()
+        self._window: tuple[float, int] = (time.perf_counter(), 0)
+        self.version = 0
+
+    def _publish(self) -> None:
+        ref = ray.put(self.learner.policy_state())
+        ray.get(self.broadcaster.publish.remote(self.version, [ref]))
+        self.version += 1
+
+    def run(self) -> dict[str, float]:
+        """Train until ``stop()``; returns updates and updates/s since ``mark()``."""
+        os.nice(self.nice)  # per thread on Linux: this one, and the prefetch thread it starts
+        self._publish()  # version 0: the actors switch from random to the network
+        stream = self.replay.sample_stream(TABLE, self.batch_size, prefetch=4)
+        for batch in stream:
+            columns = {k: torch.tensor(v) for k, v in batch.items() if not k.startswith("_")}
+            self.learner.update(columns)
+            if self.learner.num_updates % self.publish_every == 0:
+                self._publish()
+            if self._stop.is_set():
+                break
+        stream.close()
+        t0, u0 = self._window
+        done = self.learner.num_updates - u0
+        return {"updates": float(done), "updates_per_s": done / (time.perf_counter() - t0)}
+
+    def mark(self) -> None:
+        """Start the measurement window."""
+        self._window = (time.perf_counter(), self.learner.num_updates)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+def _summary(reports: list[dict[str, Any]], updates_per_s: float) -> dict[str, float]:
+    seen = sum(r["perf/ticks_seen"] for r in reports)
+    skipped = sum(r["perf/ticks_skipped"] for r in reports)
+    n = len(reports)
+    return {
+        "skipped": skipped / max(seen + skipped, 1),
+        "steps_per_s": sum(r["perf/steps_per_s"] for r in reports) / n,
+        "ticks_per_s": sum(r["perf/world_ticks_per_s"] for r in reports) / n,
+        "p50": max(r["perf/step_latency_ms_p50"] for r in reports),
+        "p99": max(r["perf/step_latency_ms_p99"] for r in reports),
+        "updates_per_s": updates_per_s,
+        "losses": sum(r["net/connection_losses"] for r in reports),
+        "dropped": sum(r.get("replay/dropped", 0) for r in reports),
+        "versions": min(r["policy/versions_adopted"] for r in reports),
+        "nice": max(r["actor/nice"] for r in reports),
+    }
+
+
+def decoupled(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
+    """graft: 4 Ray actors stream to the replay server; a learner trains at full speed."""
+    xml = bench_mission(args.seed)
+    obs_space = observation_space(parse_mission(xml))
+    signature = transition_signature(obs_space, ACTION_SPACE)
+    table = {
+        "name": TABLE, "max_size": 100_000, "signature": signature,
+        "rate_limiter": {"kind": "min_size", "min_size": td3.batch_size},  # inserts never wait
+    }  # fmt: skip
+    with ServerPool(CLIENTS, base_port=0, seed=args.seed, ms_per_tick=MS_PER_TICK) as pool:
+        with ReplayProcess([table]) as server:
+            replay = ReplayClient(server.address)
+            broadcaster = WeightBroadcaster.remote()
+            learner = FullSpeedLearner.remote(
+                replay, broadcaster, obs_dim=obs_space.shape[0], td3=td3, seed=args.seed,
+                threads=args.learner_threads, nice=args.learner_nice,
+            )  # fmt: skip
+            actors = _actors(pool.ports, xml, td3, args, replay=replay, broadcaster=broadcaster)
+            training = learner.run.remote()
+            runs = _start(actors, args)
+            time.sleep(args.warmup)
+            ray.get(learner.mark.remote())
+            reports = ray.get(runs)
+            ray.get(learner.stop.remote())
+            trained = ray.get(training)
+            for a in actors:
+                ray.get(a.close.remote())
+            for handle in [*actors, learner, broadcaster]:
+                ray.kill(handle)
+            replay.close()
+    return _summary(reports, trained["updates_per_s"])
+
+
+def naive(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
+    """The paper's loop: each client trains its own TD3 between two steps."""
+    xml = bench_mission(args.seed)
+    with ServerPool(CLIENTS, base_port=0, seed=args.seed, ms_per_tick=MS_PER_TICK) as pool:
+        actors = _actors(pool.ports, xml, td3, args, inline=args.naive_updates)
+        runs = _start(actors, args)
+        time.sleep(args.warmup)
+        before = sum(ray.get(a.report.remote()).get("learner/inline_updates", 0) for a in actors)
+        reports = ray.get(runs)
+        for a in actors:
+            ray.kill(a)
+    after = sum(r["learner/inline_updates"] for r in reports)
+    return _summary(reports, (after - before) / reports[0]["perf/measure_s"])
+
+
+def _actors(
+    ports: list[int], xml: str, td3: TD3Config, args: argparse.Namespace, *,
+    replay: ReplayClient | None = None, broadcaster: Any = None, inline: int = 0,
+) -> list[Any]:  # fmt: skip
+    actors = [
+        MinecraftActor.remote(
+            host="127.0.0.1",
+            port=port,
+            mission_xml=xml,
+            td3=td3,
+            seed=args.seed + i,
+            replay=replay,
+            table=TABLE,
+            broadcaster=broadcaster,
+            world_seed=args.seed + i,
+            max_episode_steps=args.episode_steps,
+            inline_updates_per_step=inline,
+            inline_learning_starts=td3.batch_size,
+        )  # fmt: skip
+        for i, port in enumerate(ports)
+    ]
+    ray.get([a.report.remote() for a in actors])  # constructed (torch imported) before timing
+    return actors
+
+
+def _start(actors: list[Any], args: argparse.Namespace) -> list[Any]:
+    """Start every actor's run: warm-up, then the measured window."""
+    total = args.warmup + args.measure
+    return [a.run.remote(duration_s=total, measure_after_s=args.warmup) for a in actors]
+
+
+def updates_alone(obs_dim: int, td3: TD3Config, *, threads: int, seconds: float = 8.0) -> float:
+    """Reference: TD3 updates/s in this process on one in-memory batch, nothing else running."""
+    torch.set_num_threads(threads)
+    box = observation_space(parse_mission(bench_mission(0)))
+    learner = make_td3_learner(box, ACTION_SPACE, td3, seed=0)
+    b = td3.batch_size
+    batch = {
+        "obs": torch.rand(b, obs_dim), "next_obs": torch.rand(b, obs_dim),
+        "action": torch.rand(b, ACTION_SPACE.shape[0]) * 2 - 1, "reward": torch.rand(b),
+        "terminated": torch.zeros(b, dtype=torch.bool),
+    }  # fmt: skip
+    learner.update(batch)
+    start, n = time.perf_counter(), 0
+    while time.perf_counter() - start < seconds:
+        learner.update(batch)
+        n += 1
+    return n / (time.perf_counter() - start)
+
+
+def decoupling_table(args: argparse.Namespace) -> None:
+    """Part 2: print the decoupling table."""
+    td3 = TD3Config()
+    obs_dim = observation_space(parse_mission(bench_mission(args.seed))).shape[0]
+    alone = updates_alone(obs_dim, td3, threads=args.learner_threads)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    rows = {
+        "graft: Ray actors + replay server + learner at full speed": decoupled(args, td3),
+        f"naive loop: {args.naive_updates} TD3 update(s) inside each client's step": naive(
+            args, td3
+        ),
+    }
+    ray.shutdown()
+    print(
+        f"\n{CLIENTS} asynchronous clients at {MS_PER_TICK} ms ticks, TD3 (batch "
+        f"{td3.batch_size}, {td3.hidden_sizes}, obs {obs_dim}), {os.cpu_count()} cores; "
+        f"{args.measure:.0f} s measured after {args.warmup:.0f} s warm-up; learner "
+        f"{args.learner_threads} torch thread(s), nice +{args.learner_nice}"
+    )
+    print(
+        "| loop | ticks skipped | steps/s per client | world ticks/s | own step latency "
+        "p50 / p99 (ms) | TD3 updates/s |"
+    )
+    print("|---|---|---|---|---|---|")
+    for name, r in rows.items():
+        print(
+            f"| {name} | {100 * r['skipped']:.2f}% | {r['steps_per_s']:.1f} | "
+            f"{r['ticks_per_s']:.1f} | {r['p50']:.1f} / {r['p99']:.1f} | "
+            f"{r['updates_per_s']:.1f} |"
+        )
+    print(
+        f"reference: the same TD3 update alone in one process, {args.learner_threads} torch "
+        f"thread(s), in-memory batch, no actors: {alone:.1f} updates/s"
+    )
+    graft = next(iter(rows.values()))
+    print(
+        f"graft's actors each adopted >= {graft['versions']} broadcast weight versions; "
+        f"every client acted at nice {max(r['nice'] for r in rows.values())}, the learner at "
+        f"Ray's worker nice 15 + {args.learner_nice}, world and replay servers at 0"
+    )
+    for name, r in rows.items():
+        if r["losses"] or r["dropped"]:
+            print(f"{name}: {r['losses']} connection losses, {r['dropped']} dropped transitions")
+
+
+def main() -> None:
+    """Print the tables."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--part", choices=("all", "ticks", "decoupling"), default="all")
+    ap.add_argument("--ticks", type=int, default=3000, help="ticks without rendering")
+    ap.add_argument("--render-ticks", type=int, default=300, help="ticks with rendering")
+    ap.add_argument("--size", type=int, default=64, help="frame width = height")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--warmup", type=float, default=20.0, help="seconds before measuring")
+    ap.add_argument("--measure", type=float, default=40.0, help="seconds measured")
+    ap.add_argument("--episode-steps", type=int, default=600, help="actor-side episode limit")
+    ap.add_argument("--naive-updates", type=int, default=1, help="updates per naive step")
+    ap.add_argument("--learner-threads", type=int, default=1, help="torch threads (learner)")
+    ap.add_argument("--learner-nice", type=int, default=0, help="learner's nice increment")
+    args = ap.parse_args()
+    if args.part in ("all", "ticks"):
+        ticks_table(args)
+    if args.part in ("all", "decoupling"):
+        decoupling_table(args)
 
 
 if __name__ == "__main__":
