@@ -144,6 +144,7 @@ def _experiment(args: argparse.Namespace) -> None:
             parallel=args.parallel,
             overrides={"env_steps": args.env_steps, **parse_settings(args.set)},
             address=args.address,
+            only=args.variant or None,
         )
     except ValueError as error:
         raise SystemExit(f"graft experiment: {error}") from None
@@ -202,6 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.add_argument("--env-steps", type=int, help="override every variant's budget")
     experiment.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     experiment.add_argument("--address", default="local")
+    experiment.add_argument(
+        "--variant", action="append", default=[], help="run only this variant (repeatable)"
+    )
     experiment.add_argument("--out", type=Path, default=Path("runs/experiments"))
     experiment.add_argument(
         "--replot", action="store_true", help="redraw figure and summary from results.csv"

@@ -84,6 +84,9 @@ EXPERIMENTS = {
         "Fig. 4: TD3 vs TD3 with the hard-coded policy as backbone (clip range L)",
         (
             Variant("TD3", "pendulum-td3"),
+            # With a bang-bang backbone (μ = ±2) only L >= 4 lets a = clip(μ + c) reach
+            # every torque in [-2, 2]; narrower ranges keep the action on μ's side.
+            Variant("backbone L=4.0", "pendulum-backbone", {"backbone.correction_limit": 4.0}),
             Variant("backbone L=2.0", "pendulum-backbone", {"backbone.correction_limit": 2.0}),
             Variant("backbone L=1.0", "pendulum-backbone", {"backbone.correction_limit": 1.0}),
             Variant("backbone L=0.5", "pendulum-backbone", {"backbone.correction_limit": 0.5}),
@@ -120,8 +123,12 @@ def run_experiment(
     parallel: int = 2,
     overrides: Optional[dict[str, Any]] = None,
     address: str = "local",
+    only: Optional[list[str]] = None,
 ) -> tuple[Path, Path]:
     """Runs every variant × seed, writes results.csv and <name>.png; returns their paths.
+
+    With `only` (variant labels) just those variants run; the rows of the others already
+    in results.csv are kept, so a figure can be filled in over several invocations.
 
     Raises:
         ValueError: unknown experiment, or a variant's preset refuses the overrides.
@@ -133,16 +140,27 @@ def run_experiment(
     if seeds < 1 or parallel < 1:
         raise ValueError(f"seeds={seeds} and parallel={parallel} must be >= 1")
     exp = EXPERIMENTS[name]
+    labels = [v.label for v in exp.variants]
+    unknown = sorted(set(only or []) - set(labels))
+    if unknown:
+        raise ValueError(f"{name} has no variant(s) {unknown}; its variants: {labels}")
+    chosen = [v for v in exp.variants if not only or v.label in only]
     folder = out_dir / name
     folder.mkdir(parents=True, exist_ok=True)
+    csv_path = folder / "results.csv"
+    kept = [
+        r
+        for r in (read_rows(csv_path) if csv_path.exists() else [])
+        if r["variant"] not in {v.label for v in chosen}
+    ]
     jobs = []
-    for variant in exp.variants:
+    for variant in chosen:
         for seed in range(seeds):
             merged = {**exp.shared, **variant.overrides, **(overrides or {}), "seed": seed}
             load_preset(variant.preset, **merged)  # refuse bad settings before any run starts
             slug = variant.label.replace(" ", "_").replace(",", "").replace("=", "")
             jobs.append((variant, seed, merged, folder / f"{slug}-s{seed}"))
-    rows: list[dict[str, Any]] = []
+    rows: list[dict[str, Any]] = list(kept)
     pending: dict[Any, tuple[Variant, int]] = {}
     queue, start = list(jobs), time.perf_counter()
     while queue or pending:
@@ -172,7 +190,6 @@ def run_experiment(
             f"{result['summary']['env_steps']} env steps",
             flush=True,
         )
-    csv_path = folder / "results.csv"
     write_rows(csv_path, rows)
     return report(name, out_dir)
 
@@ -241,11 +258,13 @@ def curves(rows: list[dict[str, str]], variant: str, key: str = "return_mean") -
     Seeds evaluate at slightly different env-step counts (the learner evaluates when it
     sees a multiple of eval_every): points are grouped by their order within each seed.
     """
-    by_seed: dict[str, list[tuple[int, float]]] = {}
+    by_seed: dict[str, dict[int, float]] = {}
     for r in rows:
         if r["variant"] == variant and r.get(key, "") != "":
-            by_seed.setdefault(r["seed"], []).append((int(r["env_steps"]), float(r[key])))
-    series = [sorted(points) for points in by_seed.values()]
+            # The final evaluation can share its env-step count with the last periodic
+            # one: keep the later (final) value.
+            by_seed.setdefault(r["seed"], {})[int(r["env_steps"])] = float(r[key])
+    series = [sorted(points.items()) for points in by_seed.values()]
     n = min(len(s) for s in series) if series else 0
     steps = np.array([[s[i][0] for i in range(n)] for s in series], dtype=float)
     values = np.array([[s[i][1] for i in range(n)] for s in series], dtype=float)

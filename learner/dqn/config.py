@@ -18,7 +18,10 @@ class DQNConfig:
     batch_size: int = 64
     """Transitions per learner update."""
     target_update_every: int = 200
-    """Updates between hard copies of the online network into the target network."""
+    """Updates between target-network updates."""
+    target_tau: float = 1.0
+    """Polyak rate of each target update: 1 copies the online network (DQN's hard update),
+    e.g. 0.005 with target_update_every=1 moves the target smoothly."""
     max_grad_norm: float = 10.0
     """Gradients are clipped to this global norm (Huber loss keeps them bounded too)."""
     epsilon_start: float = 1.0
@@ -37,6 +40,8 @@ class DQNConfig:
             raise ValueError("learning_rate and max_grad_norm must be > 0")
         if not self.hidden_sizes or any(h < 1 for h in self.hidden_sizes):
             raise ValueError(f"hidden_sizes={self.hidden_sizes} must be positive widths")
+        if not 0.0 < self.target_tau <= 1.0:
+            raise ValueError(f"target_tau={self.target_tau} must lie in (0, 1]")
         if self.batch_size < 1 or self.target_update_every < 1:
             raise ValueError("batch_size and target_update_every must be >= 1")
         if not 0.0 <= self.epsilon_end <= self.epsilon_start <= 1.0:

@@ -12,6 +12,7 @@ from torch import nn
 
 from learner.dqn.config import DQNConfig
 from learner.dqn.networks import make_q_network
+from learner.td3.learning import soft_update
 
 
 @torch.no_grad()
@@ -44,7 +45,7 @@ def double_q_target(
 
 
 class DQNLearner:
-    """Online and target Q networks, Adam, hard target copies every `target_update_every`."""
+    """Online and target Q networks, Adam; the target moves every `target_update_every`."""
 
     def __init__(self, obs_dim: int, num_actions: int, *, config: DQNConfig, seed: int) -> None:
         with torch.random.fork_rng(devices=[]):
@@ -54,6 +55,7 @@ class DQNLearner:
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=config.learning_rate)
         self._gamma = config.gamma
         self._target_every = config.target_update_every
+        self._target_tau = config.target_tau
         self._max_grad_norm = config.max_grad_norm
         self.num_updates = 0
 
@@ -81,7 +83,7 @@ class DQNLearner:
         self.optimizer.step()
         self.num_updates += 1
         if self.num_updates % self._target_every == 0:
-            self.target_q.load_state_dict(self.q.state_dict())
+            soft_update(self.target_q, self.q, self._target_tau)
         return {"losses/q": float(loss.detach()), "values/q_mean": float(q.detach().mean())}
 
     def policy_state(self) -> dict[str, torch.Tensor]:
