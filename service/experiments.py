@@ -158,8 +158,7 @@ def run_experiment(
         for seed in range(seeds):
             merged = {**exp.shared, **variant.overrides, **(overrides or {}), "seed": seed}
             load_preset(variant.preset, **merged)  # refuse bad settings before any run starts
-            slug = variant.label.replace(" ", "_").replace(",", "").replace("=", "")
-            jobs.append((variant, seed, merged, folder / f"{slug}-s{seed}"))
+            jobs.append((variant, seed, merged, folder / f"{_slug(variant)}-s{seed}"))
     rows: list[dict[str, Any]] = list(kept)
     pending: dict[Any, tuple[Variant, int]] = {}
     queue, start = list(jobs), time.perf_counter()
@@ -194,10 +193,42 @@ def run_experiment(
     return report(name, out_dir)
 
 
+def _slug(variant: Variant) -> str:
+    return variant.label.replace(" ", "_").replace(",", "").replace("=", "")
+
+
+def rows_from_runs(name: str, folder: Path) -> list[dict[str, Any]]:
+    """Evaluation rows rebuilt from the run folders' metrics.csv (an interrupted experiment)."""
+    from service.metrics import read_metric
+
+    rows: list[dict[str, Any]] = []
+    for variant in EXPERIMENTS[name].variants:
+        for run in sorted(folder.glob(f"{_slug(variant)}-s*")):
+            if not (run / "summary.json").exists():
+                continue  # unfinished
+            steps, means = read_metric(run / "metrics.csv", "eval/return_mean")
+            _, stds = read_metric(run / "metrics.csv", "eval/return_std")
+            for step, mean, std in zip(steps, means, stds, strict=True):
+                rows.append(
+                    {
+                        "experiment": name,
+                        "variant": variant.label,
+                        "seed": int(run.name.rsplit("-s", 1)[1]),
+                        "env_steps": step,
+                        "return_mean": mean,
+                        "return_std": std,
+                    }
+                )
+    return rows
+
+
 def report(name: str, out_dir: Path) -> tuple[Path, Path]:
-    """Draws <name>.png and writes summary.csv from an experiment's results.csv."""
+    """Draws <name>.png and writes summary.csv from an experiment's results.csv (rebuilt
+    from its finished run folders if the experiment was interrupted before writing it)."""
     exp, folder = EXPERIMENTS[name], out_dir / name
     csv_path, png_path = folder / "results.csv", folder / f"{name}.png"
+    if not csv_path.exists():
+        write_rows(csv_path, rows_from_runs(name, folder))
     plot_experiment(csv_path, png_path, exp)
     summary = summarise(read_rows(csv_path), [v.label for v in exp.variants])
     write_rows(folder / "summary.csv", summary)

@@ -219,3 +219,31 @@ def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_e
     action, columns = behaviour.act(obs, rng, warmup=False)
     assert columns["option"][0] == HARDCODED and columns["log_prob"][0] == 0.0
     np.testing.assert_allclose(action, [[-1.0]])
+
+
+@pytest.mark.parametrize("tau, moved", [(1.0, 1.0), (0.25, 0.25)])
+def test_dqn_target_network_moves_every_target_update_every_updates(tau, moved):
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+
+    learner = DQNLearner(
+        2, 2, config=DQNConfig(hidden_sizes=(4,), target_update_every=3, target_tau=tau), seed=0
+    )
+    before = [p.clone() for p in learner.target_q.parameters()]
+    batch = {
+        "obs": torch.ones(8, 2),
+        "action": torch.zeros(8, dtype=torch.int64),
+        "reward": torch.ones(8),
+        "terminated": torch.zeros(8, dtype=torch.bool),
+        "next_obs": torch.ones(8, 2),
+    }
+    for _ in range(2):
+        learner.update(batch)
+    assert all(
+        torch.equal(a, b) for a, b in zip(before, learner.target_q.parameters(), strict=True)
+    )
+    learner.update(batch)  # the third update moves the target a `tau` step towards online
+    for old, new, online in zip(
+        before, learner.target_q.parameters(), learner.q.parameters(), strict=True
+    ):
+        torch.testing.assert_close(new, old + moved * (online - old))
