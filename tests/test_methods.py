@@ -27,13 +27,15 @@ from learner.td3.networks import Actor
 
 
 class Table(nn.Module):
-    """A "network" that returns fixed rows, whatever the input."""
+    """A "network" that returns fixed rows (one row: the same for every input)."""
 
     def __init__(self, rows: list[list[float]]) -> None:
         super().__init__()
         self.rows = torch.tensor(rows)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if len(self.rows) == 1:
+            return self.rows[0].expand(*obs.shape[:-1], -1)
         return self.rows
 
 
@@ -247,3 +249,54 @@ def test_dqn_target_network_moves_every_target_update_every_updates(tau, moved):
         before, learner.target_q.parameters(), learner.q.parameters(), strict=True
     ):
         torch.testing.assert_close(new, old + moved * (online - old))
+
+
+class ConstantCritic(nn.Module):
+    """(Q1, Q2)(s, a) = (value, value + 1): the TD3 target takes the smaller."""
+
+    def __init__(self, value: float) -> None:
+        super().__init__()
+        self.value = value
+
+    def forward(self, obs: torch.Tensor, act: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        q = torch.full(obs.shape[:-1], self.value)
+        return q, q + 1.0
+
+
+def test_options_retrace_uses_option_values_and_cuts_traces_at_option_boundaries():
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+    from learner.options.learning import OptionsLearner, RetraceTD3Learner
+    from learner.td3.config import TD3Config
+
+    rl = RetraceTD3Learner(
+        3, 1, np.array([-2.0]), np.array([2.0]), config=TD3Config(hidden_sizes=(4,)), seed=0
+    )
+    learner = OptionsLearner(
+        DQNLearner(3, 2, config=DQNConfig(hidden_sizes=(4,)), seed=0),
+        rl,
+        option_length=3,
+        retrace_lambda=1.0,
+        behaviour_std=0.5,
+        gamma=0.9,
+    )
+    learner.options.target_q = Table([[30.0, 20.0]])  # Q_Ω(s, hard-coded), Q_Ω(s, RL)
+    rl.target_critic = ConstantCritic(5.0)
+    rl.actor.forward = lambda obs: torch.full((*obs.shape[:-1], 1), 0.5)  # π(s) = 0.5
+    log_pi = -math.log(0.5) - 0.5 * math.log(2 * math.pi)  # log N(0.5 | 0.5, 0.5²)
+    window = {
+        "obs": torch.zeros(1, 3, 3),
+        "next_obs": torch.zeros(1, 3, 3),
+        "action": torch.tensor([[[0.0], [0.5], [0.5]]]),
+        "reward": torch.tensor([[1.0, 2.0, 3.0]]),
+        "terminated": torch.zeros(1, 3, dtype=torch.bool),
+        "option": torch.full((1, 3), RL),
+        # Steps 1-2 of one RL option (it ends after the second), then a new RL option.
+        "option_step": torch.tensor([[1, 2, 0]]),
+        # ρ_1 = 2 (truncated to c_1 = 1); step 2 starts a new option: its trace is cut.
+        "log_prob": torch.tensor([[0.0, log_pi - math.log(2.0), log_pi]]),
+    }
+    q_ret = learner.retrace(window)
+    # Q2 = 3 + 0.9·Q_Ω(s3, RL) = 21;  Q1 = 2 + 0.9·max_o Q_Ω(s2, o) = 29 (option ended, c2 = 0);
+    # Q0 = 1 + 0.9·(Q_Ω(s1, RL) + c1·(Q1 − Q'(s1, a1))) = 1 + 0.9·(20 + 29 − 5) = 40.6
+    torch.testing.assert_close(q_ret, torch.tensor([[40.6, 29.0, 21.0]]))

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from actors.behaviours.hardcoded import hardcoded_policy
 from actors.behaviours.options import OptionsBehaviour
 from learner.agent import Phase
 from learner.dqn.config import DQNConfig
+from learner.dqn.learning import DQNLearner
 from learner.options.config import OptionsConfig
-from learner.options.learning import OptionsLearner
-from learner.options.networks import make_option_network
+from learner.options.learning import OptionsLearner, RetraceTD3Learner
+from learner.options.networks import NUM_OPTIONS, make_option_network
 from learner.td3.builder import TD3Builder, make_actor_network
 
 
@@ -30,17 +33,16 @@ class OptionsBuilder:
 
     def make_learner(self) -> OptionsLearner:
         t = self.td3
+        option_seed, rl_seed = np.random.SeedSequence(t.seed).generate_state(2)
         return OptionsLearner(
-            t.obs_dim,
-            t.act_dim,
-            t.low,
-            t.high,
-            td3=t.config,
-            dqn=self.dqn,
+            DQNLearner(t.obs_dim, NUM_OPTIONS, config=self.dqn, seed=int(option_seed)),
+            RetraceTD3Learner(
+                t.obs_dim, t.act_dim, t.low, t.high, config=t.config, seed=int(rl_seed)
+            ),
             option_length=self.config.option_length,
             retrace_lambda=self.config.retrace_lambda,
-            behaviour_std=self.td3.exploration_std,
-            seed=t.seed,
+            behaviour_std=t.exploration_std,
+            gamma=self.dqn.gamma,
         )
 
     def make_behaviour(self, *, num_actors: int) -> OptionsBehaviour:

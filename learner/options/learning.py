@@ -11,15 +11,11 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import torch
 
 from actors.behaviours.options import RL
-from learner.dqn.config import DQNConfig
 from learner.dqn.learning import DQNLearner, double_q_target
-from learner.options.networks import NUM_OPTIONS
 from learner.options.targets import importance_ratio, k_step_return, retrace_targets, retrace_traces
-from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
 
 
@@ -35,26 +31,26 @@ class OptionsLearner:
 
     def __init__(
         self,
-        obs_dim: int,
-        act_dim: int,
-        action_low: np.ndarray,
-        action_high: np.ndarray,
+        options: DQNLearner,
+        rl: RetraceTD3Learner,
         *,
-        td3: TD3Config,
-        dqn: DQNConfig,
         option_length: int,
         retrace_lambda: float,
         behaviour_std: float,
-        seed: int,
+        gamma: float,
     ) -> None:
-        option_seed, rl_seed = np.random.SeedSequence(seed).generate_state(2)
-        # Q_Ω(s, ·) is a Double DQN learner whose "actions" are the two options.
-        self.options = DQNLearner(obs_dim, NUM_OPTIONS, config=dqn, seed=int(option_seed))
-        self.rl = RetraceTD3Learner(
-            obs_dim, act_dim, action_low, action_high, config=td3, seed=int(rl_seed)
-        )
-        self.k, self.lam, self.std = option_length, retrace_lambda, behaviour_std
-        self.gamma = dqn.gamma
+        """Combines the two learners.
+
+        Args:
+            options: Q_Ω(s, ·) as a Double DQN learner whose "actions" are the two options.
+            rl: The RL option's TD3 learner.
+            option_length: k, steps per option and per window.
+            retrace_lambda: λ of the traces.
+            behaviour_std: Std of the actors' Gaussian around π(s), for ρ.
+            gamma: Discount of eqs. (13) and (14).
+        """
+        self.options, self.rl = options, rl
+        self.k, self.lam, self.std, self.gamma = option_length, retrace_lambda, behaviour_std, gamma
         self.num_updates = 0
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
