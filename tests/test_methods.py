@@ -300,3 +300,32 @@ def test_options_retrace_uses_option_values_and_cuts_traces_at_option_boundaries
     # Q2 = 3 + 0.9·Q_Ω(s3, RL) = 21;  Q1 = 2 + 0.9·max_o Q_Ω(s2, o) = 29 (option ended, c2 = 0);
     # Q0 = 1 + 0.9·(Q_Ω(s1, RL) + c1·(Q1 − Q'(s1, a1))) = 1 + 0.9·(20 + 29 − 5) = 40.6
     torch.testing.assert_close(q_ret, torch.tensor([[40.6, 29.0, 21.0]]))
+
+
+def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
+    def options_table(q: list[float]) -> dict[str, torch.Tensor]:
+        return {"options.rows": torch.tensor([q]), "actor.rows": torch.tensor([[0.25]])}
+
+    class Loadable(Table):
+        def load_state_dict(self, state, strict=True):  # noqa: ANN001
+            self.rows = state["rows"]
+
+    behaviour = OptionsBehaviour(
+        Loadable([[0.0, 1.0]]),
+        Loadable([[0.25]]),
+        lambda obs: np.full((len(obs), 1), -1.0, np.float32),
+        option_length=3,
+        std=0.1,
+        low=np.array([-2.0]),
+        high=np.array([2.0]),
+        epsilon_start=0.0,
+        epsilon_end=0.0,
+        decay_env_steps=1,
+        num_actors=1,
+    )
+    obs = np.zeros((2, 3), np.float32)
+    behaviour.load(options_table([0.0, 1.0]))  # prefers RL
+    np.testing.assert_allclose(behaviour.greedy(obs), [[0.25], [0.25]])
+    behaviour.load(options_table([1.0, 0.0]))  # now prefers the hard-coded option
+    np.testing.assert_allclose(behaviour.greedy(obs), [[-1.0], [-1.0]])
+    assert behaviour.stats() == {"options/rl_fraction": 0.5}

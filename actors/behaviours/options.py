@@ -80,7 +80,9 @@ class OptionsBehaviour:
         options, actor = split_weights(weights)
         self.option_q.load_state_dict(options)
         self.actor.load_state_dict(actor)
-        self._greedy_clock = np.zeros(0, np.int64)  # an evaluation starts fresh options
+        # An evaluation starts fresh options, chosen by the new Q_Ω.
+        self._greedy_option = np.zeros(0, np.int64)
+        self._greedy_clock = np.zeros(0, np.int64)
 
     @property
     def epsilon(self) -> float:
@@ -95,7 +97,7 @@ class OptionsBehaviour:
         self, obs: np.ndarray, option: np.ndarray, clock: np.ndarray, epsilon: float, rng: Any
     ) -> tuple[np.ndarray, np.ndarray]:
         """Re-chooses the option where the clock is at 0 (fresh option or new episode)."""
-        if len(option) != len(obs):
+        if len(option) != len(obs) or len(clock) != len(obs):
             option, clock = np.zeros(len(obs), np.int64), np.zeros(len(obs), np.int64)
         due = clock == 0
         if due.any():
