@@ -9,7 +9,7 @@ from service.experiments import curves, read_rows, run_experiment
 
 def test_fig5_two_seeds_in_parallel_writes_csv_and_figure(ray_local, tmp_path):
     tiny = {
-        "env_steps": 300,
+        "env_steps": 200,
         "learning_starts": 100,
         "eval_every": 100,
         "eval_episodes": 1,

@@ -193,10 +193,11 @@ def test_epsilon_greedy_log_likelihoods_and_schedule():
     assert linear_epsilon(5000, start=1.0, end=0.1, decay_steps=1000) == pytest.approx(0.1)
 
 
-def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_end():
-    behaviour = OptionsBehaviour(
-        Table([[0.0, 1.0]]),  # Q_Ω prefers the RL option
-        Table([[0.25]]),
+def greedy_options(option_q: nn.Module, actor: nn.Module) -> OptionsBehaviour:
+    """k = 3, ε = 0, μ(s) = −1 everywhere."""
+    return OptionsBehaviour(
+        option_q,
+        actor,
         lambda obs: np.full((len(obs), 1), -1.0, np.float32),
         option_length=3,
         std=0.1,
@@ -207,6 +208,10 @@ def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_e
         decay_env_steps=1,
         num_actors=1,
     )
+
+
+def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_end():
+    behaviour = greedy_options(Table([[0.0, 1.0]]), Table([[0.25]]))  # Q_Ω prefers RL
     rng, obs = np.random.default_rng(0), np.zeros((1, 3), np.float32)
     steps = []
     for t in range(5):
@@ -310,19 +315,7 @@ def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
         def load_state_dict(self, state, strict=True):  # noqa: ANN001
             self.rows = state["rows"]
 
-    behaviour = OptionsBehaviour(
-        Loadable([[0.0, 1.0]]),
-        Loadable([[0.25]]),
-        lambda obs: np.full((len(obs), 1), -1.0, np.float32),
-        option_length=3,
-        std=0.1,
-        low=np.array([-2.0]),
-        high=np.array([2.0]),
-        epsilon_start=0.0,
-        epsilon_end=0.0,
-        decay_env_steps=1,
-        num_actors=1,
-    )
+    behaviour = greedy_options(Loadable([[0.0, 1.0]]), Loadable([[0.25]]))
     obs = np.zeros((2, 3), np.float32)
     behaviour.load(options_table([0.0, 1.0]))  # prefers RL
     np.testing.assert_allclose(behaviour.greedy(obs), [[0.25], [0.25]])
