@@ -111,7 +111,14 @@ class ReplayClient:
     def __reduce__(self):
         return (
             _rebuild_client,
-            (self.address, self.token, self.max_retries, self.max_message_bytes),
+            # Not the writer id: every unpickled copy is a writer of its own.
+            (
+                self.address,
+                self.token,
+                self.max_retries,
+                self.max_message_bytes,
+                self.tls_root_cert,
+            ),
         )
 
     @property

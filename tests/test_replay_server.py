@@ -138,3 +138,17 @@ def test_token_is_required_when_configured():
         assert ReplayClient(f"127.0.0.1:{port}", token="s3cret").info()[0].name == "t"
     finally:
         server.stop(0)
+
+
+def test_client_pickles_as_its_address_and_settings():
+    import pickle
+
+    client = ReplayClient("127.0.0.1:1", token="t", max_retries=3, tls_root_cert="/ca.pem")
+    copy = pickle.loads(pickle.dumps(client))
+    assert (copy.address, copy.token, copy.max_retries, copy.tls_root_cert) == (
+        "127.0.0.1:1",
+        "t",
+        3,
+        "/ca.pem",
+    )
+    assert copy.writer_id != client.writer_id  # each copy numbers its own batches

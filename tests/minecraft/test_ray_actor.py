@@ -6,7 +6,6 @@ and reconnects when its world server is killed and restarted."""
 from __future__ import annotations
 
 import math
-import pickle
 import time
 from collections.abc import Iterator
 
@@ -37,23 +36,6 @@ from tests.minecraft.conftest import flat_mission
 MISSION = flat_mission(grid_radius=1, ms_per_tick=20)
 OBS_DIM = 8 + 27
 TD3 = TD3Config(hidden_sizes=(32,), batch_size=16)
-
-
-def _replay_client_pickles() -> bool:
-    try:
-        pickle.loads(pickle.dumps(ReplayClient("127.0.0.1:1")))
-    except TypeError:
-        return False
-    return True
-
-
-# Passing a ReplayClient to a Ray actor needs it to pickle; at the time of writing
-# service/client.py's __reduce__ omits tls_root_cert, so these tests would fail on that
-# bug, not on the actor's. They run again by themselves once it is fixed.
-needs_pickling = pytest.mark.skipif(
-    not _replay_client_pickles(),
-    reason="ReplayClient does not unpickle (service/client.py __reduce__ omits tls_root_cert)",
-)
 
 
 def wait_for(predicate, timeout: float = 30.0, what: str = "condition") -> None:
@@ -102,7 +84,6 @@ def test_action_commands_clip_and_threshold() -> None:
 
 
 # -------------------------------------------------------------- real processes
-@needs_pickling
 def test_actor_streams_transitions_and_reports_ticks(ray_local, world, replay) -> None:
     actor = MinecraftActor.remote(
         host="127.0.0.1", port=world.ports[0], mission_xml=MISSION, td3=TD3, seed=1,
@@ -126,7 +107,6 @@ def test_actor_streams_transitions_and_reports_ticks(ray_local, world, replay) -
     ray.kill(actor)
 
 
-@needs_pickling
 def test_actor_adopts_broadcast_weights_and_records_their_log_prob(
     ray_local, world, replay
 ) -> None:
@@ -154,7 +134,6 @@ def test_actor_adopts_broadcast_weights_and_records_their_log_prob(
     ray.kill(broadcaster)
 
 
-@needs_pickling
 def test_actor_reconnects_after_world_server_restart(ray_local, replay) -> None:
     pool = ServerPool(1, base_port=0, seed=5, ms_per_tick=20)
     (port,) = pool.start()
