@@ -17,9 +17,8 @@ simulator does not count as full unless they are air. Items are the dropped-item
 entities of ObservationFromNearbyEntities (they carry ``quantity``), by Euclidean
 distance from the agent; animals are not items.
 
-The first 8 + 3375 entries are the same as the Ray actor's provisional
-``actors.minecraft.encoding.encode_observation`` (same stats and scaling), so that
-encoding is this one with k = 0.
+This module is the single source of the encoding: the Ray actor's
+``actors.minecraft.encoding.encode_observation`` delegates here.
 """
 
 from __future__ import annotations
