@@ -27,6 +27,9 @@ from learner.checkpoint import save_checkpoint
 from service.client import SampleStream
 from service.metrics import MetricsLogger
 
+STALL_CHECK_S = 10.0
+"""Seconds without a sampled batch before the loop asks its watchdog what is wrong."""
+
 
 def to_tensors(batch: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
     """Service columns (`_key`, ...) stay behind; data columns become tensors.
@@ -79,6 +82,7 @@ class LearnerLoop:
         settings: LoopSettings,
         state: Optional[LoopState] = None,
         on_progress: Optional[Callable[[LoopState], None]] = None,
+        watchdog: Optional[Callable[[], None]] = None,
     ) -> None:
         self.algorithm = algorithm
         self.phases = phases
@@ -90,6 +94,8 @@ class LearnerLoop:
         self.settings = settings
         self.state = state or LoopState()
         self.on_progress = on_progress
+        self.watchdog = watchdog
+        """Called while no batch arrives; raises if the data can never come."""
         self._pending_evals: list[Any] = []
         # A resumed run starts a fresh table: its insert counter restarts at zero.
         self._env_steps_offset = self.state.env_steps
@@ -162,6 +168,16 @@ class LearnerLoop:
         self.checkpoint()
         return s
 
+    def _next_batch(self, stream: SampleStream) -> dict[str, np.ndarray]:
+        """Waits for a batch, asking the watchdog every few seconds whether the actors
+        that should produce it are still alive (a dead actor raises instead of a hang)."""
+        while True:
+            try:
+                return stream.next_within(STALL_CHECK_S)
+            except TimeoutError:
+                if self.watchdog is not None:
+                    self.watchdog()
+
     def _run_phase(
         self, phase: Phase, end: int, weights: Optional[dict[str, torch.Tensor]]
     ) -> Optional[dict[str, torch.Tensor]]:
@@ -173,7 +189,7 @@ class LearnerLoop:
         try:
             while s.updates < end:
                 wait_before = stream.wait_s
-                batch = next(stream)
+                batch = self._next_batch(stream)
                 waited = stream.wait_s - wait_before
                 if first_batch:
                     s.warmup_s += waited  # filling to min_size is not starvation

@@ -353,9 +353,17 @@ class SampleStream:
         return self
 
     def __next__(self) -> Batch:
+        return self.next_within(None)
+
+    def next_within(self, timeout: Optional[float]) -> Batch:
+        """The next batch; raises TimeoutError if none arrives within `timeout` seconds."""
         start = time.perf_counter()
-        item = self._batches.get()
-        self.wait_s += time.perf_counter() - start
+        try:
+            item = self._batches.get(timeout=timeout)
+        except queue.Empty:
+            raise TimeoutError(f"no sampled batch within {timeout} s") from None
+        finally:
+            self.wait_s += time.perf_counter() - start
         if item is None:
             self._batches.put(None)  # stay exhausted
             raise StopIteration

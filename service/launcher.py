@@ -252,6 +252,7 @@ def train(
                 settings=settings,
                 state=state,
                 on_progress=on_progress,
+                watchdog=lambda: _check_actors(runs),
             )
             final = loop.run()
             bar.update(final.updates - bar.n)
@@ -259,6 +260,7 @@ def train(
         actor_reports = ray.get(runs, timeout=120)
         # The learner may stop before it sees the actors' last inserts: count them directly.
         final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)
+        loop.checkpoint()  # again, with the true env-step count a resume continues from
         _log_behaviour_stats(logger, actor_reports, config.num_actors, resumed_env_steps)
         logger.close()
     finally:
@@ -277,6 +279,18 @@ def train(
         reference=REFERENCE_LEVELS.get(config.env_id),
     )
     return RunResult(run_dir, summary, final.evaluations)
+
+
+def _check_actors(runs: list[Any]) -> None:
+    """Raises the error of an actor that died; the learner would otherwise wait forever."""
+    finished, _ = ray.wait(runs, num_returns=len(runs), timeout=0)
+    for ref in finished:
+        ray.get(ref)  # re-raises the actor's exception, with its traceback
+    if len(finished) == len(runs):
+        raise RuntimeError(
+            "every actor finished, but the learner is still waiting for sampled batches: "
+            "the rate limiter and the update budget disagree (see replay.log)"
+        )
 
 
 def _window(phase: Phase) -> dict[str, int]:

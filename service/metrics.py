@@ -35,6 +35,7 @@ class MetricsLogger:
             self._csv.writerow((wall, env_steps, updates, key, f"{float(value):.6g}"))
             if self._tb is not None:
                 self._tb.add_scalar(key, float(value), env_steps)
+        self._file.flush()  # so a running job can be followed (tail, plots)
 
     def close(self) -> None:
         self._file.close()

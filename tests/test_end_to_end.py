@@ -9,12 +9,24 @@ from service.config import load_preset
 from service.launcher import train
 
 
-def test_pendulum_td3_end_to_end_then_resume(ray_local, tmp_path):
-    config = load_preset(
-        "pendulum-td3", env_steps=600, learning_starts=200, eval_every=200, eval_episodes=2,
-        publish_every=20, checkpoint_every=100, num_actors=2, envs_per_actor=2,
-        steps_per_insert=4, slack_env_steps=16,
+def tiny_preset(*, env_steps: int):
+    return load_preset(
+        "pendulum-td3",
+        env_steps=env_steps,
+        learning_starts=200,
+        eval_every=200,
+        eval_episodes=2,
+        publish_every=20,
+        checkpoint_every=100,
+        num_actors=2,
+        envs_per_actor=2,
+        steps_per_insert=4,
+        slack_env_steps=16,
     )
+
+
+def test_pendulum_td3_end_to_end_then_resume(ray_local, tmp_path):
+    config = tiny_preset(env_steps=600)
     result = train(config, run_dir=tmp_path, progress=False)
     s = result.summary
     # Transitions arrived: the table's insert counter reached the budget.
@@ -37,11 +49,7 @@ def test_pendulum_td3_end_to_end_then_resume(ray_local, tmp_path):
 
     # Resume: counters continue from the checkpoint; the fresh replay table refills
     # with learning_starts=200 steps of the restored policy, then 200 more updates follow.
-    longer = load_preset(
-        "pendulum-td3", env_steps=1000, learning_starts=200, eval_every=200, eval_episodes=2,
-        publish_every=20, checkpoint_every=100, num_actors=2, envs_per_actor=2,
-        steps_per_insert=4, slack_env_steps=16,
-    )
+    longer = tiny_preset(env_steps=1000)
     resumed = train(longer, run_dir=tmp_path, resume=True, progress=False).summary
     assert (resumed["updates"], resumed["env_steps"]) == (600, 1000)
     assert resumed["policy_version"] > s["policy_version"]

@@ -152,3 +152,12 @@ def test_client_pickles_as_its_address_and_settings():
         "/ca.pem",
     )
     assert copy.writer_id != client.writer_id  # each copy numbers its own batches
+
+
+def test_stream_wait_can_time_out(replay_client: ReplayClient):
+    stream = replay_client.sample_stream("transitions", 4, prefetch=1)  # table is empty
+    with pytest.raises(TimeoutError, match="no sampled batch within 0.2 s"):
+        stream.next_within(0.2)
+    replay_client.insert("transitions", pendulum_batch(10))
+    assert stream.next_within(10)["obs"].shape == (4, 3)
+    stream.close()
