@@ -60,60 +60,52 @@ class BelowPivot(py_trees.behaviour.Behaviour):
         return Status.SUCCESS if cos_theta < 0.0 else Status.FAILURE
 
 
-class PumpEnergy(py_trees.behaviour.Behaviour):
+class _TorqueAction(py_trees.behaviour.Behaviour):
+    """An action leaf: reads the observation, writes a torque to the blackboard."""
+
+    def __init__(self, name: str, *, namespace: str, max_torque: float) -> None:
+        """Initialises the action.
+
+        Args:
+            name: Behaviour name shown in the tree.
+            namespace: Blackboard namespace of the tree.
+            max_torque: Torque magnitude written to the blackboard.
+        """
+        super().__init__(name)
+        self.max_torque = max_torque
+        self.blackboard = self.attach_blackboard_client(name=name, namespace=namespace)
+        self.blackboard.register_key(OBSERVATION_KEY, access=Access.READ)
+        self.blackboard.register_key(ACTION_KEY, access=Access.WRITE)
+
+    def torque(self, theta_dot: float) -> float:
+        raise NotImplementedError
+
+    def update(self) -> Status:
+        self.blackboard.set(ACTION_KEY, self.torque(self.blackboard.get(OBSERVATION_KEY)[2]))
+        return Status.SUCCESS
+
+
+class PumpEnergy(_TorqueAction):
     """Action: push with full torque in the direction of the angular velocity.
 
     At rest (θ̇ = 0) it pushes in the positive direction, so a pendulum hanging still at
     the bottom is kicked into swinging rather than left there forever.
     """
 
-    def __init__(self, name: str, *, namespace: str, max_torque: float) -> None:
-        """Initialises the action.
-
-        Args:
-            name: Behaviour name shown in the tree.
-            namespace: Blackboard namespace of the tree.
-            max_torque: Torque magnitude written to the blackboard.
-        """
-        super().__init__(name)
-        self.max_torque = max_torque
-        self.blackboard = self.attach_blackboard_client(name=name, namespace=namespace)
-        self.blackboard.register_key(OBSERVATION_KEY, access=Access.READ)
-        self.blackboard.register_key(ACTION_KEY, access=Access.WRITE)
-
-    def update(self) -> Status:
-        """Writes ``+max · sign(θ̇)`` (sign(0) taken as +1)."""
-        theta_dot = self.blackboard.get(OBSERVATION_KEY)[2]
-        direction = 1.0 if theta_dot >= 0.0 else -1.0
-        self.blackboard.set(ACTION_KEY, direction * self.max_torque)
-        return Status.SUCCESS
+    def torque(self, theta_dot: float) -> float:
+        """``+max · sign(θ̇)`` (sign(0) taken as +1)."""
+        return (1.0 if theta_dot >= 0.0 else -1.0) * self.max_torque
 
 
-class BrakeNearTop(py_trees.behaviour.Behaviour):
+class BrakeNearTop(_TorqueAction):
     """Action: push with full torque against the angular velocity.
 
     At rest (θ̇ = 0) there is nothing to brake and it applies no torque.
     """
 
-    def __init__(self, name: str, *, namespace: str, max_torque: float) -> None:
-        """Initialises the action.
-
-        Args:
-            name: Behaviour name shown in the tree.
-            namespace: Blackboard namespace of the tree.
-            max_torque: Torque magnitude written to the blackboard.
-        """
-        super().__init__(name)
-        self.max_torque = max_torque
-        self.blackboard = self.attach_blackboard_client(name=name, namespace=namespace)
-        self.blackboard.register_key(OBSERVATION_KEY, access=Access.READ)
-        self.blackboard.register_key(ACTION_KEY, access=Access.WRITE)
-
-    def update(self) -> Status:
-        """Writes ``−max · sign(θ̇)``."""
-        theta_dot = self.blackboard.get(OBSERVATION_KEY)[2]
-        self.blackboard.set(ACTION_KEY, -float(np.sign(theta_dot)) * self.max_torque)
-        return Status.SUCCESS
+    def torque(self, theta_dot: float) -> float:
+        """``−max · sign(θ̇)``."""
+        return -float(np.sign(theta_dot)) * self.max_torque
 
 
 def _check_max_torque(max_torque: float) -> None:
