@@ -50,6 +50,38 @@ def baseline_updates_per_s(config: TrainConfig, updates: int = 1000) -> float:
     return updates / (time.perf_counter() - start)
 
 
+def plot_seeds(out: Path, seeds: int, png: Path) -> None:
+    """Mean ± std over seeds of the evaluation return, with the hard-coded level."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from service.metrics import read_metric
+
+    curves = [
+        read_metric(out / f"seed{s}" / "metrics.csv", "eval/return_mean") for s in range(seeds)
+    ]
+    length = min(len(values) for _, values in curves)
+    steps = np.array(curves[0][0][:length])
+    values = np.array([v[:length] for _, v in curves])
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for v in values:
+        ax.plot(steps, v, color="tab:blue", alpha=0.25, linewidth=0.8)
+    mean, std = values.mean(0), values.std(0)
+    ax.plot(steps, mean, color="tab:blue", label=f"TD3 through graft, mean of {seeds} seeds")
+    ax.fill_between(steps, mean - std, mean + std, color="tab:blue", alpha=0.2)
+    ax.axhline(-429.0, linestyle="--", color="tab:green", label="hard-coded policy (-429)")
+    ax.axhline(THRESHOLD, linestyle=":", color="grey", label="-200")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("mean return, 100 deterministic episodes")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=5)
@@ -102,6 +134,8 @@ def main() -> None:
             f"{100 * r['learner_wait_fraction']:.1f}% | {r['learner_updates_per_s']} | "
             f"{r['baseline_updates_per_s']} | {r['updates_ratio']} |"
         )
+    plot_seeds(args.out, args.seeds, args.out / "pendulum-td3.png")
+    print(f"curves: {args.out / 'pendulum-td3.png'}")
     hits = sum(r["steps_to_-200"] is not None for r in rows)
     print(f"\n{hits}/{len(rows)} seeds reached {THRESHOLD} within {args.env_steps} env steps")
 
