@@ -60,8 +60,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     seeds = list(range(args.first_seed, args.first_seed + args.worlds))
     t0 = time.perf_counter()
+    results: list[tuple[EpisodeResult, float]] = []
     with mp.get_context("spawn").Pool(args.procs) as pool:
-        results = pool.map(run_world, seeds, chunksize=1)
+        for r, secs in pool.imap_unordered(run_world, seeds, chunksize=1):
+            results.append((r, secs))
+            print(f"[{len(results)}/{len(seeds)}] seed {r.seed}: {r.stage}, "
+                  f"{r.ticks} ticks, {secs:.0f} s", file=sys.stderr, flush=True)  # fmt: skip
+    results.sort(key=lambda rs: rs[0].seed)
     wall = time.perf_counter() - t0
     print("| world seed | diamond | stage reached | in-game time (m:ss) | ticks | deaths | "
           "iron pickaxe at | wall s |")  # fmt: skip
