@@ -153,7 +153,9 @@ class _Builder:
         return self.ensure("iron_ore", 1, [self.stone_pickaxe(), dig])
 
     def fuel(self) -> Behaviour:
-        return Selector("Fuel", memory=False, children=[self.has("coal"), self.planks(1)])
+        # Coal from coal_ore (common down to y=5) when the wood has run out underground.
+        coal = self.mine(("coal_ore",), fallbacks=[self.explore(level=True)])
+        return Selector("Fuel", memory=False, children=[self.has("coal"), self.planks(1), coal])
 
     def iron_ingots(self) -> Behaviour:
         return self.ensure(

@@ -194,3 +194,11 @@ def test_picks_up_a_nearby_drop_before_going_on() -> None:
     assert status(table, "Drop nearby?") == Status.SUCCESS
     assert ctx.plan_step == ("move", (1, 64, 0))
     assert "Quest" not in table
+
+
+def test_underground_without_wood_mines_coal_for_fuel() -> None:
+    inv = {"crafting_table": 1, "stick": 4, "furnace": 1, "stone_pickaxe": 1, "iron_ore": 2}
+    table, ctx = tick(scene(inventory=inv, fill="stone", y=30, blocks={(2, 30, 0): "coal_ore"}))
+    assert status(table, "Enough wood?") == Status.SUCCESS  # no trees down here
+    assert status(table, "Choose coal_ore") == Status.SUCCESS
+    assert ctx.target == (2, 30, 0)

@@ -81,7 +81,8 @@ class WoodStock(Leaf):
     """SUCCESS when the wood held (in planks: 4 per log, 1 per plank, 1/2 per stick)
     covers what the rest of the quest needs plus ``margin`` planks: the table, the
     wooden pickaxe, sticks for the later pickaxes and fuel for smelting. Trees grow on
-    the surface only, so all the wood is gathered before going down."""
+    the surface only, so all the wood is gathered before going down; once the stone
+    pickaxe is made (the agent is underground) the wood is never asked for again."""
 
     def __init__(self, *, namespace: str, margin: int = 4) -> None:
         """Args: namespace: blackboard; margin: spare planks."""
@@ -91,7 +92,8 @@ class WoodStock(Leaf):
     def update(self) -> Status:
         """Count wood against the remaining needs."""
         p = self.ctx.percept
-        if p.count("iron_pickaxe"):
+        if p.count("iron_pickaxe") or p.count("stone_pickaxe"):
+            # Past the surface: no more trees down here; fuel then comes from coal.
             return Status.SUCCESS
         have = 4 * p.count("log") + p.count("planks") + p.count("stick") / 2
         need = 0.0 if p.count("crafting_table") else 4.0
