@@ -14,7 +14,7 @@ from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
 from actors.behaviours.options import HARDCODED, RL, OptionsBehaviour
 from learner.backbone.learning import teacher_target
 from learner.backbone.networks import zero_output_
-from learner.dqn.learning import double_q_target
+from learner.dqn.learning import double_q_target, linear_decay
 from learner.options.targets import (
     gaussian_log_prob,
     importance_ratio,
@@ -254,6 +254,78 @@ def test_dqn_target_network_moves_every_target_update_every_updates(tau, moved):
         before, learner.target_q.parameters(), learner.q.parameters(), strict=True
     ):
         torch.testing.assert_close(new, old + moved * (online - old))
+
+
+@pytest.mark.parametrize(
+    "step, expected",
+    [(0, 4e-3), (1, 3e-3), (2, 2e-3), (3, 1e-3), (4, 0.0), (9, 0.0)],  # 4e-3 · (1 − step/4)
+)
+def test_learning_rate_decays_linearly_to_its_end_value_and_stays(step, expected):
+    assert linear_decay(4e-3, 0.0, step=step, steps=4) == pytest.approx(expected)
+
+
+def test_dqn_learner_steps_at_the_scheduled_rate_and_stops_moving_at_zero():
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+
+    config = DQNConfig(hidden_sizes=(4,), learning_rate=4e-3, learning_rate_end=0.0)
+    learner = DQNLearner(2, 2, config=config, seed=0, total_updates=4)
+    batch = {
+        "obs": torch.ones(8, 2),
+        "action": torch.zeros(8, dtype=torch.int64),
+        "reward": torch.ones(8),
+        "terminated": torch.zeros(8, dtype=torch.bool),
+        "next_obs": torch.ones(8, 2),
+    }
+    rates = [learner.update(batch)["charts/learning_rate"] for _ in range(4)]
+    assert rates == pytest.approx([4e-3, 3e-3, 2e-3, 1e-3])
+    # Past the schedule the rate is 0: Adam's step is lr-scaled, so the network is frozen.
+    before = [p.clone() for p in learner.q.parameters()]
+    assert learner.update(batch)["charts/learning_rate"] == 0.0
+    assert all(torch.equal(a, b) for a, b in zip(before, learner.q.parameters(), strict=True))
+    # A resumed learner continues the schedule from its update count.
+    resumed = DQNLearner(2, 2, config=config, seed=1, total_updates=4)
+    learner.num_updates = 2
+    resumed.load_state_dict(learner.state_dict())
+    assert resumed.learning_rate == pytest.approx(2e-3)
+
+
+def test_dqn_learning_rate_schedule_refuses_what_cannot_decay():
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+
+    for end in (-1e-4, 2e-3):  # below 0, above the start rate
+        with pytest.raises(ValueError, match="learning_rate_end"):
+            DQNConfig(learning_rate=1e-3, learning_rate_end=end)
+    with pytest.raises(ValueError, match="total_updates"):
+        DQNLearner(2, 2, config=DQNConfig(learning_rate_end=0.0), seed=0)
+    # Without an end value the rate is constant, whatever the update count.
+    learner = DQNLearner(2, 2, config=DQNConfig(learning_rate=1e-3), seed=0)
+    learner.num_updates = 10**6
+    assert learner.learning_rate == 1e-3
+
+
+def test_dqn_builder_decays_the_rate_over_the_runs_updates():
+    from gymnasium import spaces
+
+    from learner.agent import Budget
+    from learner.dqn.builder import DQNBuilder
+    from learner.dqn.config import DQNConfig
+
+    builder = DQNBuilder(
+        spaces.Box(-1.0, 1.0, shape=(4,)),
+        spaces.Discrete(2),
+        config=DQNConfig(hidden_sizes=(4,), learning_rate=1e-3, learning_rate_end=1e-4),
+        budget=Budget(
+            env_steps=5000, learning_starts=1000, updates_per_env_step=0.5, slack_env_steps=0
+        ),
+        seed=0,
+    )
+    learner = builder.make_learner()
+    learner.num_updates = 1000  # half of (5000 − 1000) · 0.5 = 2000 updates
+    assert learner.learning_rate == pytest.approx(5.5e-4)
+    learner.num_updates = 2000
+    assert learner.learning_rate == pytest.approx(1e-4)
 
 
 class ConstantCritic(nn.Module):

@@ -43,7 +43,14 @@ class DQNBuilder:
         ]
 
     def make_learner(self) -> DQNLearner:
-        return DQNLearner(self.obs_dim, self.num_actions, config=self.config, seed=self.seed)
+        (phase,) = self.phases()
+        return DQNLearner(
+            self.obs_dim,
+            self.num_actions,
+            config=self.config,
+            seed=self.seed,
+            total_updates=phase.updates,
+        )
 
     def make_behaviour(self, *, num_actors: int) -> EpsilonGreedyBehaviour:
         c = self.config

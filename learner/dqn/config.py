@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 
 @dataclass(frozen=True)
@@ -12,7 +13,11 @@ class DQNConfig:
     gamma: float = 0.99
     """Discount factor of the target, eq. (4)."""
     learning_rate: float = 1e-3
-    """Adam learning rate of the Q network."""
+    """Adam learning rate of the Q network (at the first update)."""
+    learning_rate_end: Optional[float] = None
+    """Learning rate at the run's last update: it decays linearly from `learning_rate`
+    over the run's updates (None: constant). A rate near 0 at the end keeps the final
+    policy from oscillating, as DQN on CartPole does at a constant rate."""
     hidden_sizes: tuple[int, ...] = (128, 128)
     """Widths of the hidden ReLU layers of the Q network."""
     batch_size: int = 64
@@ -38,6 +43,13 @@ class DQNConfig:
             raise ValueError(f"gamma={self.gamma} must lie in [0, 1]")
         if self.learning_rate <= 0.0 or self.max_grad_norm <= 0.0:
             raise ValueError("learning_rate and max_grad_norm must be > 0")
+        if self.learning_rate_end is not None and not (
+            0.0 <= self.learning_rate_end <= self.learning_rate
+        ):
+            raise ValueError(
+                f"learning_rate_end={self.learning_rate_end} must lie in [0, learning_rate="
+                f"{self.learning_rate}]: the schedule decays (None keeps the rate constant)"
+            )
         if not self.hidden_sizes or any(h < 1 for h in self.hidden_sizes):
             raise ValueError(f"hidden_sizes={self.hidden_sizes} must be positive widths")
         if not 0.0 < self.target_tau <= 1.0:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 import torch
@@ -44,10 +44,35 @@ def double_q_target(
     return returns + discount * target(next_obs).gather(1, best).squeeze(1)
 
 
-class DQNLearner:
-    """Online and target Q networks, Adam; the target moves every `target_update_every`."""
+def linear_decay(start: float, end: float, *, step: int, steps: int) -> float:
+    """start + (end − start) · min(step / steps, 1): `start` at step 0, `end` from `steps` on."""
+    return start + (end - start) * min(step / steps, 1.0)
 
-    def __init__(self, obs_dim: int, num_actions: int, *, config: DQNConfig, seed: int) -> None:
+
+class DQNLearner:
+    """Online and target Q networks, Adam; the target moves every `target_update_every`.
+
+    With `config.learning_rate_end` set, update u (counted from 0) steps at
+    lr(u) = linear_decay(learning_rate, learning_rate_end, step=u, steps=total_updates):
+    the rate follows the update count, so a resumed run continues the same schedule.
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        num_actions: int,
+        *,
+        config: DQNConfig,
+        seed: int,
+        total_updates: Optional[int] = None,
+    ) -> None:
+        """`total_updates` (the run's update count) is needed iff the rate decays."""
+        if config.learning_rate_end is not None and (total_updates is None or total_updates < 1):
+            raise ValueError(
+                f"learning_rate_end={config.learning_rate_end} decays the rate over the run's "
+                f"updates, but total_updates={total_updates}; pass the phase's update count "
+                "(>= 1), or set learning_rate_end to None for a constant rate"
+            )
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
             self.q = make_q_network(obs_dim, num_actions, config.hidden_sizes)
@@ -57,7 +82,18 @@ class DQNLearner:
         self._target_every = config.target_update_every
         self._target_tau = config.target_tau
         self._max_grad_norm = config.max_grad_norm
+        self._lr_start, self._lr_end = config.learning_rate, config.learning_rate_end
+        self._total_updates = total_updates
         self.num_updates = 0
+
+    @property
+    def learning_rate(self) -> float:
+        """The rate the next update steps at."""
+        if self._lr_end is None or self._total_updates is None:
+            return self._lr_start
+        return linear_decay(
+            self._lr_start, self._lr_end, step=self.num_updates, steps=self._total_updates
+        )
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         """One gradient step on the Huber loss against the Double DQN target.
@@ -80,11 +116,18 @@ class DQNLearner:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         nn.utils.clip_grad_norm_(self.q.parameters(), self._max_grad_norm)
+        lr = self.learning_rate
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
         self.optimizer.step()
         self.num_updates += 1
         if self.num_updates % self._target_every == 0:
             soft_update(self.target_q, self.q, self._target_tau)
-        return {"losses/q": float(loss.detach()), "values/q_mean": float(q.detach().mean())}
+        return {
+            "losses/q": float(loss.detach()),
+            "values/q_mean": float(q.detach().mean()),
+            "charts/learning_rate": lr,
+        }
 
     def policy_state(self) -> dict[str, torch.Tensor]:
         return {k: v.detach().clone() for k, v in self.q.state_dict().items()}
