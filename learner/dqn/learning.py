@@ -46,7 +46,7 @@ def double_q_target(
 
 def linear_decay(start: float, end: float, *, step: int, steps: int) -> float:
     """start + (end − start) · min(step / steps, 1): `start` at step 0, `end` from `steps` on."""
-    return start + (end - start) * min(step / steps, 1.0)
+    return end if step >= steps else start + (end - start) * step / steps
 
 
 class DQNLearner:
@@ -67,11 +67,11 @@ class DQNLearner:
         total_updates: Optional[int] = None,
     ) -> None:
         """`total_updates` (the run's update count) is needed iff the rate decays."""
-        if config.learning_rate_end is not None and (total_updates is None or total_updates < 1):
+        if config.learning_rate_end is not None and (total_updates is None or total_updates < 0):
             raise ValueError(
                 f"learning_rate_end={config.learning_rate_end} decays the rate over the run's "
                 f"updates, but total_updates={total_updates}; pass the phase's update count "
-                "(>= 1), or set learning_rate_end to None for a constant rate"
+                "(>= 0), or set learning_rate_end to None for a constant rate"
             )
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
