@@ -118,6 +118,9 @@ class EnvActor:
                 self._adopt_new_weights()
                 env_action, record = self.behaviour.act(self.stepper.obs, self.rng, warmup=warmup)
                 record.update(self.stepper.step(env_action))
+                # Optional hook: columns computed on s' (e.g. the backbone's μ(s')).
+                if next_columns := getattr(self.behaviour, "next_columns", None):
+                    record.update(next_columns(record["next_obs"]))
                 self.behaviour.end_episodes(record["terminated"] | record["truncated"])
                 version = -1 if warmup else self.weights.version  # -1: the warm-up policy
                 record["policy_version"] = np.full(n, version, np.int64)

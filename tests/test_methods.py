@@ -154,6 +154,69 @@ def test_correction_network_starts_at_zero_so_the_agent_starts_as_the_backbone()
     assert np.abs(columns["action"]).max() > 0.0
 
 
+class _Recorder(nn.Module):
+    """A correction network that records its input and outputs zero."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        self.seen = x.clone()
+        return torch.zeros(x.shape[0], 1)
+
+
+def test_observed_backbone_is_an_input_of_the_correction_and_recorded_at_s_prime():
+    correction = _Recorder()
+    backbone = lambda obs: np.where(obs[:, 2:] >= 0, 2.0, -2.0).astype(np.float32)  # noqa: E731
+    behaviour = BackboneBehaviour(
+        correction,
+        backbone,
+        limit=4.0,
+        std=0.2,
+        prefill_std=0.3,
+        low=np.array([-2.0]),
+        high=np.array([2.0]),
+        observe_backbone=True,
+    )
+    obs = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, -3.0]], np.float32)
+    behaviour.greedy(obs)
+    # [s, μ(s) / 2]: μ = +2 and −2 -> +1 and −1.
+    torch.testing.assert_close(
+        correction.seen, torch.tensor([[1.0, 0.0, 0.5, 1.0], [0.0, 1.0, -3.0, -1.0]])
+    )
+    assert "next_backbone_action" in behaviour.columns()
+    next_obs = np.array([[1.0, 0.0, -0.1], [0.0, 1.0, 0.2]], np.float32)
+    np.testing.assert_allclose(
+        behaviour.next_columns(next_obs)["next_backbone_action"], [[-2.0], [2.0]]
+    )
+
+
+def test_observing_learner_appends_mu_to_obs_and_next_obs():
+    from learner.backbone.learning import ObservingBackboneLearner
+    from learner.td3.config import TD3Config
+
+    learner = ObservingBackboneLearner(
+        3, np.array([4.0], np.float32), np.array([2.0]), config=TD3Config(hidden_sizes=(8,)), seed=0
+    )
+    assert learner.actor.net[0].in_features == 4  # s (3) + μ(s) (1)
+    batch = {
+        "obs": torch.zeros(5, 3),
+        "action": torch.zeros(5, 1),
+        "backbone_action": torch.full((5, 1), 2.0),
+        "reward": torch.ones(5),
+        "terminated": torch.zeros(5, dtype=torch.bool),
+        "next_obs": torch.zeros(5, 3),
+    }
+    with pytest.raises(ValueError, match="next_backbone_action"):
+        learner.update(batch)
+    metrics = learner.update({**batch, "next_backbone_action": torch.full((5, 1), -2.0)})
+    assert math.isfinite(metrics["losses/critic"])
+
+
+def test_observe_backbone_refuses_a_teacher():
+    from learner.backbone.config import BackboneConfig
+
+    with pytest.raises(ValueError, match="observe_backbone"):
+        BackboneConfig(observe_backbone=True, teacher="runs/teacher")
+
+
 def test_eq11_teacher_target():
     y = teacher_target(
         torch.tensor([1.0, -1.0]),

@@ -3,7 +3,9 @@
 μ is the hard-coded policy (or a trained teacher actor μ̂, eq. 11) and drives behaviour;
 π learns the correction. Exploration noise is added to the correction only, so the
 backbone keeps steering the trajectories. Replay stores μ(s) (``backbone_action``) and
-the sampled correction (``action``, unclipped) separately.
+the sampled correction (``action``, unclipped) separately. With ``observe_backbone`` π and
+the critics also see μ(s) (`backbone_input`), and replay stores μ(s') too
+(``next_backbone_action``) so that the learner can form the input at s'.
 """
 
 from __future__ import annotations
@@ -44,6 +46,11 @@ def compose_action(
     return np.clip(corrected, low, high).astype(np.float32)
 
 
+def backbone_input(obs: torch.Tensor, backbone: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """The correction's input when it observes the backbone: [s, μ(s) / scale], [B, O + A]."""
+    return torch.cat([obs, backbone / scale], dim=-1)
+
+
 class BackboneBehaviour:
     """Acts μ(s) + clip(c), c ~ N(π(s), σ²); warm-up c ~ N(0, σ_prefill²) (a = μ(s) + ε)."""
 
@@ -57,6 +64,7 @@ class BackboneBehaviour:
         prefill_std: float,
         low: np.ndarray,
         high: np.ndarray,
+        observe_backbone: bool = False,
     ) -> None:
         """Initialises the behaviour.
 
@@ -68,8 +76,10 @@ class BackboneBehaviour:
             prefill_std: Std of ε in the prefill actions μ(s) + ε.
             low: Lower action bounds [A].
             high: Upper action bounds [A].
+            observe_backbone: π's input is [s, μ(s) / high] instead of s.
         """
         self.correction = correction.eval()
+        self.observe_backbone = observe_backbone
         self.backbone = backbone
         self.limit = float(limit)
         self.low, self.high = np.asarray(low), np.asarray(high)
@@ -80,28 +90,41 @@ class BackboneBehaviour:
 
     def columns(self) -> dict[str, dict[str, Any]]:
         shape = tuple(self.low.shape)
-        return {
+        columns = {
             "action": box_column(shape),
             "backbone_action": box_column(shape),
             "log_prob": {"dtype": "float32", "shape": []},
         }
+        if self.observe_backbone:
+            columns["next_backbone_action"] = box_column(shape)
+        return columns
 
     def load(self, weights: dict[str, Any]) -> None:
         self.correction.load_state_dict(weights)
 
-    def _pi(self, obs: np.ndarray) -> np.ndarray:
+    def _mu(self, obs: np.ndarray) -> np.ndarray:
+        return np.asarray(self.backbone(obs), dtype=np.float32)
+
+    def _pi(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(obs, dtype=torch.float32)
+        if self.observe_backbone:
+            x = backbone_input(x, torch.as_tensor(mu), torch.as_tensor(self.high, dtype=x.dtype))
         with torch.no_grad():
-            return self.correction(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+            return self.correction(x).numpy()
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
-        mu = np.asarray(self.backbone(obs), dtype=np.float32)
-        return compose_action(mu, self._pi(obs), limit=self.limit, low=self.low, high=self.high)
+        mu = self._mu(obs)
+        return compose_action(mu, self._pi(obs, mu), limit=self.limit, low=self.low, high=self.high)
+
+    def next_columns(self, next_obs: np.ndarray) -> Columns:
+        """Columns about s' the learner needs: μ(s') when π observes the backbone."""
+        return {"next_backbone_action": self._mu(next_obs)} if self.observe_backbone else {}
 
     def act(
         self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
     ) -> tuple[np.ndarray, Columns]:
-        mu = np.asarray(self.backbone(obs), dtype=np.float32)
-        mean = np.zeros_like(mu) if warmup else self._pi(obs)
+        mu = self._mu(obs)
+        mean = np.zeros_like(mu) if warmup else self._pi(obs, mu)
         std = self.prefill_std if warmup else self.std
         # Noise on the correction only; the sample is stored unclipped (ratios are taken on it).
         correction = (mean + std * rng.standard_normal(mean.shape)).astype(np.float32)

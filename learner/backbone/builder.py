@@ -8,7 +8,7 @@ from actors.behaviours.backbone import BackboneBehaviour
 from actors.behaviours.hardcoded import HardCodedPolicy, hardcoded_policy
 from learner.agent import Phase
 from learner.backbone.config import BackboneConfig
-from learner.backbone.learning import TeacherBackboneLearner
+from learner.backbone.learning import ObservingBackboneLearner, TeacherBackboneLearner
 from learner.backbone.networks import TeacherActor, load_teacher, zero_output_
 from learner.td3.builder import TD3Builder, make_actor_network
 from learner.td3.learning import TD3Learner
@@ -44,6 +44,10 @@ class BackboneBuilder:
                 config=t.config,
                 seed=t.seed,
             )
+        elif self.config.observe_backbone:
+            learner = ObservingBackboneLearner(
+                t.obs_dim, self.bound, t.high, config=t.config, seed=t.seed
+            )
         else:
             learner = TD3Learner(
                 t.obs_dim, t.act_dim, -self.bound, self.bound, config=t.config, seed=t.seed
@@ -60,7 +64,8 @@ class BackboneBuilder:
 
     def make_behaviour(self, *, num_actors: int) -> BackboneBehaviour:
         t = self.td3
-        correction = make_actor_network(t.obs_dim, t.act_dim, -self.bound, self.bound, t.config)
+        in_dim = t.obs_dim + (t.act_dim if self.config.observe_backbone else 0)
+        correction = make_actor_network(in_dim, t.act_dim, -self.bound, self.bound, t.config)
         return BackboneBehaviour(
             correction,
             self._backbone(),
@@ -69,4 +74,5 @@ class BackboneBuilder:
             prefill_std=self.config.prefill_noise,
             low=t.low,
             high=t.high,
+            observe_backbone=self.config.observe_backbone,
         )

@@ -16,6 +16,10 @@ class BackboneConfig:
     """Std of ε in the prefill actions a = μ(s) + ε (action units)."""
     teacher: Optional[str] = None
     """A trained TD3 run folder (or checkpoint) as backbone μ̂ with critic Q̂: eq. (11)."""
+    observe_backbone: bool = False
+    """Give μ(s) (scaled to [−1, 1]) to the correction actor and the critics as an extra
+    input, as residual policy learning does. The paper's π(s) sees s only; with a bang-bang
+    μ the correction it needs is discontinuous in s (μ flips with sign θ̇) but not in μ(s)."""
 
     def __post_init__(self) -> None:
         if not self.correction_limit > 0.0:
@@ -25,3 +29,8 @@ class BackboneConfig:
             )
         if not self.prefill_noise > 0.0:
             raise ValueError(f"prefill_noise={self.prefill_noise} must be > 0 (log_prob needs it)")
+        if self.observe_backbone and self.teacher:
+            raise ValueError(
+                "observe_backbone=True with a teacher is not supported: the teacher's critic "
+                "Q̂ takes s only; drop one of backbone.observe_backbone / backbone.teacher"
+            )

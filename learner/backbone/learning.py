@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from actors.behaviours.backbone import backbone_input
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner, td3_target
 from learner.td3.networks import Actor, TwinCritic
@@ -38,6 +39,36 @@ def teacher_target(
     """
     not_done = 1.0 - terminated.to(reward.dtype)
     return reward + gamma * not_done * (teacher_next_value + next_correction_value)
+
+
+class ObservingBackboneLearner(TD3Learner):
+    """TD3 on the correction whose actor and critics see [s, μ(s) / scale] (residual RL).
+
+    The batches carry μ(s) (``backbone_action``) and μ(s') (``next_backbone_action``), as
+    the actors recorded them; this learner appends them to ``obs`` and ``next_obs``.
+    """
+
+    def __init__(
+        self, obs_dim: int, bound: np.ndarray, scale: np.ndarray, *, config: TD3Config, seed: int
+    ) -> None:
+        """`bound` is L per action dimension; `scale` the half-width of the action box."""
+        act_dim = bound.shape[0]
+        super().__init__(obs_dim + act_dim, act_dim, -bound, bound, config=config, seed=seed)
+        self._scale = torch.as_tensor(scale, dtype=torch.float32)
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        for name in ("backbone_action", "next_backbone_action"):
+            if name not in batch:
+                raise ValueError(
+                    f"batch has no {name!r} column: actors of a backbone run with "
+                    "observe_backbone=True record it (a table written by another run?)"
+                )
+        observed = dict(
+            batch,
+            obs=backbone_input(batch["obs"], batch["backbone_action"], self._scale),
+            next_obs=backbone_input(batch["next_obs"], batch["next_backbone_action"], self._scale),
+        )
+        return super().update(observed)
 
 
 class TeacherBackboneLearner(TD3Learner):
