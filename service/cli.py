@@ -162,7 +162,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     train = commands.add_parser("train", help="train a preset on a Ray cluster")
     train.add_argument("--preset", default="pendulum-td3")
-    train.add_argument("--actors", type=int, help="number of env actors (preset default)")
+    train.add_argument(
+        "--actors",
+        "--clients",
+        dest="actors",
+        type=int,
+        help="number of env actors (preset default); Minecraft presets: simulated worlds",
+    )
     train.add_argument(
         "--address",
         default="local",

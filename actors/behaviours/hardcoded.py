@@ -20,7 +20,11 @@ def hardcoded_policy(env_id: str) -> HardCodedPolicy:
         from actors.behaviour_trees.pendulum import HardCodedPendulumPolicy
 
         return HardCodedPendulumPolicy()
+    if env_id.endswith("MinecraftTravel-v0"):
+        from actors.minecraft.travel_env import TravelBackbone
+
+        return TravelBackbone()
     raise ValueError(
         f"no hard-coded policy for {env_id!r}; the backbone, pre-training and options "
-        "methods need one (known: Pendulum-v1)"
+        "methods need one (known: Pendulum-v1, MinecraftTravel-v0)"
     )

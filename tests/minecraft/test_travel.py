@@ -1,0 +1,223 @@
+"""The travel task: its reward (progress, per-tick cost, stuck penalty) with hand-computed
+values, the route and mission draw, the observation and μ(s) plumbing, and the gym
+environment against a real world server over MalmoEnv."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from actors.behaviours.backbone import compose_action
+from actors.behaviours.hardcoded import hardcoded_policy
+from actors.minecraft.behaviours.percept import RADIUS, SIDE, Percept
+from actors.minecraft.blocks import ID
+from actors.minecraft.travel_control import (
+    JUMP_OFF,
+    JUMP_ON,
+    MU,
+    OBS_DIM,
+    TreeSteering,
+    compose_commands,
+    local_goal,
+    observation,
+    to_agent_frame,
+)
+from actors.minecraft.travel_env import ENV_ID, TravelBackbone
+from actors.minecraft.travel_task import (
+    RewardConfig,
+    StuckDetector,
+    TravelReward,
+    draw_missions,
+    route_to_go,
+)
+
+ROUTE = ((0, 4, 0), (0, 4, 1), (0, 4, 2), (1, 4, 2))
+
+
+# ------------------------------------------------------------------ reward
+def test_route_to_go_hand_computed() -> None:
+    # At the start cell's centre: 3 cells along the route, or straight to the last cell
+    # (1, 4, 2): sqrt(1 + 4) = 2.236, the shorter (the route is a staircase of cells).
+    assert route_to_go(ROUTE, 0.5, 4.0, 0.5) == pytest.approx(math.sqrt(5.0))
+    # Between cells 1 and 2: 1 + 0.5 via cell 2, or sqrt(1 + 0.25) straight to the end.
+    assert route_to_go(ROUTE, 0.5, 4.0, 2.0) == pytest.approx(math.sqrt(1.25))
+    # A long straight route: cells left plus the way to the nearest one.
+    straight = tuple((0, 4, i) for i in range(10))
+    assert route_to_go(straight, 0.5, 4.0, 2.5) == pytest.approx(7.0)
+    assert route_to_go(straight, 0.5, 4.0, 2.9) == pytest.approx(6.6)
+    # At the destination's centre: 0. Beside it, 0.5 off: 0.5.
+    assert route_to_go(ROUTE, 1.5, 4.0, 2.5) == pytest.approx(0.0)
+    assert route_to_go(ROUTE, 2.0, 4.0, 2.5) == pytest.approx(0.5)
+    # Cells more than 2 blocks above or below do not count (a cliff top is not progress)...
+    high = ((0, 4, 0), (5, 20, 0))
+    assert route_to_go(high, 5.5, 4.0, 0.5) == pytest.approx(1.0 + 5.0)
+    # ...unless no cell is within 2 blocks of height: then the nearest of all.
+    assert route_to_go(high, 5.5, 10.0, 0.5) == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize(
+    ("phis", "expected"),
+    [
+        # 0.2 blocks of progress, then 0.1: r = Δφ - 0.05
+        ([3.0, 2.8, 2.7], [0.2 - 0.05, 0.1 - 0.05]),
+        # Walking away is negative progress.
+        ([3.0, 3.3], [-0.3 - 0.05]),
+    ],
+)
+def test_reward_progress_and_tick_cost(phis: list[float], expected: list[float]) -> None:
+    reward = TravelReward(RewardConfig(tick_cost=0.05, stuck_penalty=2.0, stuck_ticks=40))
+    reward.reset(phis[0])
+    got = [reward.step(phi)[0] for phi in phis[1:]]
+    np.testing.assert_allclose(got, expected, atol=1e-9)
+
+
+def test_stuck_penalty_fires_every_k_ticks_without_progress() -> None:
+    cfg = RewardConfig(
+        progress_scale=1.0, tick_cost=0.05, stuck_penalty=2.0, stuck_ticks=3, stuck_progress=1.0
+    )
+    reward = TravelReward(cfg)
+    reward.reset(10.0)
+    # 0.4 + 0.4 blocks: best improves by < 1 block, so these ticks count as no progress.
+    r1, s1 = reward.step(9.6)
+    r2, s2 = reward.step(9.2)
+    r3, s3 = reward.step(9.2)  # third tick without 1 block of progress: stuck
+    assert (s1, s2, s3) == (False, False, True)
+    assert r1 == pytest.approx(0.4 - 0.05)
+    assert r3 == pytest.approx(0.0 - 0.05 - 2.0)
+    # A full block below the best (10.0) resets the counter: no event for 3 more ticks.
+    assert reward.step(8.9) == (pytest.approx(0.3 - 0.05), False)
+    assert [reward.step(8.9)[1] for _ in range(3)] == [False, False, True]
+    assert reward.stuck.events == 2
+
+
+def test_stuck_detector_counts_from_the_best_progress() -> None:
+    d = StuckDetector(ticks=2, progress=1.0)
+    d.reset(5.0)
+    assert [d.update(x) for x in (4.0, 4.5, 4.9)] == [False, False, True]
+    assert d.events == 1 and d.best == 4.0
+
+
+def test_reward_config_refuses_bad_values_naming_the_field() -> None:
+    with pytest.raises(ValueError, match="stuck_ticks"):
+        RewardConfig(stuck_ticks=0)
+    with pytest.raises(ValueError, match="stuck_progress"):
+        RewardConfig(stuck_progress=0.0)
+    with pytest.raises(ValueError, match="tick_cost"):
+        RewardConfig(tick_cost=-1.0)
+
+
+# ------------------------------------------------------------------ missions
+def test_missions_are_seeded_walkable_and_in_range() -> None:
+    a = draw_missions(3, 3, random.Random(0))
+    b = draw_missions(3, 3, random.Random(0))
+    assert a == b
+    for m in a:
+        start = (math.floor(m.start[0]), int(m.start[1]), math.floor(m.start[2]))
+        assert m.route[0] == start and m.route[-1] == m.destination
+        d = math.hypot(m.destination[0] - start[0], m.destination[2] - start[2])
+        assert 10.0 <= d <= 30.0
+        for u, v in zip(m.route, m.route[1:], strict=False):
+            assert abs(u[0] - v[0]) + abs(u[2] - v[2]) == 1  # 4-neighbour moves
+            assert -3 <= v[1] - u[1] <= 1  # one-block jumps, drops of up to 3
+
+
+# ------------------------------------------------------------------ observation and μ(s)
+def _flat_percept(x: float, z: float, yaw: float = 0.0) -> Percept:
+    """A percept standing on a flat floor (solid below the feet level)."""
+    ids = np.zeros((SIDE, SIDE, SIDE), np.uint8)
+    ids[:RADIUS, :, :] = ID["stone"]
+    return Percept(x=x, y=4.0, z=z, yaw=yaw, ids=ids)
+
+
+def test_agent_frame() -> None:
+    # Yaw 0 faces +z: +z is forward; strafe (right) is -x (world.py).
+    assert to_agent_frame(0.0, 1.0, 0.0) == pytest.approx((1.0, 0.0))
+    assert to_agent_frame(-1.0, 0.0, 0.0) == pytest.approx((0.0, 1.0))
+    # Yaw 90 faces -x.
+    assert to_agent_frame(-1.0, 0.0, 90.0) == pytest.approx((1.0, 0.0), abs=1e-9)
+
+
+def test_local_goal_is_the_furthest_route_cell_in_view() -> None:
+    route = tuple((0, 4, i) for i in range(20))
+    assert local_goal(route, 0, (0, 4, 0)) == (6, (0, 4, 6))
+    assert local_goal(route, 10, (0, 4, 10)) == (16, (0, 4, 16))
+    assert local_goal(route, 18, (0, 4, 18)) == (19, (0, 4, 19))
+
+
+def test_tree_steering_walks_along_the_route_on_flat_ground() -> None:
+    steering = TreeSteering()
+    route = tuple((0, 4, i) for i in range(10))
+    mu, step = steering(_flat_percept(0.5, 0.5), route)
+    # Straight ahead (+z at yaw 0), full speed, no jump; the next A* cell is one ahead.
+    np.testing.assert_allclose(mu, [1.0, 0.0, 0.0, JUMP_OFF], atol=1e-6)
+    assert step == (0, 4, 1)
+    # Facing +x (yaw 270): +z is on the right, i.e. strafe +1.
+    mu, _ = steering(_flat_percept(0.5, 0.5, yaw=270.0), route)
+    np.testing.assert_allclose(mu, [0.0, 1.0, 0.0, JUMP_OFF], atol=1e-6)
+
+
+def test_tree_steering_jumps_onto_a_step() -> None:
+    p = _flat_percept(0.5, 0.5)
+    p.ids[RADIUS, RADIUS + 1, RADIUS] = ID["stone"]  # a block at (0, 4, 1): the step up
+    route = ((0, 4, 0), (0, 5, 1), (0, 5, 2))
+    mu, step = TreeSteering()(p, route)
+    assert step == (0, 5, 1)
+    assert mu[3] == JUMP_ON and mu[0] > 0.9
+
+
+def test_observation_layout_and_backbone_reads_mu() -> None:
+    p = _flat_percept(0.5, 0.5)
+    mu = np.array([0.25, -0.5, 0.0, JUMP_ON], np.float32)
+    obs = observation(
+        p, mu=mu, waypoint=(0, 4, 2), destination=(0, 6, 16), previous=(0.5, 4.0, 0.3),
+        stuck_fraction=0.25,
+    )  # fmt: skip
+    assert obs.shape == (OBS_DIM,) and obs.dtype == np.float32
+    np.testing.assert_allclose(obs[:8], [0.5 / 64, 4 / 64, 0.5 / 64, 0, 1, 0, 1, 1], atol=1e-6)
+    crop = obs[8:108].reshape(4, 5, 5)  # [dy+1, dz+2, dx+2]
+    assert crop[0].all() and not crop[1:].any()  # the floor below, air above
+    np.testing.assert_allclose(obs[108:111], [2.0 / 2, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(obs[111:114], [16.0 / 32, 0.0, 2.0 / 8], atol=1e-6)
+    np.testing.assert_allclose(obs[114:117], [0.2 / (4.317 / 20), 0.0, 0.0], atol=1e-5)
+    np.testing.assert_allclose(obs[117:120], [1.0, 0.0, 0.25])
+    np.testing.assert_allclose(obs[MU], mu)
+    np.testing.assert_allclose(TravelBackbone()(obs[None]), mu[None])
+    assert isinstance(hardcoded_policy(ENV_ID), TravelBackbone)
+
+
+def test_backbone_action_and_commands() -> None:
+    mu = np.array([[1.0, 0.2, 0.0, JUMP_OFF]], np.float32)
+    # A correction of +0.8 on jump turns it on; move stays clipped at 1.
+    a = compose_action(
+        mu, np.array([[0.5, 0.3, -2.0, 0.8]]), limit=1.0, low=-np.ones(4), high=np.ones(4)
+    )
+    np.testing.assert_allclose(a, [[1.0, 0.5, -1.0, 0.3]], atol=1e-6)
+    assert compose_commands(a[0], pitch=0.5) == (
+        "move 1.000\nstrafe 0.500\nturn -1.000\npitch 0.500\njump 1"
+    )
+
+
+# ------------------------------------------------------------------ the environment
+def test_env_over_malmoenv_tree_reaches_the_destination() -> None:
+    """The tree alone (a = μ(s)) on one seeded mission, a real world server on a socket."""
+    missions = draw_missions(2, 1, random.Random(5))
+    env = gym.make(ENV_ID, missions=missions, max_ticks=400)
+    try:
+        obs, _ = env.reset(seed=0)
+        backbone = TravelBackbone()
+        total, phi0 = 0.0, route_to_go(missions[0].route, *missions[0].start)
+        for _ in range(400):
+            obs, r, terminated, truncated, info = env.step(backbone(obs))
+            total += r
+            if terminated or truncated:
+                break
+        assert info["arrived"] and terminated and not truncated
+        # Rewards telescope: Σ r = φ0 − φ_end − 0.05·ticks − 2·stuck events.
+        expected = phi0 - info["phi"] - 0.05 * info["ticks"] - 2.0 * info["stuck_events"]
+        assert total == pytest.approx(expected, abs=1e-4)
+    finally:
+        env.close()
