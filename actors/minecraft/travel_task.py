@@ -245,8 +245,19 @@ def draw_missions(
     sx, sy, sz = terrain.spawn
     start_cell = (math.floor(sx), int(round(sy)), math.floor(sz))
     walk = WalkMap(terrain, start_cell, int(max_dist) + 4)
-    if not walk.standable(start_cell):
-        raise ValueError(f"world {world_seed}: the spawn {start_cell} is not standable")
+    if not walk.standable(start_cell):  # e.g. a tree grew on the spawn: the nearest free cell
+        near = [
+            (start_cell[0] + dx, start_cell[1] + dy, start_cell[2] + dz)
+            for dx in range(-4, 5)
+            for dz in range(-4, 5)
+            for dy in range(-3, 4)
+        ]
+        near = [c for c in near if walk.standable(c)]
+        if not near:
+            raise ValueError(f"world {world_seed}: nothing standable near the spawn {start_cell}")
+        start_cell = min(
+            near, key=lambda c: (abs(c[0] - start_cell[0]) + abs(c[2] - start_cell[2]), c)
+        )
     parent = walk.reachable(start_cell, radius=int(max_dist) + 4)
     candidates = sorted(
         c

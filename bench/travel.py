@@ -1,0 +1,232 @@
+"""Navigation benchmark of the Minecraft travel controller: the tree alone (a = μ(s)) and
+the tree plus a trained backbone correction (a = μ(s) + clip(π(s), [−L, L])).
+
+A fixed set of missions (``--worlds`` seeded worlds from ``--first-world``, ``--per-world``
+destinations 10-30 blocks from each spawn, drawn with seed 0; training draws from worlds
+1000-1063, so these are unseen), each a real world server driven through MalmoEnv,
+synchronous (deterministic), ``--max-ticks`` per episode. "Stuck": the episode had at
+least one stuck event (``travel_task``: no 1 block of progress along the route within
+40 ticks). Time to destination in ticks (20 per second).
+
+    python bench/travel.py --run runs/minecraft-backbone-s0 [--worlds 25 --per-world 4]
+        [--procs 2] [--png docs/img/minecraft-backbone.png]
+    python bench/travel.py            # the tree alone
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import multiprocessing as mp
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from actors.minecraft.travel_task import TravelMission, mission_pool  # noqa: E402
+
+TREE, CORRECTED = "tree", "tree + correction"
+
+
+class Controller:
+    """The tree alone, or the tree plus a trained correction loaded from a run folder."""
+
+    def __init__(self, run: Optional[str]) -> None:
+        from actors.minecraft.travel_env import TravelBackbone
+
+        self.backbone = TravelBackbone()
+        self.correction: Any = None
+        self.limit = 0.0
+        if run is not None:
+            import torch
+            import yaml
+
+            from learner.checkpoint import latest_checkpoint, load_checkpoint
+            from learner.td3.builder import make_actor_network
+            from learner.td3.config import TD3Config
+
+            torch.set_num_threads(1)
+            folder = Path(run)
+            found = latest_checkpoint(folder / "checkpoints")
+            if found is None:
+                raise SystemExit(f"bench/travel.py: no checkpoint under {folder}/checkpoints")
+            cfg = yaml.safe_load((folder / "config.yaml").read_text())
+            self.limit = float(cfg["backbone"]["correction_limit"])
+            td3 = TD3Config(hidden_sizes=tuple(cfg["td3"]["hidden_sizes"]))
+            from actors.minecraft.travel_control import OBS_DIM
+
+            bound = np.full(4, self.limit, np.float32)
+            net = make_actor_network(OBS_DIM, 4, -bound, bound, td3)
+            net.load_state_dict(load_checkpoint(found)["algorithm"]["actor"])
+            self.correction = net.eval()
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        from actors.behaviours.backbone import compose_action
+
+        mu = self.backbone(obs[None])
+        if self.correction is None:
+            return mu[0]
+        import torch
+
+        with torch.no_grad():
+            pi = self.correction(torch.as_tensor(obs[None], dtype=torch.float32)).numpy()
+        one = np.ones(4, np.float32)
+        return compose_action(mu, pi, limit=self.limit, low=-one, high=one)[0]
+
+
+def run_chunk(args: tuple[str, Optional[str], list[TravelMission], list[int], int]) -> list[dict]:
+    """Episodes ``indices`` of ``missions`` with one controller, one world server."""
+    import gymnasium as gym
+
+    from actors.minecraft.travel_env import ENV_ID
+
+    name, run, missions, indices, max_ticks = args
+    controller = Controller(run)
+    env = gym.make(ENV_ID, missions=missions, max_ticks=max_ticks)
+    rows = []
+    try:
+        for i in indices:
+            obs, _ = env.reset(seed=i)
+            total, info = 0.0, {}
+            while True:
+                obs, r, terminated, truncated, info = env.step(controller(obs))
+                total += r
+                if terminated or truncated:
+                    break
+            m = missions[i]
+            rows.append(
+                {
+                    "controller": name,
+                    "mission": i,
+                    "world": m.world_seed,
+                    "route_cells": len(m.route),
+                    "arrived": bool(info["arrived"]),
+                    "died": bool(info["died"]),
+                    "ticks": int(info["ticks"]),
+                    "stuck_events": int(info["stuck_events"]),
+                    "return": round(total, 3),
+                }
+            )
+    finally:
+        env.close()
+    return rows
+
+
+def summarise(rows: list[dict]) -> dict[str, float]:
+    arrived = [r for r in rows if r["arrived"]]
+    return {
+        "episodes": len(rows),
+        "success": len(arrived) / len(rows),
+        "median_ticks": statistics.median(r["ticks"] for r in arrived) if arrived else float("nan"),
+        "stuck": sum(r["stuck_events"] > 0 for r in rows) / len(rows),
+        "stuck_events": sum(r["stuck_events"] for r in rows),
+        "deaths": sum(r["died"] for r in rows),
+        "mean_return": statistics.fmean(r["return"] for r in rows),
+    }
+
+
+def training_curve(run: Path, png: Path, tree_level: float) -> None:
+    """The run's evaluation return against env steps, with the tree alone's level."""
+    from service.metrics import plot_learning_curve
+
+    png.parent.mkdir(parents=True, exist_ok=True)
+    plot_learning_curve(
+        run / "metrics.csv",
+        png,
+        title="minecraft-backbone: evaluation return (8 training-world missions)",
+        reference={"tree alone (same missions)": tree_level},
+    )
+
+
+def tree_eval_level(run: Path) -> float:
+    """The tree alone's mean return on the evaluator's episodes of ``run`` (same seeds)."""
+    import yaml
+
+    from actors.evaluation import run_episodes
+    from actors.minecraft.travel_env import ENV_ID, TravelBackbone
+
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    returns = run_episodes(
+        TravelBackbone(),
+        env_id=ENV_ID,
+        episodes=int(cfg["eval_episodes"]),
+        seed=10_000 + int(cfg["seed"]),
+    )
+    return float(returns.mean())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--run", help="a minecraft-backbone run folder (omit: the tree alone)")
+    ap.add_argument("--worlds", type=int, default=25)
+    ap.add_argument("--first-world", type=int, default=0)
+    ap.add_argument("--per-world", type=int, default=4, help="destinations per world")
+    ap.add_argument("--max-ticks", type=int, default=600)
+    ap.add_argument("--procs", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=Path("runs/bench-travel"))
+    ap.add_argument("--png", type=Path, help="also draw the run's training curve here")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    worlds = list(range(args.first_world, args.first_world + args.worlds))
+    missions = mission_pool(worlds, args.per_world, seed=0)
+    print(f"{len(missions)} missions in {len(worlds)} worlds ({time.perf_counter() - t0:.0f} s)",
+          file=sys.stderr, flush=True)  # fmt: skip
+    controllers = [(TREE, None)] + ([(CORRECTED, args.run)] if args.run else [])
+    jobs = []
+    for name, run in controllers:
+        for k in range(args.procs * 4):
+            idx = list(range(k, len(missions), args.procs * 4))
+            jobs.append((name, run, missions, idx, args.max_ticks))
+    rows: list[dict] = []
+    with mp.get_context("spawn").Pool(args.procs) as pool:
+        for chunk in pool.imap_unordered(run_chunk, jobs):
+            rows.extend(chunk)
+            done = {n: sum(r["controller"] == n for r in rows) for n, _ in controllers}
+            print(f"[{time.perf_counter() - t0:.0f} s] episodes done: {done}",
+                  file=sys.stderr, flush=True)  # fmt: skip
+    rows.sort(key=lambda r: (r["controller"], r["mission"]))
+    args.out.mkdir(parents=True, exist_ok=True)
+    with open(args.out / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"\n{len(missions)} destinations, worlds {worlds[0]}-{worlds[-1]}, "
+          f"max {args.max_ticks} ticks, synchronous\n")  # fmt: skip
+    print("| controller | success | median ticks to destination | episodes stuck | "
+          "stuck events | deaths | mean return |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
+    for name, _ in controllers:
+        s = summarise([r for r in rows if r["controller"] == name])
+        print(f"| {name} | {100 * s['success']:.0f}% | {s['median_ticks']:.0f} | "
+              f"{100 * s['stuck']:.0f}% | {s['stuck_events']} | {s['deaths']} | "
+              f"{s['mean_return']:.2f} |")  # fmt: skip
+    if args.run:
+        by = {(r["controller"], r["mission"]): r for r in rows}
+        both = [
+            i
+            for i in range(len(missions))
+            if by[(TREE, i)]["arrived"] and by[(CORRECTED, i)]["arrived"]
+        ]
+        if both:
+            ratio = [by[(CORRECTED, i)]["ticks"] / by[(TREE, i)]["ticks"] for i in both]
+            faster = sum(by[(CORRECTED, i)]["ticks"] < by[(TREE, i)]["ticks"] for i in both)
+            print(f"\nmissions both reached: {len(both)}; corrected/tree time ratio: median "
+                  f"{statistics.median(ratio):.3f}; corrected faster on {faster}")  # fmt: skip
+        if args.png:
+            level = tree_eval_level(Path(args.run))
+            training_curve(Path(args.run), args.png, level)
+            print(f"training curve: {args.png} (tree alone on the evaluator's missions: "
+                  f"{level:.2f})")  # fmt: skip
+    print(f"wall {time.perf_counter() - t0:.0f} s with {args.procs} processes; "
+          f"episodes: {args.out / 'episodes.csv'}")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
