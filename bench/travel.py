@@ -36,7 +36,7 @@ TREE, CORRECTED = "tree", "tree + correction"
 class Controller:
     """The tree alone, or the tree plus a trained correction loaded from a run folder."""
 
-    def __init__(self, run: Optional[str]) -> None:
+    def __init__(self, run: Optional[str], checkpoint: Optional[str] = None) -> None:
         from actors.minecraft.travel_env import TravelBackbone
 
         self.backbone = TravelBackbone()
@@ -52,7 +52,7 @@ class Controller:
 
             torch.set_num_threads(1)
             folder = Path(run)
-            found = latest_checkpoint(folder / "checkpoints")
+            found = Path(checkpoint) if checkpoint else latest_checkpoint(folder / "checkpoints")
             if found is None:
                 raise SystemExit(f"bench/travel.py: no checkpoint under {folder}/checkpoints")
             cfg = yaml.safe_load((folder / "config.yaml").read_text())
@@ -79,14 +79,17 @@ class Controller:
         return compose_action(mu, pi, limit=self.limit, low=-one, high=one)[0]
 
 
-def run_chunk(args: tuple[str, Optional[str], list[TravelMission], list[int], int]) -> list[dict]:
+Job = tuple[str, Optional[str], Optional[str], list[TravelMission], list[int], int]
+
+
+def run_chunk(job: Job) -> list[dict]:
     """Episodes ``indices`` of ``missions`` with one controller, one world server."""
     import gymnasium as gym
 
     from actors.minecraft.travel_env import ENV_ID
 
-    name, run, missions, indices, max_ticks = args
-    controller = Controller(run)
+    name, run, checkpoint, missions, indices, max_ticks = job
+    controller = Controller(run, checkpoint)
     env = gym.make(ENV_ID, missions=missions, max_ticks=max_ticks)
     rows = []
     try:
@@ -164,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", help="a minecraft-backbone run folder (omit: the tree alone)")
+    ap.add_argument("--checkpoint", help="a checkpoint of --run (default: its latest)")
     ap.add_argument("--worlds", type=int, default=25)
     ap.add_argument("--first-world", type=int, default=0)
     ap.add_argument("--per-world", type=int, default=4, help="destinations per world")
@@ -182,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, run in controllers:
         for k in range(args.procs * 4):
             idx = list(range(k, len(missions), args.procs * 4))
-            jobs.append((name, run, missions, idx, args.max_ticks))
+            jobs.append((name, run, args.checkpoint, missions, idx, args.max_ticks))
     rows: list[dict] = []
     with mp.get_context("spawn").Pool(args.procs) as pool:
         for chunk in pool.imap_unordered(run_chunk, jobs):

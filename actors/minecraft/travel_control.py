@@ -33,8 +33,8 @@ VIEW = RADIUS - 1  # route cells up to this far (each axis) count as in view
 
 # The compact observation, float32 (see `observation`).
 STATS = 8  # the sec. III-D stats: x, y, z / 64, sin, cos yaw, pitch / 90, life, food / 20
-CROP = (2, 1, 2)  # occupancy around the feet: dx, dz in -2..2, dy in -1..2
-CROP_CELLS = 5 * 4 * 5
+CROP_OFFSETS = (-1.6, -0.8, 0.0, 0.8, 1.6)  # blocks, forward and right of the feet
+CROP_CELLS = 4 * 5 * 5
 EXTRA = 3 + 3 + 3 + 2 + 1  # waypoint, destination, velocity, on ground / in liquid, stuck
 OBS_DIM = STATS + CROP_CELLS + EXTRA + len(ACTION_NAMES)
 MU = slice(OBS_DIM - len(ACTION_NAMES), OBS_DIM)
@@ -115,6 +115,25 @@ class TreeSteering:
         return mu, step
 
 
+def egocentric_occupancy(p: Percept) -> np.ndarray:
+    """{0, 1} occupancy (1 = solid) sampled around the feet in the agent's own frame, the
+    frame of move/strafe: at (forward, right) offsets ``CROP_OFFSETS`` from the exact feet
+    position and heights dy = -1..2 (ground, feet, head, above), index
+    ``(dy+1)*25 + f*5 + r`` (f, r the offsets' indices). Offsets of 0.8 blocks resolve the
+    corners the 0.6-wide body catches on, whatever the yaw."""
+    yr = math.radians(p.yaw)
+    fx, fz = -math.sin(yr), math.cos(yr)
+    out = np.zeros((4, 5, 5), np.float32)
+    for j, f in enumerate(CROP_OFFSETS):
+        for k, r in enumerate(CROP_OFFSETS):
+            x = math.floor(p.x + f * fx - r * fz)
+            z = math.floor(p.z + f * fz + r * fx)
+            for i in range(4):
+                b = p.block((x, math.floor(p.y + 1e-6) + i - 1, z))
+                out[i, j, k] = 1.0 if b is None else float(B.SOLID[b])
+    return out.reshape(-1)
+
+
 def observation(
     p: Percept,
     *,
@@ -153,9 +172,7 @@ def observation(
         ],
         np.float32,
     )
-    r = RADIUS
-    ids = p.ids[r - 1 : r + 3, r - 2 : r + 3, r - 2 : r + 3]  # [y, z, x]
-    crop = B.SOLID[ids].astype(np.float32).reshape(-1)
+    crop = egocentric_occupancy(p)
     extra = np.zeros(EXTRA, np.float32)
     if waypoint is not None:
         f, s = to_agent_frame(waypoint[0] + 0.5 - p.x, waypoint[2] + 0.5 - p.z, yaw)

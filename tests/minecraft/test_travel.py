@@ -221,3 +221,16 @@ def test_env_over_malmoenv_tree_reaches_the_destination() -> None:
         assert total == pytest.approx(expected, abs=1e-4)
     finally:
         env.close()
+
+
+def test_occupancy_is_sampled_in_the_agent_frame() -> None:
+    from actors.minecraft.travel_control import egocentric_occupancy
+
+    p = _flat_percept(0.5, 0.5, yaw=90.0)  # facing -x; right is -z
+    p.ids[RADIUS, RADIUS, RADIUS - 1] = ID["stone"]  # (-1, 4, 0): one block ahead, feet level
+    p.ids[RADIUS + 1, RADIUS - 1, RADIUS] = ID["stone"]  # (0, 5, -1): on the right, head level
+    occ = egocentric_occupancy(p).reshape(4, 5, 5)  # [dy+1, forward, right]
+    assert occ[0].all()  # the floor
+    assert occ[1, 3, 2] == 1.0 and occ[1].sum() == 1.0  # 0.8 ahead only (1.6 is past it)
+    assert occ[2, 2, 3] == 1.0 and occ[2].sum() == 1.0
+    assert occ[3].sum() == 0.0
