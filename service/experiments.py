@@ -46,6 +46,13 @@ class Experiment:
 
 
 _DEMO_NOISES = (0.1, 0.5, 1.0, 2.0)
+_PAPER_BACKBONE = {
+    "backbone.correction_limit": 2.0,
+    "backbone.prefill_noise": 0.5,
+    "backbone.observe_backbone": False,
+    "td3.frozen_actor_updates": 0,
+    "td3.exploration_noise": 0.1,
+}
 EXPERIMENTS = {
     "fig2": Experiment(
         "fig2",
@@ -84,12 +91,17 @@ EXPERIMENTS = {
         "Fig. 4: TD3 vs TD3 with the hard-coded policy as backbone (clip range L)",
         (
             Variant("TD3", "pendulum-td3"),
-            # With a bang-bang backbone (μ = ±2) only L >= 4 lets a = clip(μ + c) reach
-            # every torque in [-2, 2]; narrower ranges keep the action on μ's side.
-            Variant("backbone L=4.0", "pendulum-backbone", {"backbone.correction_limit": 4.0}),
-            Variant("backbone L=2.0", "pendulum-backbone", {"backbone.correction_limit": 2.0}),
-            Variant("backbone L=1.0", "pendulum-backbone", {"backbone.correction_limit": 1.0}),
-            Variant("backbone L=0.5", "pendulum-backbone", {"backbone.correction_limit": 0.5}),
+            # The preset's recipe (μ(s) observed, wide prefill, critic burn-in) over clip
+            # ranges L. With a bang-bang backbone (μ = ±2) only L >= 4 lets a = clip(μ + c)
+            # reach every torque in [-2, 2]; narrower ranges keep the action on μ's side.
+            *(
+                Variant(
+                    f"backbone L={limit}", "pendulum-backbone", {"backbone.correction_limit": limit}
+                )
+                for limit in (4.0, 2.0, 1.0)
+            ),
+            # The paper's own setting: π(s) sees s only, prefill σ = 0.5, no burn-in.
+            Variant("backbone (paper) L=2.0", "pendulum-backbone", _PAPER_BACKBONE),
         ),
     ),
     "fig5": Experiment(
@@ -154,8 +166,9 @@ def run_experiment(
         if r["variant"] not in {v.label for v in chosen}
     ]
     jobs = []
-    for variant in chosen:
-        for seed in range(seeds):
+    # Seed-major: an experiment cut short still has every variant on the same seeds.
+    for seed in range(seeds):
+        for variant in chosen:
             merged = {**exp.shared, **variant.overrides, **(overrides or {}), "seed": seed}
             load_preset(variant.preset, **merged)  # refuse bad settings before any run starts
             jobs.append((variant, seed, merged, folder / f"{_slug(variant)}-s{seed}"))
@@ -189,7 +202,7 @@ def run_experiment(
             f"{result['summary']['env_steps']} env steps",
             flush=True,
         )
-    write_rows(csv_path, rows)
+        write_rows(csv_path, rows)  # after every run: an interrupted experiment keeps them
     return report(name, out_dir)
 
 

@@ -31,6 +31,7 @@ BUDGETS = {
     "pendulum-pretrained-td3": {"env_steps": 400, "td3.frozen_actor_updates": 20, **DEMOS},
     "pendulum-td3bc": {"env_steps": 400, **DEMOS},
     "pendulum-burnin": {"env_steps": 400, "td3.frozen_actor_updates": 20, **DEMOS},
+    "pendulum-backbone": {"env_steps": 300, "td3.frozen_actor_updates": 20},
 }
 
 
