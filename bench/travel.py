@@ -34,49 +34,44 @@ TREE, CORRECTED = "tree", "tree + correction"
 
 
 class Controller:
-    """The tree alone, or the tree plus a trained correction loaded from a run folder."""
+    """The tree alone (``run`` None), or the greedy policy of a trained run of any
+    algorithm on the travel task (backbone: μ(s) + clip(π(s)); options: the policy over
+    {tree, RL}), loaded the way ``graft eval`` loads one."""
 
     def __init__(self, run: Optional[str], checkpoint: Optional[str] = None) -> None:
         from actors.minecraft.travel_env import TravelBackbone
 
-        self.backbone = TravelBackbone()
-        self.correction: Any = None
-        self.limit = 0.0
-        if run is not None:
-            import torch
-            import yaml
+        self.policy: Any = None
+        self.behaviour: Any = None
+        if run is None:
+            self.policy = TravelBackbone()
+            return
+        import torch
+        import yaml
 
-            from learner.checkpoint import latest_checkpoint, load_checkpoint
-            from learner.td3.builder import make_actor_network
-            from learner.td3.config import TD3Config
+        from learner.checkpoint import latest_checkpoint, load_checkpoint
+        from learner.registry import make_builder
+        from service.config import load_preset
 
-            torch.set_num_threads(1)
-            folder = Path(run)
-            found = Path(checkpoint) if checkpoint else latest_checkpoint(folder / "checkpoints")
-            if found is None:
-                raise SystemExit(f"bench/travel.py: no checkpoint under {folder}/checkpoints")
-            cfg = yaml.safe_load((folder / "config.yaml").read_text())
-            self.limit = float(cfg["backbone"]["correction_limit"])
-            td3 = TD3Config(hidden_sizes=tuple(cfg["td3"]["hidden_sizes"]))
-            from actors.minecraft.travel_control import OBS_DIM
-
-            bound = np.full(4, self.limit, np.float32)
-            net = make_actor_network(OBS_DIM, 4, -bound, bound, td3)
-            net.load_state_dict(load_checkpoint(found)["algorithm"]["actor"])
-            self.correction = net.eval()
+        torch.set_num_threads(1)
+        folder = Path(run)
+        found = Path(checkpoint) if checkpoint else latest_checkpoint(folder / "checkpoints")
+        if found is None or not found.is_file():
+            raise SystemExit(f"bench/travel.py: no checkpoint under {folder}/checkpoints")
+        data = yaml.safe_load((folder / "config.yaml").read_text())
+        builder = make_builder(load_preset(data.pop("preset"), **data))
+        learner = builder.make_learner()
+        learner.load_state_dict(load_checkpoint(found)["algorithm"])
+        self.behaviour = builder.make_behaviour(num_actors=1)
+        self.behaviour.load(learner.policy_state())
+        self.policy = self.behaviour.greedy
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
-        from actors.behaviours.backbone import compose_action
+        return np.asarray(self.policy(obs[None]))[0]
 
-        mu = self.backbone(obs[None])
-        if self.correction is None:
-            return mu[0]
-        import torch
-
-        with torch.no_grad():
-            pi = self.correction(torch.as_tensor(obs[None], dtype=torch.float32)).numpy()
-        one = np.ones(4, np.float32)
-        return compose_action(mu, pi, limit=self.limit, low=-one, high=one)[0]
+    def end_episode(self) -> None:
+        if self.behaviour is not None:
+            self.behaviour.end_episodes(np.array([True]))
 
 
 Job = tuple[str, Optional[str], Optional[str], list[TravelMission], list[int], int]
@@ -101,6 +96,7 @@ def run_chunk(job: Job) -> list[dict]:
                 total += r
                 if terminated or truncated:
                     break
+            controller.end_episode()
             m = missions[i]
             rows.append(
                 {
@@ -167,6 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", help="a minecraft-backbone run folder (omit: the tree alone)")
+    ap.add_argument("--label", default=CORRECTED, help="the trained controller's name")
     ap.add_argument("--checkpoint", help="a checkpoint of --run (default: its latest)")
     ap.add_argument("--worlds", type=int, default=25)
     ap.add_argument("--first-world", type=int, default=0)
@@ -181,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     missions = mission_pool(worlds, args.per_world, seed=0)
     print(f"{len(missions)} missions in {len(worlds)} worlds ({time.perf_counter() - t0:.0f} s)",
           file=sys.stderr, flush=True)  # fmt: skip
-    controllers = [(TREE, None)] + ([(CORRECTED, args.run)] if args.run else [])
+    controllers = [(TREE, None)] + ([(args.label, args.run)] if args.run else [])
     jobs = []
     for name, run in controllers:
         for k in range(args.procs * 4):
@@ -215,11 +212,11 @@ def main(argv: list[str] | None = None) -> int:
         both = [
             i
             for i in range(len(missions))
-            if by[(TREE, i)]["arrived"] and by[(CORRECTED, i)]["arrived"]
+            if by[(TREE, i)]["arrived"] and by[(args.label, i)]["arrived"]
         ]
         if both:
-            ratio = [by[(CORRECTED, i)]["ticks"] / by[(TREE, i)]["ticks"] for i in both]
-            faster = sum(by[(CORRECTED, i)]["ticks"] < by[(TREE, i)]["ticks"] for i in both)
+            ratio = [by[(args.label, i)]["ticks"] / by[(TREE, i)]["ticks"] for i in both]
+            faster = sum(by[(args.label, i)]["ticks"] < by[(TREE, i)]["ticks"] for i in both)
             print(f"\nmissions both reached: {len(both)}; corrected/tree time ratio: median "
                   f"{statistics.median(ratio):.3f}; corrected faster on {faster}")  # fmt: skip
         if args.png:
