@@ -59,6 +59,9 @@ class Phase:
     """Actors need learner weights in this phase (the learner publishes at its start)."""
     sequence_length: int = 1
     """Steps per sampled window (1: single transitions)."""
+    sample_credit: float = 0.0
+    """Items the learner may sample at `min_size` beyond the held ratio (a burn-in of
+    updates on the first data); the actors resume once it is spent."""
 
 
 @dataclass(frozen=True)
@@ -71,16 +74,21 @@ class Budget:
     slack_env_steps: int
 
 
-def online_phase(budget: Budget, *, batch_size: int, env_steps: int, warmup: bool) -> Phase:
+def online_phase(
+    budget: Budget, *, batch_size: int, env_steps: int, warmup: bool, burn_in_updates: int = 0
+) -> Phase:
     """The standard off-policy phase: `learning_starts` steps fill the table, then one
-    `updates_per_env_step` ratio of updates per env step, held by the rate limiter."""
+    `updates_per_env_step` ratio of updates per env step, held by the rate limiter;
+    `burn_in_updates` more run on the first `learning_starts` steps before actors go on."""
     return Phase(
         name="transitions",
         env_steps=env_steps,
-        updates=int((env_steps - budget.learning_starts) * budget.updates_per_env_step),
+        updates=int((env_steps - budget.learning_starts) * budget.updates_per_env_step)
+        + burn_in_updates,
         min_size=budget.learning_starts,
         samples_per_insert=budget.updates_per_env_step * batch_size,
         warmup_steps=budget.learning_starts if warmup else 0,
+        sample_credit=float(burn_in_updates * batch_size),
     )
 
 

@@ -56,6 +56,7 @@ def table_spec(
             "samples_per_insert": phase.samples_per_insert,
             "min_size": phase.min_size,
             "error_buffer": slack_env_steps * phase.samples_per_insert,
+            "sample_credit": phase.sample_credit,
         }
     spec = {"name": phase.name, "max_size": max_size, "signature": signature}
     if phase.sequence_length > 1:

@@ -37,17 +37,22 @@ class SampleToInsertRatio:
     The imbalance ``inserts * samples_per_insert - samples`` is kept within
     ``min_size * samples_per_insert ± error_buffer``: inserts wait when actors run
     ahead of the learner, samples wait when the learner runs ahead of the actors.
+    ``sample_credit`` extra samples are allowed once `min_size` items arrived (a learner
+    burn-in on the first data); inserts wait until the learner has spent them.
     """
 
     samples_per_insert: float
     min_size: int = 1
     error_buffer: float = 1.0
+    sample_credit: float = 0.0
 
     def __post_init__(self) -> None:
         if self.samples_per_insert <= 0:
             raise ValueError(f"samples_per_insert must be > 0, got {self.samples_per_insert}")
         if self.min_size < 1:
             raise ValueError(f"min_size must be >= 1, got {self.min_size}")
+        if self.sample_credit < 0:
+            raise ValueError(f"sample_credit must be >= 0, got {self.sample_credit}")
         if self.error_buffer < self.samples_per_insert:
             raise ValueError(
                 f"error_buffer ({self.error_buffer}) is smaller than samples_per_insert "
@@ -57,7 +62,8 @@ class SampleToInsertRatio:
             )
 
     def _imbalance(self, inserts: int, samples: int) -> float:
-        return inserts * self.samples_per_insert - samples - self.min_size * self.samples_per_insert
+        at_min_size = self.min_size * self.samples_per_insert
+        return inserts * self.samples_per_insert - samples - at_min_size + self.sample_credit
 
     def insert_allowed(self, *, inserts: int, samples: int) -> bool:
         return inserts < self.min_size or self._imbalance(inserts, samples) <= self.error_buffer
@@ -68,7 +74,8 @@ class SampleToInsertRatio:
     def describe(self) -> str:
         return (
             f"SampleToInsertRatio(samples_per_insert={self.samples_per_insert}, "
-            f"min_size={self.min_size}, error_buffer={self.error_buffer})"
+            f"min_size={self.min_size}, error_buffer={self.error_buffer}, "
+            f"sample_credit={self.sample_credit})"
         )
 
 
