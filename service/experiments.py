@@ -47,6 +47,8 @@ class Experiment:
 
 _DEMO_NOISES = (0.1, 0.5, 1.0, 2.0)
 _PAPER_BACKBONE = {
+    "learning_starts": 1000,
+    "backbone.critic_burn_in": 0,
     "backbone.correction_limit": 2.0,
     "backbone.prefill_noise": 0.5,
     "backbone.observe_backbone": False,
@@ -100,7 +102,8 @@ EXPERIMENTS = {
                 )
                 for limit in (4.0, 2.0, 1.0)
             ),
-            # The paper's own setting: π(s) sees s only, prefill σ = 0.5, no burn-in.
+            # The paper's own setting: π(s) sees s only, 1,000 prefill steps of σ = 0.5,
+            # no burn-in.
             Variant("backbone (paper) L=2.0", "pendulum-backbone", _PAPER_BACKBONE),
         ),
     ),

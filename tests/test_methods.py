@@ -457,3 +457,40 @@ def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
     behaviour.load(options_table([1.0, 0.0]))  # now prefers the hard-coded option
     np.testing.assert_allclose(behaviour.greedy(obs), [[-1.0], [-1.0]])
     assert behaviour.stats() == {"options/rl_fraction": 0.5}
+
+
+def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_actor_frozen():
+    from learner.registry import make_builder
+    from service.config import load_preset
+
+    config = load_preset(
+        "pendulum-backbone",
+        env_steps=3000,
+        learning_starts=2000,
+        **{"backbone.critic_burn_in": 500},
+    )
+    builder = make_builder(config)
+    (phase,) = builder.phases()
+    # 1,000 online updates (3,000 - 2,000 steps at 1 per step) plus the 500 of the burn-in,
+    # which the rate limiter lets the learner draw at min_size: 500 batches of 256 items.
+    assert phase.updates == 1500
+    assert phase.min_size == 2000
+    assert phase.sample_credit == 500 * 256
+    learner = builder.make_learner()
+    before = [p.clone() for p in learner.actor.parameters()]
+    batch = {
+        "obs": torch.zeros(256, 3),
+        "action": torch.zeros(256, 1),
+        "backbone_action": torch.full((256, 1), 2.0),
+        "next_backbone_action": torch.full((256, 1), -2.0),
+        "reward": torch.ones(256),
+        "terminated": torch.zeros(256, dtype=torch.bool),
+        "next_obs": torch.zeros(256, 3),
+    }
+    for _ in range(500):
+        learner.update(batch)
+    assert learner.num_actor_updates == 0  # the correction is still exactly zero
+    assert all(torch.equal(a, b) for a, b in zip(before, learner.actor.parameters(), strict=True))
+    learner.update(batch)
+    learner.update(batch)
+    assert learner.num_actor_updates == 1

@@ -43,6 +43,20 @@ def test_sample_to_insert_ratio_admission(inserts, samples, insert_ok, sample_ok
     assert limiter.sample_allowed(size=inserts, inserts=inserts, samples=samples) is sample_ok
 
 
+def test_sample_credit_is_a_burn_in_at_min_size_that_holds_inserts_until_spent():
+    limiter = SampleToInsertRatio(
+        samples_per_insert=4, min_size=10, error_buffer=8, sample_credit=40
+    )
+    # At min_size the learner may draw 40 + 8 samples before it waits, not 8.
+    assert limiter.sample_allowed(size=10, inserts=10, samples=48)
+    assert not limiter.sample_allowed(size=10, inserts=10, samples=49)
+    # Inserts wait while more than the buffer of credit is unspent: 40 - 31 = 9 > 8.
+    assert not limiter.insert_allowed(inserts=10, samples=31)
+    assert limiter.insert_allowed(inserts=10, samples=32)  # 40 - 32 = 8: back in balance
+    with pytest.raises(ValueError, match="sample_credit"):
+        SampleToInsertRatio(samples_per_insert=4, min_size=10, error_buffer=8, sample_credit=-1)
+
+
 def test_error_buffer_smaller_than_ratio_is_refused_with_reason():
     with pytest.raises(ValueError, match="lock-step"):
         SampleToInsertRatio(samples_per_insert=16, min_size=1, error_buffer=4)
