@@ -90,10 +90,10 @@ def run_chunk(job: Job) -> list[dict]:
     try:
         for i in indices:
             obs, _ = env.reset(seed=i)
-            total, info = 0.0, {}
+            total, info = 0.0, dict[str, Any]()
             while True:
                 obs, r, terminated, truncated, info = env.step(controller(obs))
-                total += r
+                total += float(r)
                 if terminated or truncated:
                     break
             controller.end_episode()

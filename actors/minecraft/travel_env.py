@@ -105,7 +105,7 @@ class MinecraftTravelEnv(gym.Env):
         self._played = 0
         self.mission: Optional[TravelMission] = None
         self._percept: Optional[Percept] = None
-        self._waypoint = None
+        self._waypoint: Optional[tuple[int, int, int]] = None
         self._pitch = 0.0
         self._ticks = 0
 
@@ -202,4 +202,4 @@ class MinecraftTravelEnv(gym.Env):
             self._server = None
 
 
-gym.register(id="MinecraftTravel-v0", entry_point=MinecraftTravelEnv)
+gym.register(id="MinecraftTravel-v0", entry_point=f"{__name__}:MinecraftTravelEnv")
