@@ -48,11 +48,11 @@ class Experiment:
 _DEMO_NOISES = (0.1, 0.5, 1.0, 2.0)
 _PAPER_BACKBONE = {
     "learning_starts": 1000,
-    "backbone.critic_burn_in": 0,
+    "td3.burn_in_updates": 0,
+    "td3.frozen_actor_updates": 0,
     "backbone.correction_limit": 2.0,
     "backbone.prefill_noise": 0.5,
     "backbone.observe_backbone": False,
-    "td3.frozen_actor_updates": 0,
     "td3.exploration_noise": 0.1,
 }
 EXPERIMENTS = {

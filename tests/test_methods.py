@@ -467,7 +467,7 @@ def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_ac
         "pendulum-backbone",
         env_steps=3000,
         learning_starts=2000,
-        **{"backbone.critic_burn_in": 500},
+        **{"td3.burn_in_updates": 500, "td3.frozen_actor_updates": 500},
     )
     builder = make_builder(config)
     (phase,) = builder.phases()

@@ -31,7 +31,11 @@ BUDGETS = {
     "pendulum-pretrained-td3": {"env_steps": 400, "td3.frozen_actor_updates": 20, **DEMOS},
     "pendulum-td3bc": {"env_steps": 400, **DEMOS},
     "pendulum-burnin": {"env_steps": 400, "td3.frozen_actor_updates": 20, **DEMOS},
-    "pendulum-backbone": {"env_steps": 300, "backbone.critic_burn_in": 30},
+    "pendulum-backbone": {
+        "env_steps": 300,
+        "td3.burn_in_updates": 30,
+        "td3.frozen_actor_updates": 30,
+    },
 }
 
 
@@ -59,7 +63,7 @@ def test_preset_runs_through_the_service(preset, ray_local, tmp_path):
     pretrain = config.pretrain.pretrain_updates if config.algorithm == "pretrain_td3" else 0
     online = config.online_env_steps
     online_updates = int((online - 100) * config.updates_per_env_step) if online else 0
-    burn_in = config.backbone.critic_burn_in if config.algorithm == "backbone_td3" else 0
+    burn_in = config.td3.burn_in_updates
     expected_updates = pretrain + online_updates + burn_in
     assert s["updates"] == expected_updates
     assert np.isfinite(s["final_eval_return_mean"])

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from actors.behaviours.backbone import BackboneBehaviour
 from actors.behaviours.hardcoded import HardCodedPolicy, hardcoded_policy
-from learner.agent import Phase, online_phase
+from learner.agent import Phase
 from learner.backbone.config import BackboneConfig
 from learner.backbone.learning import ObservingBackboneLearner, TeacherBackboneLearner
 from learner.backbone.networks import TeacherActor, load_teacher, zero_output_
@@ -34,40 +32,25 @@ class BackboneBuilder:
         )
 
     def phases(self) -> list[Phase]:
-        # TD3's, its warm-up being the prefill a = μ(s) + ε, plus the critic burn-in on it.
-        t = self.td3
-        return [
-            online_phase(
-                t.budget,
-                batch_size=self.batch_size,
-                env_steps=t.budget.env_steps,
-                warmup=True,
-                burn_in_updates=self.config.critic_burn_in,
-            )
-        ]
+        return self.td3.phases()  # TD3's, its warm-up being the prefill a = μ(s) + ε
 
     def make_learner(self) -> TD3Learner:
         t = self.td3
-        # The burn-in updates train the critic only: they extend the frozen-actor period.
-        config = replace(
-            t.config,
-            frozen_actor_updates=t.config.frozen_actor_updates + self.config.critic_burn_in,
-        )
         if self.teacher is not None:
             learner: TD3Learner = TeacherBackboneLearner(
                 t.obs_dim,
                 self.config.correction_limit,
                 teacher=self.teacher,
-                config=config,
+                config=t.config,
                 seed=t.seed,
             )
         elif self.config.observe_backbone:
             learner = ObservingBackboneLearner(
-                t.obs_dim, self.bound, t.high, config=config, seed=t.seed
+                t.obs_dim, self.bound, t.high, config=t.config, seed=t.seed
             )
         else:
             learner = TD3Learner(
-                t.obs_dim, t.act_dim, -self.bound, self.bound, config=config, seed=t.seed
+                t.obs_dim, t.act_dim, -self.bound, self.bound, config=t.config, seed=t.seed
             )
         # The correction starts at zero output: at first the agent is the backbone.
         zero_output_(learner.actor)

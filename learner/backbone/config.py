@@ -16,10 +16,6 @@ class BackboneConfig:
     """Std of ε in the prefill actions a = μ(s) + ε (action units)."""
     teacher: Optional[str] = None
     """A trained TD3 run folder (or checkpoint) as backbone μ̂ with critic Q̂: eq. (11)."""
-    critic_burn_in: int = 0
-    """Critic-only updates on the prefill (the first `learning_starts` steps of μ(s) + ε),
-    run before the actors go on; the correction stays zero meanwhile (residual policy
-    learning's burn-in, here without spending env steps on it)."""
     observe_backbone: bool = False
     """Give μ(s) (scaled to [−1, 1]) to the correction actor and the critics as an extra
     input, as residual policy learning does. The paper's π(s) sees s only; with a bang-bang
@@ -33,8 +29,6 @@ class BackboneConfig:
             )
         if not self.prefill_noise > 0.0:
             raise ValueError(f"prefill_noise={self.prefill_noise} must be > 0 (log_prob needs it)")
-        if self.critic_burn_in < 0:
-            raise ValueError(f"critic_burn_in={self.critic_burn_in} must be >= 0 (0 disables it)")
         if self.observe_backbone and self.teacher:
             raise ValueError(
                 "observe_backbone=True with a teacher is not supported: the teacher's critic "

@@ -105,6 +105,7 @@ class TD3Builder:
                 batch_size=self.batch_size,
                 env_steps=self.budget.env_steps,
                 warmup=True,
+                burn_in_updates=self.config.burn_in_updates,
             )
         ]
 

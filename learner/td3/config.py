@@ -36,6 +36,10 @@ class TD3Config:
     """Std of the behaviour noise actors add to pi(s), as a fraction of max action."""
     frozen_actor_updates: int = 0
     """Initial updates during which the actor is not trained (paper, fig. 3); targets still move."""
+    burn_in_updates: int = 0
+    """Extra updates on the first `learning_starts` steps, before the actors go on (with
+    `frozen_actor_updates` >= it: a critic burn-in on the warm-up data, e.g. the backbone's
+    prefill). Counted in updates, not env steps."""
 
     def __post_init__(self) -> None:
         """Refuses settings that cannot train, with a message naming the field."""
@@ -64,6 +68,10 @@ class TD3Config:
             )
         if self.batch_size < 1:
             raise ValueError(f"batch_size={self.batch_size} must be >= 1.")
+        if self.burn_in_updates < 0:
+            raise ValueError(
+                f"burn_in_updates={self.burn_in_updates} must be >= 0 (0 disables it)."
+            )
         if self.frozen_actor_updates < 0:
             raise ValueError(
                 f"frozen_actor_updates={self.frozen_actor_updates} must be >= 0 (0 disables it)."
