@@ -93,6 +93,12 @@ EXPERIMENTS = {
         "Fig. 4: TD3 vs TD3 with the hard-coded policy as backbone (clip range L)",
         (
             Variant("TD3", "pendulum-td3"),
+            # Control for the backbone's burn-in: TD3 with the same extra updates at 2k steps.
+            Variant(
+                "TD3 + burn-in",
+                "pendulum-td3",
+                {"learning_starts": 2000, "td3.burn_in_updates": 4000},
+            ),
             # The preset's recipe (μ(s) observed, wide prefill, critic burn-in) over clip
             # ranges L. With a bang-bang backbone (μ = ±2) only L >= 4 lets a = clip(μ + c)
             # reach every torque in [-2, 2]; narrower ranges keep the action on μ's side.
