@@ -69,10 +69,6 @@ class Controller:
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         return np.asarray(self.policy(obs[None]))[0]
 
-    def end_episode(self) -> None:
-        if self.behaviour is not None:
-            self.behaviour.end_episodes(np.array([True]))
-
 
 Job = tuple[str, Optional[str], Optional[str], list[TravelMission], list[int], int]
 
@@ -96,7 +92,6 @@ def run_chunk(job: Job) -> list[dict]:
                 total += float(r)
                 if terminated or truncated:
                     break
-            controller.end_episode()
             m = missions[i]
             rows.append(
                 {
