@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from actors.minecraft.travel_task import TravelMission, mission_pool  # noqa: E402
 
 TREE, CORRECTED = "tree", "tree + correction"
+RECOVERING = " (tree recovers when stalled)"
 
 
 class Controller:
@@ -38,7 +39,9 @@ class Controller:
     algorithm on the travel task (backbone: μ(s) + clip(π(s)); options: the policy over
     {tree, RL}), loaded the way ``graft eval`` loads one."""
 
-    def __init__(self, run: Optional[str], checkpoint: Optional[str] = None) -> None:
+    def __init__(
+        self, run: Optional[str], checkpoint: Optional[str] = None, recover: bool = False
+    ) -> None:
         from actors.minecraft.travel_env import TravelBackbone
 
         self.policy: Any = None
@@ -64,6 +67,10 @@ class Controller:
         learner.load_state_dict(load_checkpoint(found)["algorithm"])
         self.behaviour = builder.make_behaviour(num_actors=1)
         self.behaviour.load(learner.policy_state())
+        if recover:  # the tree takes over from the correction when progress stalls
+            from actors.minecraft.travel_env import correction_trusted
+
+            self.behaviour.gate = correction_trusted
         self.policy = self.behaviour.greedy
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -80,7 +87,7 @@ def run_chunk(job: Job) -> list[dict]:
     from actors.minecraft.travel_env import ENV_ID
 
     name, run, checkpoint, missions, indices, max_ticks = job
-    controller = Controller(run, checkpoint)
+    controller = Controller(run, checkpoint, recover=name.endswith(RECOVERING))
     env = gym.make(ENV_ID, missions=missions, max_ticks=max_ticks)
     rows = []
     try:
@@ -173,7 +180,9 @@ def main(argv: list[str] | None = None) -> int:
     missions = mission_pool(worlds, args.per_world, seed=0)
     print(f"{len(missions)} missions in {len(worlds)} worlds ({time.perf_counter() - t0:.0f} s)",
           file=sys.stderr, flush=True)  # fmt: skip
-    controllers = [(TREE, None)] + ([(args.label, args.run)] if args.run else [])
+    controllers = [(TREE, None)]
+    if args.run:
+        controllers += [(args.label, args.run), (args.label + RECOVERING, args.run)]
     jobs = []
     for name, run in controllers:
         for k in range(args.procs * 4):
@@ -204,16 +213,17 @@ def main(argv: list[str] | None = None) -> int:
               f"{s['mean_return']:.2f} |")  # fmt: skip
     if args.run:
         by = {(r["controller"], r["mission"]): r for r in rows}
-        both = [
-            i
-            for i in range(len(missions))
-            if by[(TREE, i)]["arrived"] and by[(args.label, i)]["arrived"]
-        ]
-        if both:
-            ratio = [by[(args.label, i)]["ticks"] / by[(TREE, i)]["ticks"] for i in both]
-            faster = sum(by[(args.label, i)]["ticks"] < by[(TREE, i)]["ticks"] for i in both)
-            print(f"\nmissions both reached: {len(both)}; corrected/tree time ratio: median "
-                  f"{statistics.median(ratio):.3f}; corrected faster on {faster}")  # fmt: skip
+        for name, _ in controllers[1:]:
+            both = [
+                i
+                for i in range(len(missions))
+                if by[(TREE, i)]["arrived"] and by[(name, i)]["arrived"]
+            ]
+            if both:
+                ratio = [by[(name, i)]["ticks"] / by[(TREE, i)]["ticks"] for i in both]
+                faster = sum(by[(name, i)]["ticks"] < by[(TREE, i)]["ticks"] for i in both)
+                print(f"\n{name}: missions both reached: {len(both)}; time ratio to the tree: "
+                      f"median {statistics.median(ratio):.3f}; faster on {faster}")  # fmt: skip
         if args.png:
             level = tree_eval_level(Path(args.run))
             training_curve(Path(args.run), args.png, level)

@@ -10,7 +10,8 @@ the critics also see μ(s) (`backbone_input`), and replay stores μ(s') too
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Optional
 
 import numpy as np
 import torch
@@ -65,6 +66,7 @@ class BackboneBehaviour:
         low: np.ndarray,
         high: np.ndarray,
         observe_backbone: bool = False,
+        gate: Optional[Callable[[np.ndarray], np.ndarray]] = None,
     ) -> None:
         """Initialises the behaviour.
 
@@ -77,9 +79,13 @@ class BackboneBehaviour:
             low: Lower action bounds [A].
             high: Upper action bounds [A].
             observe_backbone: π's input is [s, μ(s) / high] instead of s.
+            gate: Where it returns False ([B] bool from the observation) the greedy
+                policy drops the correction and acts μ(s) alone (e.g. the tree's recovery
+                when progress stalls). Exploration ignores it.
         """
         self.correction = correction.eval()
         self.observe_backbone = observe_backbone
+        self.gate = gate
         self.backbone = backbone
         self.limit = float(limit)
         self.low, self.high = np.asarray(low), np.asarray(high)
@@ -114,7 +120,10 @@ class BackboneBehaviour:
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
         mu = self._mu(obs)
-        return compose_action(mu, self._pi(obs, mu), limit=self.limit, low=self.low, high=self.high)
+        correction = self._pi(obs, mu)
+        if self.gate is not None:
+            correction = correction * self.gate(obs)[..., None]
+        return compose_action(mu, correction, limit=self.limit, low=self.low, high=self.high)
 
     def next_columns(self, next_obs: np.ndarray) -> Columns:
         """Columns about s' the learner needs: μ(s') when π observes the backbone."""

@@ -39,6 +39,8 @@ EXTRA = 3 + 3 + 3 + 2 + 1  # waypoint, destination, velocity, on ground / in liq
 OBS_DIM = STATS + CROP_CELLS + EXTRA + len(ACTION_NAMES)
 MU = slice(OBS_DIM - len(ACTION_NAMES), OBS_DIM)
 """Where μ(s) sits in the observation: the backbone reads it from there."""
+STUCK = STATS + CROP_CELLS + EXTRA - 1
+"""Where the stuck counter (ticks without progress / K) sits in the observation."""
 
 
 def to_agent_frame(dx: float, dz: float, yaw_deg: float) -> tuple[float, float]:

@@ -36,6 +36,7 @@ from actors.minecraft.travel_control import (
     ACTION_NAMES,
     MU,
     OBS_DIM,
+    STUCK,
     TreeSteering,
     compose_commands,
     observation,
@@ -61,6 +62,13 @@ class TravelBackbone:
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         return np.array(np.asarray(obs)[..., MU], dtype=np.float32)
+
+
+def correction_trusted(obs: np.ndarray, *, stalled: float = 0.5) -> np.ndarray:
+    """The tree's recovery rule for a learned correction: once ``stalled`` · K ticks passed
+    without progress (half the stuck rule's K by default), the tree drops the correction
+    and steers alone until progress resumes. [B] bool, from the observation's counter."""
+    return np.asarray(obs)[..., STUCK] < stalled
 
 
 class MinecraftTravelEnv(gym.Env):
