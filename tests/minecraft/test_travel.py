@@ -234,3 +234,36 @@ def test_occupancy_is_sampled_in_the_agent_frame() -> None:
     assert occ[1, 3, 2] == 1.0 and occ[1].sum() == 1.0  # 0.8 ahead only (1.6 is past it)
     assert occ[2, 2, 3] == 1.0 and occ[2].sum() == 1.0
     assert occ[3].sum() == 0.0
+
+
+def test_recovery_gate_drops_the_correction_once_progress_stalls() -> None:
+    import torch
+
+    from actors.behaviours.backbone import BackboneBehaviour
+    from actors.minecraft.travel_control import MU, OBS_DIM, STUCK
+    from actors.minecraft.travel_env import TravelBackbone, correction_trusted
+
+    class Push(torch.nn.Module):
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            return torch.full((x.shape[0], 4), 0.5)
+
+    obs = np.zeros((3, OBS_DIM), np.float32)
+    obs[:, MU] = [0.2, 0.0, 0.0, -1.0]
+    obs[:, STUCK] = [0.0, 0.45, 0.55]  # ticks without progress / K
+    behaviour = BackboneBehaviour(
+        Push(),
+        TravelBackbone(),
+        limit=0.5,
+        std=0.1,
+        prefill_std=0.1,
+        low=-np.ones(4),
+        high=np.ones(4),
+        gate=correction_trusted,
+    )
+    np.testing.assert_array_equal(correction_trusted(obs), [True, True, False])
+    # μ + 0.5 where the correction is trusted, μ alone on the stalled row.
+    np.testing.assert_allclose(
+        behaviour.greedy(obs),
+        [[0.7, 0.5, 0.5, -0.5], [0.7, 0.5, 0.5, -0.5], [0.2, 0.0, 0.0, -1.0]],
+        rtol=1e-6,
+    )
