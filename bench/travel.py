@@ -80,6 +80,12 @@ class Controller:
 Job = tuple[str, Optional[str], Optional[str], list[TravelMission], list[int], int]
 
 
+def _algorithm(run: Path) -> str:
+    import yaml
+
+    return str(yaml.safe_load((run / "config.yaml").read_text())["algorithm"])
+
+
 def run_chunk(job: Job) -> list[dict]:
     """Episodes ``indices`` of ``missions`` with one controller, one world server."""
     import gymnasium as gym
@@ -182,7 +188,9 @@ def main(argv: list[str] | None = None) -> int:
           file=sys.stderr, flush=True)  # fmt: skip
     controllers = [(TREE, None)]
     if args.run:
-        controllers += [(args.label, args.run), (args.label + RECOVERING, args.run)]
+        controllers.append((args.label, args.run))
+        if _algorithm(Path(args.run)) == "backbone_td3":  # the gate acts on a correction
+            controllers.append((args.label + RECOVERING, args.run))
     jobs = []
     for name, run in controllers:
         for k in range(args.procs * 4):
