@@ -402,7 +402,11 @@ LEARNER_FIELDS = {
     "hidden_sizes": (16, 8),
     "frozen_actor_updates": 2,
 }
-USED_ELSEWHERE = {"batch_size": "learner loop (replay sampling)", "exploration_noise": "actors"}
+USED_ELSEWHERE = {
+    "batch_size": "learner loop (replay sampling)",
+    "exploration_noise": "actors",
+    "burn_in_updates": "builder phases (the rate limiter's sample credit)",
+}
 
 
 def test_every_config_field_is_accounted_for() -> None:
@@ -439,6 +443,7 @@ def test_every_learner_field_changes_the_update(field: str, value: object) -> No
         ("batch_size", 0),
         ("exploration_noise", -0.1),
         ("frozen_actor_updates", -1),
+        ("burn_in_updates", -1),
     ],
 )
 def test_config_refuses_bad_values(field: str, value: object) -> None:
