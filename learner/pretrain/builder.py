@@ -33,7 +33,11 @@ class PretrainBuilder:
         if budget.env_steps == 0:
             return [demos]
         online = online_phase(
-            budget, batch_size=self.batch_size, env_steps=budget.env_steps, warmup=False
+            budget,
+            batch_size=self.batch_size,
+            env_steps=budget.env_steps,
+            warmup=False,
+            burn_in_updates=self.td3.config.burn_in_updates,
         )
         return [demos, online]
 
