@@ -132,18 +132,16 @@ def test_backbone_action_composition_clips_the_correction_then_the_action():
     np.testing.assert_allclose(action, [[2.0], [-1.3], [-0.5]], rtol=1e-6)
 
 
+def _pendulum_backbone(correction: nn.Module, backbone, **kwargs) -> BackboneBehaviour:
+    """A backbone behaviour over Pendulum's torque box [−2, 2], exploration σ = 0.2."""
+    box = {"low": np.array([-2.0]), "high": np.array([2.0])}
+    return BackboneBehaviour(correction, backbone, std=0.2, prefill_std=0.3, **box, **kwargs)
+
+
 def test_correction_network_starts_at_zero_so_the_agent_starts_as_the_backbone():
     correction = zero_output_(Actor(3, 1, np.array([-0.5]), np.array([0.5]), (8,)))
     backbone = lambda obs: np.full((len(obs), 1), 1.7, np.float32)  # noqa: E731
-    behaviour = BackboneBehaviour(
-        correction,
-        backbone,
-        limit=0.5,
-        std=0.2,
-        prefill_std=0.3,
-        low=np.array([-2.0]),
-        high=np.array([2.0]),
-    )
+    behaviour = _pendulum_backbone(correction, backbone, limit=0.5)
     obs = np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32)
     np.testing.assert_allclose(behaviour.greedy(obs), np.full((5, 1), 1.7))
     env_action, columns = behaviour.act(obs, np.random.default_rng(1), warmup=False)
@@ -165,16 +163,7 @@ class _Recorder(nn.Module):
 def test_observed_backbone_is_an_input_of_the_correction_and_recorded_at_s_prime():
     correction = _Recorder()
     backbone = lambda obs: np.where(obs[:, 2:] >= 0, 2.0, -2.0).astype(np.float32)  # noqa: E731
-    behaviour = BackboneBehaviour(
-        correction,
-        backbone,
-        limit=4.0,
-        std=0.2,
-        prefill_std=0.3,
-        low=np.array([-2.0]),
-        high=np.array([2.0]),
-        observe_backbone=True,
-    )
+    behaviour = _pendulum_backbone(correction, backbone, limit=4.0, observe_backbone=True)
     obs = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, -3.0]], np.float32)
     behaviour.greedy(obs)
     # [s, μ(s) / 2]: μ = +2 and −2 -> +1 and −1.
