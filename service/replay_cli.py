@@ -66,6 +66,12 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
         "--metrics-port", type=int, help="serve Prometheus metrics on this HTTP port"
     )
     serve.add_argument("--ready-file", help="write {'address': ...} here once listening")
+    serve.add_argument(
+        "--exit-with-parent",
+        type=int,
+        metavar="PID",
+        help="stop gracefully (final checkpoint) once process PID, our parent, has died",
+    )
     serve.set_defaults(handler=_serve)
     info = commands.add_parser("info", help="print a server's tables and figures")
     info.add_argument("address", help="host:port")
@@ -109,6 +115,7 @@ def _serve(args: argparse.Namespace) -> None:
             ready_file=args.ready_file,
             metrics_port=args.metrics_port,
             checkpoint_every_s=args.checkpoint_every_s if args.checkpoint_dir else 0.0,
+            parent_pid=args.exit_with_parent,
         )
     except ValueError as error:
         raise SystemExit(f"graft replay serve: {error}") from None

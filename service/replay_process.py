@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -44,6 +45,8 @@ class ReplayProcess:
             str(port),
             "--ready-file",
             str(ready),
+            "--exit-with-parent",
+            str(os.getpid()),
         ]
         if token:
             command += ["--token", token]

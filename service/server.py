@@ -266,6 +266,18 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
     return RunningServer(server, port, health_servicer, metrics)
 
 
+def _stop_when_orphaned(parent_pid: int, stop: threading.Event, poll_s: float = 1.0) -> None:
+    """Sets `stop` once we are no longer `parent_pid`'s child (it died: we were re-parented).
+
+    A launcher killed with SIGKILL cannot stop its replay server; without this the server
+    would outlive it and keep its port and memory.
+    """
+    while not stop.wait(poll_s):
+        if os.getppid() != parent_pid:
+            log.warning("parent process %d is gone; stopping", parent_pid)
+            stop.set()
+
+
 def serve_forever(
     core: ReplayCore,
     options: ServerOptions,
@@ -274,8 +286,10 @@ def serve_forever(
     metrics_port: Optional[int] = None,
     checkpoint_every_s: float = 0.0,
     grace_s: float = 5.0,
+    parent_pid: Optional[int] = None,
 ) -> None:
-    """Runs until SIGTERM/SIGINT, then: health NOT_SERVING, final checkpoint, graceful stop."""
+    """Runs until SIGTERM/SIGINT (or, with `parent_pid`, until that parent has died), then:
+    health NOT_SERVING, final checkpoint, graceful stop."""
     running = build_server(core, options)
     address = f"{options.host}:{running.port}"
     extra = ""
@@ -291,6 +305,8 @@ def serve_forever(
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
+    if parent_pid is not None:
+        threading.Thread(target=_stop_when_orphaned, args=(parent_pid, stop), daemon=True).start()
     while not stop.wait(checkpoint_every_s or None):
         core.checkpoint()  # periodic; sampling goes on while the file is written
     running.health.enter_graceful_shutdown()

@@ -108,3 +108,37 @@ def test_sample_stream_reconnects_after_a_server_restart(tmp_path):
     stream.close()
     assert all(b.shape == (5,) for b in batches)
     second.stop()
+
+
+LAUNCHER = """
+import sys, time
+from service.replay_process import ReplayProcess
+table = [{"name": "log", "max_size": 100, "sampler": "fifo",
+          "signature": {"x": {"dtype": "float32", "shape": []}}}]
+server = ReplayProcess(table, extra_args=["--checkpoint-dir", sys.argv[1]])
+print(server.process.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def test_server_stops_with_a_final_checkpoint_when_its_launcher_is_killed(tmp_path):
+    launcher = subprocess.Popen(
+        [sys.executable, "-c", LAUNCHER, str(tmp_path)], stdout=subprocess.PIPE, text=True
+    )
+    server_pid = int(launcher.stdout.readline())
+    launcher.kill()  # SIGKILL: the launcher cannot stop its child itself
+    launcher.wait()
+    deadline = time.monotonic() + 30.0
+    while _alive(server_pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _alive(server_pid), "the replay server outlived its killed launcher"
+    assert len(list(tmp_path.glob("checkpoint-*.npz"))) == 1  # it stopped the graceful way
+
+
+def _alive(pid: int) -> bool:
+    """True while `pid` runs (a zombie counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
