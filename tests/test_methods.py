@@ -280,6 +280,17 @@ def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_e
     np.testing.assert_allclose(action, [[-1.0]])
 
 
+def _dqn_batch() -> dict[str, torch.Tensor]:
+    """8 identical transitions of a 2-feature, 2-action task: action 0, reward 1."""
+    return {
+        "obs": torch.ones(8, 2),
+        "action": torch.zeros(8, dtype=torch.int64),
+        "reward": torch.ones(8),
+        "terminated": torch.zeros(8, dtype=torch.bool),
+        "next_obs": torch.ones(8, 2),
+    }
+
+
 @pytest.mark.parametrize("tau, moved", [(1.0, 1.0), (0.25, 0.25)])
 def test_dqn_target_network_moves_every_target_update_every_updates(tau, moved):
     from learner.dqn.config import DQNConfig
@@ -289,13 +300,7 @@ def test_dqn_target_network_moves_every_target_update_every_updates(tau, moved):
         2, 2, config=DQNConfig(hidden_sizes=(4,), target_update_every=3, target_tau=tau), seed=0
     )
     before = [p.clone() for p in learner.target_q.parameters()]
-    batch = {
-        "obs": torch.ones(8, 2),
-        "action": torch.zeros(8, dtype=torch.int64),
-        "reward": torch.ones(8),
-        "terminated": torch.zeros(8, dtype=torch.bool),
-        "next_obs": torch.ones(8, 2),
-    }
+    batch = _dqn_batch()
     for _ in range(2):
         learner.update(batch)
     assert all(
@@ -322,13 +327,7 @@ def test_dqn_learner_steps_at_the_scheduled_rate_and_stops_moving_at_zero():
 
     config = DQNConfig(hidden_sizes=(4,), learning_rate=4e-3, learning_rate_end=0.0)
     learner = DQNLearner(2, 2, config=config, seed=0, total_updates=4)
-    batch = {
-        "obs": torch.ones(8, 2),
-        "action": torch.zeros(8, dtype=torch.int64),
-        "reward": torch.ones(8),
-        "terminated": torch.zeros(8, dtype=torch.bool),
-        "next_obs": torch.ones(8, 2),
-    }
+    batch = _dqn_batch()
     rates = [learner.update(batch)["charts/learning_rate"] for _ in range(4)]
     assert rates == pytest.approx([4e-3, 3e-3, 2e-3, 1e-3])
     # Past the schedule the rate is 0: Adam's step is lr-scaled, so the network is frozen.
