@@ -108,6 +108,8 @@ class EnvActor:
         """Steps through `segments` in order (or until the learner says stop)."""
         n = len(self.stepper.envs)
         done_steps, insert_wait_s, start = 0, 0.0, time.perf_counter()
+        # Optional behaviour hook: columns computed on s' (e.g. the backbone's μ(s')).
+        next_columns = getattr(self.behaviour, "next_columns", None)
         for segment in segments:
             buffer: list[dict[str, np.ndarray]] = []
             seg_steps = 0
@@ -118,8 +120,7 @@ class EnvActor:
                 self._adopt_new_weights()
                 env_action, record = self.behaviour.act(self.stepper.obs, self.rng, warmup=warmup)
                 record.update(self.stepper.step(env_action))
-                # Optional hook: columns computed on s' (e.g. the backbone's μ(s')).
-                if next_columns := getattr(self.behaviour, "next_columns", None):
+                if next_columns:
                     record.update(next_columns(record["next_obs"]))
                 self.behaviour.end_episodes(record["terminated"] | record["truncated"])
                 version = -1 if warmup else self.weights.version  # -1: the warm-up policy

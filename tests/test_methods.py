@@ -177,6 +177,28 @@ def test_observed_backbone_is_an_input_of_the_correction_and_recorded_at_s_prime
     )
 
 
+def test_observed_backbone_ticks_mu_once_per_state():
+    ticked: list[int] = []
+
+    def backbone(obs: np.ndarray) -> np.ndarray:
+        ticked.append(len(obs))
+        return np.where(obs[:, 2:] >= 0, 2.0, -2.0).astype(np.float32)
+
+    behaviour = _pendulum_backbone(_Recorder(), backbone, limit=4.0, observe_backbone=True)
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(4, 3)).astype(np.float32)
+    behaviour.act(obs, rng, warmup=False)
+    next_obs = rng.normal(size=(4, 3)).astype(np.float32)
+    mu_next = behaviour.next_columns(next_obs)["next_backbone_action"]
+    restarted = next_obs.copy()
+    restarted[1] = [0.0, 1.0, -5.0]  # env 1's episode ended: its next s is a reset state
+    _, columns = behaviour.act(restarted, rng, warmup=False)
+    # 4 rows, 4 rows of s', then only the restarted row: μ(s') is reused for the others.
+    assert ticked == [4, 4, 1]
+    np.testing.assert_array_equal(columns["backbone_action"][[0, 2, 3]], mu_next[[0, 2, 3]])
+    np.testing.assert_array_equal(columns["backbone_action"][1], [-2.0])
+
+
 def test_observing_learner_appends_mu_to_obs_and_next_obs():
     from learner.backbone.learning import ObservingBackboneLearner
     from learner.td3.config import TD3Config

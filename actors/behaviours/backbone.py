@@ -85,6 +85,8 @@ class BackboneBehaviour:
         """
         self.correction = correction.eval()
         self.observe_backbone = observe_backbone
+        self._next_mu: Optional[tuple[np.ndarray, np.ndarray]] = None
+        """(s', μ(s')) from `next_columns`: s' is the next step's s unless an episode ended."""
         self.gate = gate
         self.backbone = backbone
         self.limit = float(limit)
@@ -109,7 +111,16 @@ class BackboneBehaviour:
         self.correction.load_state_dict(weights)
 
     def _mu(self, obs: np.ndarray) -> np.ndarray:
-        return np.asarray(self.backbone(obs), dtype=np.float32)
+        obs = np.asarray(obs)
+        if self._next_mu is None or self._next_mu[0].shape != obs.shape:
+            return np.asarray(self.backbone(obs), dtype=np.float32)
+        # μ(s') was computed for the previous step's columns: tick the backbone only on the
+        # rows whose episode restarted.
+        seen, mu = self._next_mu[0], self._next_mu[1].copy()
+        fresh = ~np.all(seen == obs, axis=-1)
+        if fresh.any():
+            mu[fresh] = np.asarray(self.backbone(obs[fresh]), dtype=np.float32)
+        return mu
 
     def _pi(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
         x = torch.as_tensor(obs, dtype=torch.float32)
@@ -127,7 +138,11 @@ class BackboneBehaviour:
 
     def next_columns(self, next_obs: np.ndarray) -> Columns:
         """Columns about s' the learner needs: μ(s') when π observes the backbone."""
-        return {"next_backbone_action": self._mu(next_obs)} if self.observe_backbone else {}
+        if not self.observe_backbone:
+            return {}
+        mu = self._mu(next_obs)
+        self._next_mu = (np.array(next_obs, copy=True), mu)
+        return {"next_backbone_action": mu}
 
     def act(
         self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
