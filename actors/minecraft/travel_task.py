@@ -10,12 +10,15 @@ player makes without digging: level, a one-block jump with head room, a drop of 
 10-30 blocks, and the search's shortest path is the mission's **route** (the map a
 player would be given). Progress is measured along it::
 
-    φ(p) = min over route cells i with |y_i - y| <= 2 of  (n - 1 - i) + |p - c_i|_xz
+    φ(p) = min over route cells i with |y_i - y| <= 2 and |p - c_i|_xz <= 3 of
+           (n - 1 - i) + |p - c_i|_xz
 
-the distance still to go: over the route cells ``i`` (centres ``c_i``), the straight
-horizontal way to ``c_i`` plus the cells left on the route after it, at its shortest.
-Cutting a corner of the (4-neighbour, staircase) route is progress; walking off the
-route is not.
+the distance still to go: over the route cells ``i`` (centres ``c_i``) near the feet, the
+straight horizontal way to ``c_i`` plus the cells left on the route after it, at its
+shortest. Cutting a corner of the (4-neighbour, staircase) route is progress; walking off
+the route is not, and neither is being near a later stretch of a route that loops back
+(only cells within ``SHORTCUT`` = 3 blocks count: a straight line to a cell 20 blocks
+away may cross a cliff). Off the route (no cell that near): the nearest cell's value.
 
 **Stuck** (used by the reward and by ``bench/travel.py`` alike): the best φ reached in
 the episode has not improved by ``stuck_progress`` blocks for ``stuck_ticks`` ticks.
@@ -38,6 +41,8 @@ from actors.minecraft import worldgen
 Cell = tuple[int, int, int]
 HORIZONTAL = ((1, 0), (-1, 0), (0, 1), (0, -1))
 MAX_DROP = 3
+SHORTCUT = 3.0
+"""Blocks of straight way to a route cell that φ credits (corner cutting)."""
 
 
 @dataclass(frozen=True)
@@ -89,13 +94,21 @@ class RewardConfig:
 def route_to_go(route: tuple[Cell, ...], x: float, y: float, z: float) -> float:
     """φ: blocks still to walk along ``route`` from feet position (x, y, z)."""
     n = len(route)
-    best, fallback = math.inf, math.inf
+    best = nearest = nearest_level = math.inf
+    value = value_level = math.inf
     for i, (cx, cy, cz) in enumerate(route):
-        d = (n - 1 - i) + math.hypot(x - (cx + 0.5), z - (cz + 0.5))
-        fallback = min(fallback, d)
-        if abs(cy - y) <= 2.0:
-            best = min(best, d)
-    return best if best < math.inf else fallback
+        d = math.hypot(x - (cx + 0.5), z - (cz + 0.5))
+        v = (n - 1 - i) + d
+        level = abs(cy - y) <= 2.0
+        if level and d <= SHORTCUT:
+            best = min(best, v)
+        if d <= nearest:  # ties: the later cell
+            nearest, value = d, v
+        if level and d <= nearest_level:
+            nearest_level, value_level = d, v
+    if best < math.inf:
+        return best
+    return value_level if value_level < math.inf else value
 
 
 class StuckDetector:

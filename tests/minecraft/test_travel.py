@@ -59,6 +59,25 @@ def test_route_to_go_hand_computed() -> None:
     assert route_to_go(high, 5.5, 10.0, 0.5) == pytest.approx(0.0)
 
 
+def test_route_to_go_walking_a_looping_route_is_progress() -> None:
+    # A U: up x = 0 (z 0..9), across z = 9, down x = 8 (z 9..0): 27 cells. The last cell
+    # is 8 blocks from the start in a straight line, which is not the way.
+    u = (
+        tuple((0, 4, k) for k in range(10))
+        + tuple((i, 4, 9) for i in range(1, 9))
+        + tuple((8, 4, k) for k in range(8, -1, -1))
+    )
+    assert len(u) == 27
+    assert route_to_go(u, 0.5, 4.0, 0.5) == pytest.approx(26.0)
+    # Each block walked up the first arm is a block of progress.
+    assert route_to_go(u, 0.5, 4.0, 5.5) == pytest.approx(21.0)
+    # Off the route (4 blocks beside cell 2, the nearest): that cell's 24 + the 4 back.
+    assert route_to_go(u, -3.5, 4.0, 2.5) == pytest.approx(28.0)
+    # Within 3 blocks the straight way counts: 2.5 beside cell 0, 25 + hypot(2.5, 1) via
+    # cell 1 (cell 2 is hypot(2.5, 2) = 3.2 away: not counted).
+    assert route_to_go(u, -2.0, 4.0, 0.5) == pytest.approx(25.0 + math.hypot(2.5, 1.0))
+
+
 @pytest.mark.parametrize(
     ("phis", "expected"),
     [
