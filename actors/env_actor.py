@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Optional
 
 import gymnasium as gym
 import numpy as np
@@ -28,8 +28,10 @@ class VectorStepper:
     `obs` (the final observation of an episode, never the first of the next one).
     """
 
-    def __init__(self, env_id: str, n: int, seed: int) -> None:
-        self.envs = [gym.make(env_id) for _ in range(n)]
+    def __init__(
+        self, env_id: str, n: int, seed: int, env_kwargs: Optional[dict[str, Any]] = None
+    ) -> None:
+        self.envs = [gym.make(env_id, **(env_kwargs or {})) for _ in range(n)]
         self.obs = np.stack([env.reset(seed=seed + i)[0] for i, env in enumerate(self.envs)])
         self.episode_returns = np.zeros(n)
         self.finished_returns: list[float] = []
@@ -82,9 +84,10 @@ class EnvActor:
         broadcaster: Any,
         behaviour: Behaviour,
         steps_per_insert: int,
+        env_kwargs: Optional[dict[str, Any]] = None,
     ) -> None:
         torch.set_num_threads(1)
-        self.stepper = VectorStepper(env_id, num_envs, seed)
+        self.stepper = VectorStepper(env_id, num_envs, seed, env_kwargs)
         self.rng = np.random.default_rng(seed)
         self.replay = replay
         self.weights = WeightSubscriber(broadcaster)

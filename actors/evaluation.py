@@ -6,6 +6,7 @@ return does not depend on how many environments run at once.
 """
 
 from collections.abc import Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -23,6 +24,7 @@ def run_episodes(
     episodes: int = 100,
     seed: int = 0,
     num_envs: int | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> np.ndarray:
     """Runs full episodes and returns their undiscounted returns.
 
@@ -36,6 +38,7 @@ def run_episodes(
         episodes: Number of episodes to run.
         seed: Episode ``i`` is reset with ``seed + i``.
         num_envs: Environments stepped side by side; all ``episodes`` at once when None.
+        env_kwargs: Keyword arguments for ``gym.make`` (the run config's ``env_kwargs``).
 
     Returns:
         float64 returns of shape [episodes], in episode order.
@@ -51,7 +54,7 @@ def run_episodes(
         raise ValueError(f"num_envs={num_envs} must be >= 1")
     num_envs = min(num_envs, episodes)
 
-    envs = [gym.make(env_id) for _ in range(num_envs)]
+    envs = [gym.make(env_id, **(env_kwargs or {})) for _ in range(num_envs)]
     returns = np.zeros(episodes, dtype=np.float64)
     episode_of = list(range(num_envs))  # episode each env is running; -1 when idle
     obs = [envs[k].reset(seed=seed + k)[0] for k in range(num_envs)]

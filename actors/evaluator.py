@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Optional
 
 import ray
 import torch
@@ -15,9 +15,16 @@ from actors.evaluation import run_episodes
 class Evaluator:
     """Runs `episodes` deterministic episodes of a behaviour's greedy policy (no exploration)."""
 
-    def __init__(self, *, env_id: str, behaviour: Behaviour, seed: int) -> None:
+    def __init__(
+        self,
+        *,
+        env_id: str,
+        behaviour: Behaviour,
+        seed: int,
+        env_kwargs: Optional[dict[str, Any]] = None,
+    ) -> None:
         torch.set_num_threads(1)
-        self.env_id, self.seed = env_id, seed
+        self.env_id, self.seed, self.env_kwargs = env_id, seed, env_kwargs
         self.behaviour = behaviour
 
     def evaluate(
@@ -31,7 +38,11 @@ class Evaluator:
         self.behaviour.load(weights)
         self.behaviour.stats()  # drop anything counted before these weights
         returns = run_episodes(
-            self.behaviour.greedy, env_id=self.env_id, episodes=episodes, seed=self.seed
+            self.behaviour.greedy,
+            env_id=self.env_id,
+            episodes=episodes,
+            seed=self.seed,
+            env_kwargs=self.env_kwargs,
         )
         return {
             "tag": tag,

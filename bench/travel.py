@@ -77,7 +77,7 @@ class Controller:
         return np.asarray(self.policy(obs[None]))[0]
 
 
-Job = tuple[str, Optional[str], Optional[str], list[TravelMission], list[int], int]
+Job = tuple[str, Optional[str], Optional[str], list[TravelMission], list[int], dict[str, Any]]
 
 
 def _algorithm(run: Path) -> str:
@@ -92,9 +92,9 @@ def run_chunk(job: Job) -> list[dict]:
 
     from actors.minecraft.travel_env import ENV_ID
 
-    name, run, checkpoint, missions, indices, max_ticks = job
+    name, run, checkpoint, missions, indices, env_kwargs = job
     controller = Controller(run, checkpoint, recover=name.endswith(RECOVERING))
-    env = gym.make(ENV_ID, missions=missions, max_ticks=max_ticks)
+    env = gym.make(ENV_ID, missions=missions, **env_kwargs)
     rows = []
     try:
         for i in indices:
@@ -178,6 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--per-world", type=int, default=4, help="destinations per world")
     ap.add_argument("--max-ticks", type=int, default=600)
     ap.add_argument("--procs", type=int, default=2)
+    ap.add_argument("--real-time", action="store_true", help="Malmo's asynchronous mode")
+    ap.add_argument("--ticks-per-step", type=int, default=1,
+                    help="synchronous: ticks per decision (a slow client)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("runs/bench-travel"))
     ap.add_argument("--png", type=Path, help="also draw the run's training curve here")
     args = ap.parse_args(argv)
@@ -191,11 +194,16 @@ def main(argv: list[str] | None = None) -> int:
         controllers.append((args.label, args.run))
         if _algorithm(Path(args.run)) == "backbone_td3":  # the gate acts on a correction
             controllers.append((args.label + RECOVERING, args.run))
+    env_kwargs = {
+        "max_ticks": args.max_ticks,
+        "real_time": args.real_time,
+        "ticks_per_step": args.ticks_per_step,
+    }
     jobs = []
     for name, run in controllers:
         for k in range(args.procs * 4):
             idx = list(range(k, len(missions), args.procs * 4))
-            jobs.append((name, run, args.checkpoint, missions, idx, args.max_ticks))
+            jobs.append((name, run, args.checkpoint, missions, idx, env_kwargs))
     rows: list[dict] = []
     with mp.get_context("spawn").Pool(args.procs) as pool:
         for chunk in pool.imap_unordered(run_chunk, jobs):
@@ -209,8 +217,9 @@ def main(argv: list[str] | None = None) -> int:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+    mode = "real time" if args.real_time else f"synchronous, {args.ticks_per_step} ticks per step"
     print(f"\n{len(missions)} destinations, worlds {worlds[0]}-{worlds[-1]}, "
-          f"max {args.max_ticks} ticks, synchronous\n")  # fmt: skip
+          f"max {args.max_ticks} ticks, {mode}\n")  # fmt: skip
     print("| controller | success | median ticks to destination | episodes stuck | "
           "stuck events | deaths | mean return |")  # fmt: skip
     print("|---|---|---|---|---|---|---|")

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import gymnasium as gym
-
 from learner.agent import AgentBuilder, Budget
 
 if TYPE_CHECKING:
@@ -18,7 +16,7 @@ def make_builder(config: TrainConfig) -> AgentBuilder:
     Raises:
         ValueError: unknown algorithm, or spaces / settings the algorithm refuses.
     """
-    env = gym.make(config.env_id)
+    env = config.make_env()
     obs_space, action_space = env.observation_space, env.action_space
     env.close()
     budget = Budget(

@@ -67,7 +67,7 @@ def _eval(args: argparse.Namespace) -> None:
 
     from actors.evaluation import random_policy_for, run_episodes
 
-    env_id = args.env_id or "Pendulum-v1"
+    env_id, env_kwargs = args.env_id or "Pendulum-v1", None
     if args.policy == "hardcoded":
         if env_id != "Pendulum-v1":
             raise SystemExit("graft eval: the hard-coded policy is for Pendulum-v1")
@@ -77,8 +77,11 @@ def _eval(args: argparse.Namespace) -> None:
     elif args.policy == "random":
         policy = random_policy_for(env_id, seed=args.seed)
     else:
-        policy, env_id = _checkpoint_policy(Path(args.policy), args.env_id)
-    returns = run_episodes(policy, env_id=env_id, episodes=args.episodes, seed=args.seed)
+        policy, config = _checkpoint_policy(Path(args.policy), args.env_id)
+        env_id, env_kwargs = config.env_id, config.env_kwargs
+    returns = run_episodes(
+        policy, env_id=env_id, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs
+    )
     result = {
         "policy": args.policy,
         "env_id": env_id,
@@ -95,7 +98,7 @@ def _eval(args: argparse.Namespace) -> None:
 
 
 def _checkpoint_policy(path: Path, env_id: Optional[str]):
-    """The greedy policy of a run folder or checkpoint file (any algorithm), and its env."""
+    """The greedy policy of a run folder or checkpoint file (any algorithm), and its config."""
     import torch
     import yaml
 
@@ -122,7 +125,7 @@ def _checkpoint_policy(path: Path, env_id: Optional[str]):
     behaviour = builder.make_behaviour(num_actors=1)
     behaviour.load(learner.policy_state())
     torch.set_num_threads(1)
-    return behaviour.greedy, config.env_id
+    return behaviour.greedy, config
 
 
 def _experiment(args: argparse.Namespace) -> None:

@@ -34,6 +34,9 @@ class TrainConfig:
     """Name of the preset this run came from."""
     env_id: str = "Pendulum-v1"
     """Gymnasium environment id the actors step."""
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    """Keyword arguments of ``gym.make(env_id, ...)`` (e.g. ``ticks_per_step`` of the
+    Minecraft travel task); set one with ``--set env_kwargs.NAME=VALUE``."""
     algorithm: str = "td3"
     """Learning algorithm: td3, ddqn, backbone_td3, pretrain_td3 or options."""
     env_steps: int = 20_000
@@ -102,6 +105,8 @@ class TrainConfig:
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
+        if not isinstance(self.env_kwargs, dict):
+            raise ValueError(f"env_kwargs={self.env_kwargs!r} must be a mapping of name: value")
 
     @property
     def online_env_steps(self) -> int:
@@ -111,6 +116,22 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def make_env(self) -> Any:
+        """``gym.make(env_id, **env_kwargs)``.
+
+        Raises:
+            ValueError: the environment refused ``env_kwargs`` (names the keys).
+        """
+        import gymnasium as gym
+
+        try:
+            return gym.make(self.env_id, **self.env_kwargs)
+        except TypeError as e:
+            raise ValueError(
+                f"preset {self.preset}: env_kwargs {sorted(self.env_kwargs)} rejected by "
+                f"{self.env_id}: {e}"
+            ) from e
 
 
 def _build(cls: type, data: dict[str, Any], where: str) -> Any:

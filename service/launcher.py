@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
-import gymnasium as gym
 import ray
 import torch
 import yaml
@@ -64,8 +63,8 @@ def table_spec(
     return {**spec, "rate_limiter": limiter}
 
 
-def _signature(env_id: str, behaviour: Any) -> dict[str, Any]:
-    env = gym.make(env_id)
+def _signature(config: TrainConfig, behaviour: Any) -> dict[str, Any]:
+    env = config.make_env()
     signature = replay_signature(env.observation_space, behaviour.columns())
     env.close()
     return signature
@@ -81,7 +80,7 @@ def preset_tables(
     if phases is None or signature is None:
         builder = make_builder(config)
         behaviour = builder.make_behaviour(num_actors=config.num_actors)
-        phases, signature = builder.phases(), _signature(config.env_id, behaviour)
+        phases, signature = builder.phases(), _signature(config, behaviour)
     return [
         table_spec(
             p,
@@ -171,7 +170,7 @@ def train(
     start = time.perf_counter()
     builder = make_builder(config)
     behaviour = builder.make_behaviour(num_actors=config.num_actors)
-    signature = _signature(config.env_id, behaviour)
+    signature = _signature(config, behaviour)
     algorithm = builder.make_learner()
     state = LoopState()
     phases = builder.phases()
@@ -196,6 +195,7 @@ def train(
         broadcaster = WeightBroadcaster.remote()
         evaluator = Evaluator.remote(
             env_id=config.env_id,
+            env_kwargs=config.env_kwargs,
             behaviour=builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
         )
@@ -210,6 +210,7 @@ def train(
                 broadcaster=broadcaster,
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
+                env_kwargs=config.env_kwargs,
             )
             actors.append(actor)
         runs = [a.run.remote(segments) for a in actors]

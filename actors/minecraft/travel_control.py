@@ -144,6 +144,7 @@ def observation(
     destination: Cell,
     previous: Optional[tuple[float, float, float]],
     stuck_fraction: float,
+    elapsed: int = 1,
 ) -> np.ndarray:
     """The correction network's input, float32 [OBS_DIM]::
 
@@ -155,7 +156,8 @@ def observation(
     [108:111] next A* cell centre minus feet, agent frame (forward, right) / 2, dy / 2
               (zeros when there is no plan)
     [111:114] destination, agent frame (forward, right) / 32, dy / 8
-    [114:117] velocity since the last tick, agent frame / walk speed, dy / 0.5
+    [114:117] velocity since the last step (``elapsed`` ticks ago), per tick: agent frame
+              / walk speed, dy / 0.5
     [117:119] on ground, in liquid
     [119]     ticks without progress / K (the stuck counter)
     [120:124] μ(s)
@@ -182,9 +184,9 @@ def observation(
     f, s = to_agent_frame(destination[0] + 0.5 - p.x, destination[2] + 0.5 - p.z, yaw)
     extra[3:6] = (f / 32.0, s / 32.0, (destination[1] - p.y) / 8.0)
     if previous is not None:
-        walk = 4.317 / 20.0
+        walk = 4.317 / 20.0 * elapsed
         f, s = to_agent_frame(p.x - previous[0], p.z - previous[2], yaw)
-        extra[6:9] = (f / walk, s / walk, (p.y - previous[1]) / 0.5)
+        extra[6:9] = (f / walk, s / walk, (p.y - previous[1]) / (0.5 * elapsed))
     extra[9:11] = (float(p.on_ground), float(p.in_liquid()))
     extra[11] = stuck_fraction
     return np.concatenate([stats, crop, extra, np.asarray(mu, np.float32)])

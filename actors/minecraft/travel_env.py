@@ -81,6 +81,13 @@ class MinecraftTravelEnv(gym.Env):
             ``world_seeds`` (the benchmark's fixed set).
         max_ticks: ticks before the episode is truncated.
         reward: the reward's weights and the stuck rule.
+        real_time: Malmo's asynchronous mode: the world ticks every 50 ms whether or not
+            the agent acts, a step's commands run at the next tick and its reply is the
+            latest observation (False: synchronous, deterministic).
+        ticks_per_step: synchronous mode: ticks each step advances, its commands held
+            (Malmo's continuous commands persist) and the frames between unseen: a slow
+            client, deterministically (a real-time client deciding every k-th tick).
+            The step ends early on arrival or death.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -93,9 +100,18 @@ class MinecraftTravelEnv(gym.Env):
         missions: Optional[list[TravelMission]] = None,
         max_ticks: int = MAX_TICKS,
         reward: Optional[RewardConfig] = None,
+        real_time: bool = False,
+        ticks_per_step: int = 1,
     ) -> None:
         if max_ticks < 1:
             raise ValueError(f"max_ticks={max_ticks} must be >= 1")
+        if ticks_per_step < 1:
+            raise ValueError(f"ticks_per_step={ticks_per_step} must be >= 1")
+        if real_time and ticks_per_step > 1:
+            raise ValueError(
+                f"ticks_per_step={ticks_per_step} needs the synchronous world: in real time "
+                "the world decides how many ticks pass between steps"
+            )
         if not world_seeds and not missions:
             raise ValueError("world_seeds is empty and no missions were given: nothing to play")
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(OBS_DIM,), dtype=np.float32)
@@ -104,6 +120,8 @@ class MinecraftTravelEnv(gym.Env):
         self.world_seeds = tuple(world_seeds)
         self.fixed = list(missions) if missions else None
         self.max_ticks = max_ticks
+        self.real_time = real_time
+        self.ticks_per_step = ticks_per_step
         self.reward_fn = TravelReward(reward or RewardConfig())
         self.steering = TreeSteering()
         self._server: Optional[WorldServer] = None
@@ -127,7 +145,7 @@ class MinecraftTravelEnv(gym.Env):
             else:
                 host, _, p = self.address.rpartition(":")
                 port = int(p)
-            self._client = MalmoClient(host, port, synchronous=True, timeout=30.0)
+            self._client = MalmoClient(host, port, synchronous=not self.real_time, timeout=30.0)
         return self._client
 
     def _next_mission(self) -> TravelMission:
@@ -139,7 +157,7 @@ class MinecraftTravelEnv(gym.Env):
         self._played += 1
         return m
 
-    def _observe(self, p: Percept) -> np.ndarray:
+    def _observe(self, p: Percept, elapsed: int = 1) -> np.ndarray:
         assert self.mission is not None
         mu, self._waypoint = self.steering(p, self.mission.route)
         self._pitch = self.steering.ctx.commands.pitch
@@ -151,6 +169,7 @@ class MinecraftTravelEnv(gym.Env):
             destination=self.mission.destination,
             previous=(self._percept.x, self._percept.y, self._percept.z) if self._percept else None,
             stuck_fraction=stuck.ticks_without_progress / stuck.ticks,
+            elapsed=elapsed,
         )
         self._percept = p
         return obs
@@ -180,17 +199,24 @@ class MinecraftTravelEnv(gym.Env):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         assert self.mission is not None and self._client is not None
         reply = self._client.step(compose_commands(action, self._pitch))
-        self._ticks += 1
+        for _ in range(self.ticks_per_step - 1):  # hold the commands, unseen frames
+            if reply.done or not reply.info or self._ended(parse(reply.info)):
+                break
+            reply = self._client.step("")
         prev = self._percept
         assert prev is not None
         p = parse(reply.info) if reply.info else prev
+        # Game ticks since the last observation: 1 in synchronous mode; in real time more
+        # when the agent was slower than the world (the skipped ticks cost time too).
+        elapsed = max(1, p.tick - prev.tick)
+        self._ticks += elapsed
         phi = route_to_go(self.mission.route, p.x, p.y, p.z)
-        reward, stuck = self.reward_fn.step(phi)
+        reward, stuck = self.reward_fn.step(phi, ticks=elapsed)
         arrived = p.cell == self.mission.destination
         died = bool(reply.info) and not p.alive
         terminated = arrived or died or (reply.done and not reply.info)
         truncated = not terminated and (self._ticks >= self.max_ticks or reply.done)
-        obs = self._observe(p)
+        obs = self._observe(p, elapsed)
         info = {
             "phi": phi,
             "stuck": stuck,
@@ -200,6 +226,10 @@ class MinecraftTravelEnv(gym.Env):
             "ticks": self._ticks,
         }
         return obs, float(reward), bool(terminated), bool(truncated), info
+
+    def _ended(self, p: Percept) -> bool:
+        assert self.mission is not None
+        return p.cell == self.mission.destination or not p.alive
 
     def close(self) -> None:
         if self._client is not None:

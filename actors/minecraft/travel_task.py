@@ -124,15 +124,15 @@ class StuckDetector:
         self.since = 0
         self.events = 0
 
-    def update(self, phi: float) -> bool:
-        """One tick at φ = ``phi``; True when the stuck event fires on this tick."""
+    def update(self, phi: float, ticks: int = 1) -> bool:
+        """``ticks`` ticks ending at φ = ``phi``; True when the stuck event fires."""
         if phi <= self.best - self.progress:
             self.best, self.since = phi, 0
             return False
-        self.since += 1
+        self.since += ticks
         if self.since >= self.ticks:
-            self.since = 0
-            self.events += 1
+            self.events += self.since // self.ticks
+            self.since %= self.ticks
             return True
         return False
 
@@ -153,13 +153,14 @@ class TravelReward:
         self.phi = phi
         self.stuck.reset(phi)
 
-    def step(self, phi: float) -> tuple[float, bool]:
-        """(reward, stuck event) for a tick that moved φ from the previous value to ``phi``."""
+    def step(self, phi: float, ticks: int = 1) -> tuple[float, bool]:
+        """(reward, stuck event) for ``ticks`` ticks that moved φ from the previous value to
+        ``phi`` (more than 1 when a real-time agent missed ticks)."""
         c = self.config
-        stuck = self.stuck.update(phi)
-        reward = c.progress_scale * (self.phi - phi) - c.tick_cost
-        if stuck:
-            reward -= c.stuck_penalty
+        before = self.stuck.events
+        stuck = self.stuck.update(phi, ticks)
+        reward = c.progress_scale * (self.phi - phi) - c.tick_cost * ticks
+        reward -= c.stuck_penalty * (self.stuck.events - before)
         self.phi = phi
         return reward, stuck
 
