@@ -50,7 +50,6 @@ class Controller:
             self.policy = TravelBackbone()
             return
         import torch
-        import yaml
 
         from learner.checkpoint import latest_checkpoint, load_checkpoint
         from learner.registry import make_builder
@@ -61,7 +60,7 @@ class Controller:
         found = Path(checkpoint) if checkpoint else latest_checkpoint(folder / "checkpoints")
         if found is None or not found.is_file():
             raise SystemExit(f"bench/travel.py: no checkpoint under {folder}/checkpoints")
-        data = yaml.safe_load((folder / "config.yaml").read_text())
+        data = _run_config(folder)
         builder = make_builder(load_preset(data.pop("preset"), **data))
         learner = builder.make_learner()
         learner.load_state_dict(load_checkpoint(found)["algorithm"])
@@ -80,10 +79,10 @@ class Controller:
 Job = tuple[str, Optional[str], Optional[str], list[TravelMission], list[int], dict[str, Any]]
 
 
-def _algorithm(run: Path) -> str:
+def _run_config(run: Path) -> dict[str, Any]:
     import yaml
 
-    return str(yaml.safe_load((run / "config.yaml").read_text())["algorithm"])
+    return dict(yaml.safe_load((run / "config.yaml").read_text()))
 
 
 def run_chunk(job: Job) -> list[dict]:
@@ -151,18 +150,18 @@ def training_curve(run: Path, png: Path, tree_level: float) -> None:
 
 
 def tree_eval_level(run: Path) -> float:
-    """The tree alone's mean return on the evaluator's episodes of ``run`` (same seeds)."""
-    import yaml
-
+    """The tree alone's mean return on the evaluator's episodes of ``run`` (same seeds,
+    same environment settings)."""
     from actors.evaluation import run_episodes
     from actors.minecraft.travel_env import ENV_ID, TravelBackbone
 
-    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    cfg = _run_config(run)
     returns = run_episodes(
         TravelBackbone(),
         env_id=ENV_ID,
         episodes=int(cfg["eval_episodes"]),
         seed=10_000 + int(cfg["seed"]),
+        env_kwargs=cfg.get("env_kwargs"),
     )
     return float(returns.mean())
 
@@ -179,8 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-ticks", type=int, default=600)
     ap.add_argument("--procs", type=int, default=2)
     ap.add_argument("--real-time", action="store_true", help="Malmo's asynchronous mode")
-    ap.add_argument("--ticks-per-step", type=int, default=1,
-                    help="synchronous: ticks per decision (a slow client)")  # fmt: skip
+    ap.add_argument("--ticks-per-step", type=int,
+                    help="synchronous: ticks per decision, a slow client (default: --run's "
+                         "env_kwargs, else 1)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("runs/bench-travel"))
     ap.add_argument("--png", type=Path, help="also draw the run's training curve here")
     args = ap.parse_args(argv)
@@ -192,8 +192,11 @@ def main(argv: list[str] | None = None) -> int:
     controllers = [(TREE, None)]
     if args.run:
         controllers.append((args.label, args.run))
-        if _algorithm(Path(args.run)) == "backbone_td3":  # the gate acts on a correction
+        if _run_config(Path(args.run))["algorithm"] == "backbone_td3":  # gate a correction
             controllers.append((args.label + RECOVERING, args.run))
+    if args.ticks_per_step is None:  # the conditions the run trained in
+        trained = _run_config(Path(args.run)).get("env_kwargs", {}) if args.run else {}
+        args.ticks_per_step = int(trained.get("ticks_per_step", 1))
     env_kwargs = {
         "max_ticks": args.max_ticks,
         "real_time": args.real_time,
