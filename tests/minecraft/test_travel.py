@@ -120,6 +120,21 @@ def test_stuck_detector_counts_from_the_best_progress() -> None:
     assert d.events == 1 and d.best == 4.0
 
 
+def test_steps_of_several_ticks_count_every_tick() -> None:
+    # K = 3; steps of 2 ticks (a slow client): the second step reaches 4 ticks without
+    # progress (1 event, 1 tick carried), the third 6 → a second event at tick 6.
+    cfg = RewardConfig(tick_cost=0.05, stuck_penalty=2.0, stuck_ticks=3, stuck_progress=1.0)
+    reward = TravelReward(cfg)
+    reward.reset(10.0)
+    assert reward.step(10.0, ticks=2) == (pytest.approx(-0.1), False)
+    assert reward.step(10.0, ticks=2) == (pytest.approx(-0.1 - 2.0), True)
+    assert reward.step(9.5, ticks=2) == (pytest.approx(0.5 - 0.1 - 2.0), True)
+    assert reward.stuck.events == 2
+    # A gap of 7 ticks (a real-time client missed frames) holds two events.
+    assert reward.step(9.5, ticks=7) == (pytest.approx(-0.35 - 4.0), True)
+    assert reward.stuck.events == 4
+
+
 def test_reward_config_refuses_bad_values_naming_the_field() -> None:
     with pytest.raises(ValueError, match="stuck_ticks"):
         RewardConfig(stuck_ticks=0)
@@ -205,6 +220,12 @@ def test_observation_layout_and_backbone_reads_mu() -> None:
     np.testing.assert_allclose(obs[117:120], [1.0, 0.0, 0.25])
     np.testing.assert_allclose(obs[MU], mu)
     np.testing.assert_allclose(TravelBackbone()(obs[None]), mu[None])
+    # The same displacement over a step of 2 ticks is half the velocity per tick.
+    slow = observation(
+        p, mu=mu, waypoint=(0, 4, 2), destination=(0, 6, 16), previous=(0.5, 4.0, 0.3),
+        stuck_fraction=0.25, elapsed=2,
+    )  # fmt: skip
+    np.testing.assert_allclose(slow[114:117], obs[114:117] / 2, atol=1e-6)
     assert isinstance(hardcoded_policy(ENV_ID), TravelBackbone)
 
 
@@ -221,25 +242,50 @@ def test_backbone_action_and_commands() -> None:
 
 
 # ------------------------------------------------------------------ the environment
-def test_env_over_malmoenv_tree_reaches_the_destination() -> None:
-    """The tree alone (a = μ(s)) on one seeded mission, a real world server on a socket."""
+@pytest.mark.parametrize("ticks_per_step", [1, 3])
+def test_env_over_malmoenv_tree_reaches_the_destination(ticks_per_step: int) -> None:
+    """The tree alone (a = μ(s)) on one seeded mission, a real world server on a socket;
+    with 3 ticks per step each step advances 3 game ticks (the last may end early)."""
     missions = draw_missions(2, 1, random.Random(5))
-    env = gym.make(ENV_ID, missions=missions, max_ticks=400)
+    env = gym.make(ENV_ID, missions=missions, max_ticks=400, ticks_per_step=ticks_per_step)
     try:
         obs, _ = env.reset(seed=0)
         backbone = TravelBackbone()
         total, phi0 = 0.0, route_to_go(missions[0].route, *missions[0].start)
+        steps = 0
         for _ in range(400):
             obs, r, terminated, truncated, info = env.step(backbone(obs))
-            total += r
+            total, steps = total + r, steps + 1
             if terminated or truncated:
                 break
         assert info["arrived"] and terminated and not truncated
+        assert (steps - 1) * ticks_per_step < info["ticks"] <= steps * ticks_per_step
         # Rewards telescope: Σ r = φ0 − φ_end − 0.05·ticks − 2·stuck events.
         expected = phi0 - info["phi"] - 0.05 * info["ticks"] - 2.0 * info["stuck_events"]
         assert total == pytest.approx(expected, abs=1e-4)
     finally:
         env.close()
+
+
+def test_env_refuses_bad_timing_settings() -> None:
+    with pytest.raises(ValueError, match="ticks_per_step=0"):
+        gym.make(ENV_ID, ticks_per_step=0)
+    with pytest.raises(ValueError, match="synchronous world"):
+        gym.make(ENV_ID, ticks_per_step=2, real_time=True)
+
+
+def test_run_config_env_kwargs_reach_the_environment() -> None:
+    from service.config import load_preset
+
+    config = load_preset("minecraft-backbone", **{"env_kwargs.ticks_per_step": 4})
+    env = config.make_env()
+    try:
+        assert env.unwrapped.ticks_per_step == 4
+    finally:
+        env.close()
+    bad = load_preset("minecraft-backbone", **{"env_kwargs.ticks_per_stpe": 4})
+    with pytest.raises(ValueError, match="ticks_per_stpe"):
+        bad.make_env()
 
 
 def test_occupancy_is_sampled_in_the_agent_frame() -> None:

@@ -23,6 +23,7 @@ TINY = {
     "checkpoint_every": 10_000,
     "td3.hidden_sizes": [32, 32],
     "td3.batch_size": 32,
+    "env_kwargs.ticks_per_step": 2,
 }
 
 
@@ -38,6 +39,7 @@ def test_minecraft_backbone_smoke_two_clients(ray_local, tmp_path) -> None:
     assert all(n >= 1 for n in s["actor_versions_adopted"])
     assert np.isfinite(s["final_eval_return_mean"])
     assert (tmp_path / "run" / "learning_curve.png").stat().st_size > 0
+    assert "ticks_per_step: 2" in (tmp_path / "run" / "config.yaml").read_text()
 
 
 def test_minecraft_preset_refuses_bad_config_naming_the_field() -> None:
