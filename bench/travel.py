@@ -4,13 +4,15 @@ the tree plus a trained backbone correction (a = μ(s) + clip(π(s), [−L, L]))
 A fixed set of missions (``--worlds`` seeded worlds from ``--first-world``, ``--per-world``
 destinations 10-30 blocks from each spawn, drawn with seed 0; training draws from worlds
 1000-1063, so these are unseen), each a real world server driven through MalmoEnv,
-synchronous (deterministic), ``--max-ticks`` per episode. "Stuck": the episode had at
-least one stuck event (``travel_task``: no 1 block of progress along the route within
-40 ticks). Time to destination in ticks (20 per second).
+synchronous (deterministic), ``--max-ticks`` per episode, ``--ticks-per-step`` game ticks
+per decision (a slow client; default: the run's ``env_kwargs``, else 1), or
+``--real-time`` (Malmo's asynchronous mode). "Stuck": the episode had at least one stuck
+event (``travel_task``: no 1 block of progress along the route within 40 ticks). Time to
+destination in game ticks (20 per second).
 
     python bench/travel.py --run runs/minecraft-backbone-s0 [--worlds 25 --per-world 4]
         [--procs 2] [--png docs/img/minecraft-backbone.png]
-    python bench/travel.py            # the tree alone
+    python bench/travel.py [--ticks-per-step 6]     # the tree alone
 """
 
 from __future__ import annotations
