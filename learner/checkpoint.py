@@ -11,15 +11,17 @@ import torch
 KEEP = 3
 
 
-def save_checkpoint(folder: Path, state: dict[str, Any], *, updates: int) -> Path:
-    """Writes `ckpt-<updates>.pt` via a temporary file and rename: never half a file."""
+def save_checkpoint(folder: Path, state: dict[str, Any], *, updates: int, keep: int = KEEP) -> Path:
+    """Writes `ckpt-<updates>.pt` via a temporary file and rename: never half a file; keeps
+    the newest ``keep`` checkpoints (0: all of them)."""
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"ckpt-{updates:09d}.pt"
     tmp = path.with_suffix(".pt.tmp")
     torch.save(state, tmp)
     os.replace(tmp, path)
-    for old in sorted(folder.glob("ckpt-*.pt"))[:-KEEP]:
-        old.unlink()
+    if keep > 0:
+        for old in sorted(folder.glob("ckpt-*.pt"))[:-keep]:
+            old.unlink()
     return path
 
 

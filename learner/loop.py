@@ -63,6 +63,7 @@ class LoopSettings:
     eval_every: int
     eval_episodes: int
     checkpoint_every: int
+    keep_checkpoints: int = 3
     log_every: int = 250
 
 
@@ -145,6 +146,7 @@ class LearnerLoop:
                 "loop": {"updates": s.updates, "env_steps": s.env_steps, "version": s.version},
             },
             updates=s.updates,
+            keep=self.settings.keep_checkpoints,
         )
 
     def run(self) -> LoopState:

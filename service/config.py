@@ -65,6 +65,8 @@ class TrainConfig:
     """Episodes per evaluation."""
     checkpoint_every: int = 5_000
     """Learner updates between checkpoints (one more is written at the end)."""
+    keep_checkpoints: int = 3
+    """Newest checkpoints kept on disk; 0 keeps all (for learning curves over checkpoints)."""
     seed: int = 0
     """Seeds networks, actors' environments and exploration."""
     td3: TD3Config = field(default_factory=TD3Config)
@@ -105,6 +107,8 @@ class TrainConfig:
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
+        if self.keep_checkpoints < 0:
+            raise ValueError(f"keep_checkpoints={self.keep_checkpoints} must be >= 0 (0: all)")
         if not isinstance(self.env_kwargs, dict):
             raise ValueError(f"env_kwargs={self.env_kwargs!r} must be a mapping of name: value")
 

@@ -226,6 +226,7 @@ def train(
             eval_every=config.eval_every,
             eval_episodes=config.eval_episodes,
             checkpoint_every=config.checkpoint_every,
+            keep_checkpoints=config.keep_checkpoints,
         )
         with tqdm(
             total=sum(p.updates for p in phases),

@@ -68,3 +68,13 @@ def test_preset_runs_through_the_service(preset, ray_local, tmp_path):
     assert s["updates"] == expected_updates
     assert np.isfinite(s["final_eval_return_mean"])
     assert (tmp_path / "run" / "learning_curve.png").stat().st_size > 0
+
+
+def test_checkpoints_keep_the_newest_or_all(tmp_path) -> None:
+    for updates in range(5):
+        save_checkpoint(tmp_path / "three", {"u": updates}, updates=updates)
+        save_checkpoint(tmp_path / "all", {"u": updates}, updates=updates, keep=0)
+    assert [p.name for p in sorted((tmp_path / "three").iterdir())] == [
+        f"ckpt-{u:09d}.pt" for u in (2, 3, 4)
+    ]
+    assert len(list((tmp_path / "all").iterdir())) == 5
