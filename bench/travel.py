@@ -125,6 +125,64 @@ def run_chunk(job: Job) -> list[dict]:
     return rows
 
 
+def split_jobs(
+    name: str,
+    run: Optional[str],
+    checkpoint: Optional[str],
+    missions: list[TravelMission],
+    env_kwargs: dict[str, Any],
+    procs: int,
+) -> list[Job]:
+    """One controller's missions in ``4·procs`` interleaved chunks (even load per process)."""
+    n = procs * 4
+    return [
+        (name, run, checkpoint, missions, list(range(k, len(missions), n)), env_kwargs)
+        for k in range(n)
+    ]
+
+
+def checkpoint_curve(
+    run: Path, missions: list[TravelMission], env_kwargs: dict[str, Any], procs: int,
+    tree: dict[str, float], png: Path, out: Path,
+) -> None:  # fmt: skip
+    """The benchmark over every checkpoint of ``run`` (the correction, ungated): success and
+    episodes stuck against env steps, with the tree alone's levels; also ``out/curve.csv``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from learner.checkpoint import load_checkpoint
+
+    points = []
+    with mp.get_context("spawn").Pool(procs) as pool:
+        for ckpt in sorted((run / "checkpoints").glob("ckpt-*.pt")):
+            jobs = split_jobs(CORRECTED, str(run), str(ckpt), missions, env_kwargs, procs)
+            rows = [r for chunk in pool.map(run_chunk, jobs) for r in chunk]
+            s = summarise(rows)
+            steps = int(load_checkpoint(ckpt)["loop"]["env_steps"])
+            points.append((steps, 100 * s["success"], 100 * s["stuck"]))
+            print(f"{ckpt.name}: {steps} env steps, success {points[-1][1]:.0f}%, "
+                  f"stuck {points[-1][2]:.0f}%", file=sys.stderr, flush=True)  # fmt: skip
+    with open(out / "curve.csv", "w", newline="") as f:
+        csv.writer(f).writerows([("env_steps", "success_pct", "stuck_pct"), *points])
+    steps, success, stuck = zip(*points, strict=True)
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(steps, success, "o-", color="tab:green", label="tree + correction: success")
+    ax.plot(steps, stuck, "o-", color="tab:red", label="tree + correction: episodes stuck")
+    ax.axhline(100 * tree["success"], color="tab:green", ls="--", label="tree alone: success")
+    ax.axhline(100 * tree["stuck"], color="tab:red", ls="--", label="tree alone: episodes stuck")
+    title = f"{run.name}: travel benchmark over checkpoints ({len(missions)} destinations)"
+    ax.set(xlabel="environment steps (checkpoint)", ylabel="% of destinations", ylim=(-3, 103),
+           title=title)  # fmt: skip
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+
+
 def summarise(rows: list[dict]) -> dict[str, float]:
     arrived = [r for r in rows if r["arrived"]]
     return {
@@ -185,6 +243,9 @@ def main(argv: list[str] | None = None) -> int:
                          "env_kwargs, else 1)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("runs/bench-travel"))
     ap.add_argument("--png", type=Path, help="also draw the run's training curve here")
+    ap.add_argument("--curve", type=Path,
+                    help="also benchmark every checkpoint of --run (the correction alone) "
+                         "and draw success and stuck episodes against env steps here")  # fmt: skip
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     worlds = list(range(args.first_world, args.first_world + args.worlds))
@@ -204,11 +265,11 @@ def main(argv: list[str] | None = None) -> int:
         "real_time": args.real_time,
         "ticks_per_step": args.ticks_per_step,
     }
-    jobs = []
-    for name, run in controllers:
-        for k in range(args.procs * 4):
-            idx = list(range(k, len(missions), args.procs * 4))
-            jobs.append((name, run, args.checkpoint, missions, idx, env_kwargs))
+    jobs = [
+        job
+        for name, run in controllers
+        for job in split_jobs(name, run, args.checkpoint, missions, env_kwargs, args.procs)
+    ]
     rows: list[dict] = []
     with mp.get_context("spawn").Pool(args.procs) as pool:
         for chunk in pool.imap_unordered(run_chunk, jobs):
@@ -251,6 +312,12 @@ def main(argv: list[str] | None = None) -> int:
             training_curve(Path(args.run), args.png, level)
             print(f"training curve: {args.png} (tree alone on the evaluator's missions: "
                   f"{level:.2f})")  # fmt: skip
+    if args.run and args.curve:
+        tree = summarise([r for r in rows if r["controller"] == TREE])
+        checkpoint_curve(
+            Path(args.run), missions, env_kwargs, args.procs, tree, args.curve, args.out
+        )
+        print(f"benchmark over checkpoints: {args.curve}, {args.out / 'curve.csv'}")
     print(f"wall {time.perf_counter() - t0:.0f} s with {args.procs} processes; "
           f"episodes: {args.out / 'episodes.csv'}")  # fmt: skip
     return 0
