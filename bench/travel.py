@@ -147,11 +147,6 @@ def checkpoint_curve(
 ) -> None:  # fmt: skip
     """The benchmark over every checkpoint of ``run`` (the correction, ungated): success and
     episodes stuck against env steps, with the tree alone's levels; also ``out/curve.csv``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from learner.checkpoint import load_checkpoint
 
     points = []
@@ -166,15 +161,26 @@ def checkpoint_curve(
                   f"stuck {points[-1][2]:.0f}%", file=sys.stderr, flush=True)  # fmt: skip
     with open(out / "curve.csv", "w", newline="") as f:
         csv.writer(f).writerows([("env_steps", "success_pct", "stuck_pct"), *points])
+    plot_curve(points, tree, png, f"{run.name}: benchmark over checkpoints")
+
+
+def plot_curve(
+    points: list[tuple[int, float, float]], tree: dict[str, float], png: Path, title: str
+) -> None:
+    """(env steps, success %, stuck %) per checkpoint, with the tree alone's levels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     steps, success, stuck = zip(*points, strict=True)
     fig, ax = plt.subplots(figsize=(7, 4))
     ax.plot(steps, success, "o-", color="tab:green", label="tree + correction: success")
     ax.plot(steps, stuck, "o-", color="tab:red", label="tree + correction: episodes stuck")
     ax.axhline(100 * tree["success"], color="tab:green", ls="--", label="tree alone: success")
     ax.axhline(100 * tree["stuck"], color="tab:red", ls="--", label="tree alone: episodes stuck")
-    title = f"{run.name}: travel benchmark over checkpoints ({len(missions)} destinations)"
-    ax.set(xlabel="environment steps (checkpoint)", ylabel="% of destinations", ylim=(-3, 103),
-           title=title)  # fmt: skip
+    ax.set(xlabel="environment steps (checkpoint)", ylabel="% of destinations",
+           ylim=(-3, 103), title=title)  # fmt: skip
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     png.parent.mkdir(parents=True, exist_ok=True)
