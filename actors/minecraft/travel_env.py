@@ -4,7 +4,7 @@
 Ray workers register it themselves). Each environment owns one simulated world server
 (``WorldServer`` on a free loopback port, in a thread of the same process) unless given
 the ``address`` of one, and talks to it only through graft's MalmoEnv client over the
-socket, synchronous (one tick per step; a real-time world would tick on without it).
+socket, synchronous (`ticks_per_step` ticks per step, 1 by default) or in real time.
 
 Per step::
 
@@ -206,8 +206,8 @@ class MinecraftTravelEnv(gym.Env):
         prev = self._percept
         assert prev is not None
         p = parse(reply.info) if reply.info else prev
-        # Game ticks since the last observation: 1 in synchronous mode; in real time more
-        # when the agent was slower than the world (the skipped ticks cost time too).
+        # Game ticks since the last observation: ticks_per_step in synchronous mode (fewer
+        # on arrival); in real time as many as passed (the skipped ones cost time too).
         elapsed = max(1, p.tick - prev.tick)
         self._ticks += elapsed
         phi = route_to_go(self.mission.route, p.x, p.y, p.z)
