@@ -258,14 +258,14 @@ def main(argv: list[str] | None = None) -> int:
     missions = mission_pool(worlds, args.per_world, seed=0)
     print(f"{len(missions)} missions in {len(worlds)} worlds ({time.perf_counter() - t0:.0f} s)",
           file=sys.stderr, flush=True)  # fmt: skip
+    trained = _run_config(Path(args.run)) if args.run else {}
     controllers = [(TREE, None)]
     if args.run:
         controllers.append((args.label, args.run))
-        if _run_config(Path(args.run))["algorithm"] == "backbone_td3":  # gate a correction
+        if trained["algorithm"] == "backbone_td3":  # the gate acts on a correction
             controllers.append((args.label + RECOVERING, args.run))
     if args.ticks_per_step is None:  # the conditions the run trained in
-        trained = _run_config(Path(args.run)).get("env_kwargs", {}) if args.run else {}
-        args.ticks_per_step = int(trained.get("ticks_per_step", 1))
+        args.ticks_per_step = int(trained.get("env_kwargs", {}).get("ticks_per_step", 1))
     env_kwargs = {
         "max_ticks": args.max_ticks,
         "real_time": args.real_time,
