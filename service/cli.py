@@ -16,13 +16,7 @@ def _train(args: argparse.Namespace) -> None:
     from service.launcher import train
 
     try:
-        config = load_preset(
-            args.preset,
-            num_actors=args.actors,
-            seed=args.seed,
-            env_steps=args.env_steps,
-            **parse_settings(args.set),
-        )
+        config = load_preset(args.preset, **_train_overrides(args))
     except ValueError as error:
         raise SystemExit(f"graft train: {error}") from None
     result = train(
@@ -45,6 +39,20 @@ def _train(args: argparse.Namespace) -> None:
     )
     print(f"actors adopted weight versions up to {s['actor_last_version']}")
     print(f"learning curve: {result.run_dir / 'learning_curve.png'}")
+
+
+def _train_overrides(args: argparse.Namespace) -> dict[str, object]:
+    """The flags' overrides and `--set`'s in one dict; a field given both ways is an error."""
+    flags = {
+        "num_actors": ("--actors", args.actors),
+        "seed": ("--seed", args.seed),
+        "env_steps": ("--env-steps", args.env_steps),
+    }
+    settings = parse_settings(args.set)
+    for key, (flag, value) in flags.items():
+        if value is not None and key in settings:
+            raise ValueError(f"{flag} and --set {key}=... both given; give one")
+    return {**{key: value for key, (_, value) in flags.items()}, **settings}
 
 
 def parse_settings(pairs: list[str]) -> dict[str, object]:

@@ -78,3 +78,19 @@ def test_checkpoints_keep_the_newest_or_all(tmp_path) -> None:
         f"ckpt-{u:09d}.pt" for u in (2, 3, 4)
     ]
     assert len(list((tmp_path / "all").iterdir())) == 5
+
+
+def test_train_flag_given_twice_is_named() -> None:
+    from service.cli import main
+
+    with pytest.raises(SystemExit, match=r"--seed and --set seed=\.\.\. both given"):
+        main(["train", "--preset", "pendulum-td3", "--seed", "1", "--set", "seed=2"])
+
+
+def test_train_set_alone_overrides_a_flag_field() -> None:
+    from service.cli import _train_overrides, build_parser
+
+    args = build_parser().parse_args(["train", "--set", "seed=2", "--set", "td3.gamma=0.9"])
+    overrides = _train_overrides(args)
+    assert overrides["seed"] == 2 and overrides["td3.gamma"] == 0.9
+    assert load_preset("pendulum-td3", **overrides).seed == 2
