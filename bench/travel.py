@@ -31,6 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from actors.minecraft.travel_task import TravelMission, mission_pool  # noqa: E402
+from service.trained import load_behaviour, run_config  # noqa: E402
 
 TREE, CORRECTED = "tree", "tree + correction"
 RECOVERING = " (tree recovers when stalled)"
@@ -51,23 +52,10 @@ class Controller:
         if run is None:
             self.policy = TravelBackbone()
             return
-        import torch
-
-        from learner.checkpoint import latest_checkpoint, load_checkpoint
-        from learner.registry import make_builder
-        from service.config import load_preset
-
-        torch.set_num_threads(1)
-        folder = Path(run)
-        found = Path(checkpoint) if checkpoint else latest_checkpoint(folder / "checkpoints")
-        if found is None or not found.is_file():
-            raise SystemExit(f"bench/travel.py: no checkpoint under {folder}/checkpoints")
-        data = _run_config(folder)
-        builder = make_builder(load_preset(data.pop("preset"), **data))
-        learner = builder.make_learner()
-        learner.load_state_dict(load_checkpoint(found)["algorithm"])
-        self.behaviour = builder.make_behaviour(num_actors=1)
-        self.behaviour.load(learner.policy_state())
+        try:
+            self.behaviour, _ = load_behaviour(Path(run), checkpoint and Path(checkpoint))
+        except FileNotFoundError as error:
+            raise SystemExit(f"bench/travel.py: {error}") from None
         if recover:  # the tree takes over from the correction when progress stalls
             from actors.minecraft.travel_env import correction_trusted
 
@@ -79,12 +67,6 @@ class Controller:
 
 
 Job = tuple[str, Optional[str], Optional[str], list[TravelMission], list[int], dict[str, Any]]
-
-
-def _run_config(run: Path) -> dict[str, Any]:
-    import yaml
-
-    return dict(yaml.safe_load((run / "config.yaml").read_text()))
 
 
 def run_chunk(job: Job) -> list[dict]:
@@ -221,13 +203,13 @@ def tree_eval_level(run: Path) -> float:
     from actors.evaluation import run_episodes
     from actors.minecraft.travel_env import ENV_ID, TravelBackbone
 
-    cfg = _run_config(run)
+    config = run_config(run)
     returns = run_episodes(
         TravelBackbone(),
         env_id=ENV_ID,
-        episodes=int(cfg["eval_episodes"]),
-        seed=10_000 + int(cfg["seed"]),
-        env_kwargs=cfg.get("env_kwargs"),
+        episodes=config.eval_episodes,
+        seed=10_000 + config.seed,
+        env_kwargs=config.env_kwargs,
     )
     return float(returns.mean())
 
@@ -258,14 +240,17 @@ def main(argv: list[str] | None = None) -> int:
     missions = mission_pool(worlds, args.per_world, seed=0)
     print(f"{len(missions)} missions in {len(worlds)} worlds ({time.perf_counter() - t0:.0f} s)",
           file=sys.stderr, flush=True)  # fmt: skip
-    trained = _run_config(Path(args.run)) if args.run else {}
+    try:
+        trained = run_config(Path(args.run)) if args.run else None
+    except FileNotFoundError as error:
+        raise SystemExit(f"bench/travel.py: {error}") from None
     controllers = [(TREE, None)]
-    if args.run:
+    if trained:
         controllers.append((args.label, args.run))
-        if trained["algorithm"] == "backbone_td3":  # the gate acts on a correction
+        if trained.algorithm == "backbone_td3":  # the gate acts on a correction
             controllers.append((args.label + RECOVERING, args.run))
     if args.ticks_per_step is None:  # the conditions the run trained in
-        args.ticks_per_step = int(trained.get("env_kwargs", {}).get("ticks_per_step", 1))
+        args.ticks_per_step = int((trained.env_kwargs if trained else {}).get("ticks_per_step", 1))
     env_kwargs = {
         "max_ticks": args.max_ticks,
         "real_time": args.real_time,

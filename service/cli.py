@@ -107,32 +107,14 @@ def _eval(args: argparse.Namespace) -> None:
 
 def _checkpoint_policy(path: Path, env_id: Optional[str]):
     """The greedy policy of a run folder or checkpoint file (any algorithm), and its config."""
-    import torch
-    import yaml
+    from service.trained import load_behaviour
 
-    from learner.checkpoint import latest_checkpoint, load_checkpoint
-    from learner.registry import make_builder
-    from service.config import load_preset
-
-    if path.is_dir():
-        found = latest_checkpoint(path / "checkpoints")
-        if found is None:
-            raise SystemExit(f"graft eval: no checkpoint under {path}/checkpoints")
-        config_path, path = path / "config.yaml", found
-    else:
-        config_path = path.parent.parent / "config.yaml"
-    if not path.exists():
-        raise SystemExit(f"graft eval: {path} is neither 'hardcoded', 'random' nor a checkpoint")
-    data = yaml.safe_load(config_path.read_text())
-    config = load_preset(data.pop("preset"), **data)
+    try:
+        behaviour, config = load_behaviour(path)
+    except FileNotFoundError as error:
+        raise SystemExit(f"graft eval: {error} (nor 'hardcoded' or 'random')") from None
     if env_id not in (None, config.env_id):
         raise SystemExit(f"graft eval: {path} was trained on {config.env_id}, not {env_id}")
-    builder = make_builder(config)
-    learner = builder.make_learner()
-    learner.load_state_dict(load_checkpoint(path)["algorithm"])
-    behaviour = builder.make_behaviour(num_actors=1)
-    behaviour.load(learner.policy_state())
-    torch.set_num_threads(1)
     return behaviour.greedy, config
 
 

@@ -5,6 +5,9 @@ from __future__ import annotations
 import csv
 import json
 
+import pytest
+
+from service.cli import main
 from service.config import load_preset
 from service.launcher import train
 
@@ -25,7 +28,7 @@ def tiny_preset(*, env_steps: int):
     )
 
 
-def test_pendulum_td3_end_to_end_then_resume(ray_local, tmp_path):
+def test_pendulum_td3_end_to_end_then_resume(ray_local, tmp_path, capsys):
     config = tiny_preset(env_steps=600)
     result = train(config, run_dir=tmp_path, progress=False)
     s = result.summary
@@ -46,6 +49,14 @@ def test_pendulum_td3_end_to_end_then_resume(ray_local, tmp_path):
     with (tmp_path / "metrics.csv").open() as f:
         keys = {row["key"] for row in csv.DictReader(f)}
     assert {"losses/critic", "eval/return_mean", "perf/updates_per_s"} <= keys
+
+    # `graft eval` loads the run folder and a checkpoint file of it alike.
+    for policy in (tmp_path, tmp_path / "checkpoints" / "ckpt-000000400.pt"):
+        main(["eval", "--policy", str(policy), "--episodes", "1", "--json"])
+        result = json.loads(capsys.readouterr().out)
+        assert result["env_id"] == "Pendulum-v1" and result["mean"] < 0, result
+    with pytest.raises(SystemExit, match="no checkpoint under"):
+        main(["eval", "--policy", str(tmp_path / "checkpoints"), "--episodes", "1"])
 
     # Resume: counters continue from the checkpoint; the fresh replay table refills
     # with learning_starts=200 steps of the restored policy, then 200 more updates follow.
