@@ -22,6 +22,8 @@ from ``world_seeds`` and a destination in it (``travel_task.draw_missions``).
 
 from __future__ import annotations
 
+import dataclasses
+
 import random
 from typing import Any, Optional
 
@@ -71,6 +73,16 @@ def correction_trusted(obs: np.ndarray, *, stalled: float = 0.5) -> np.ndarray:
     return np.asarray(obs)[..., STUCK] < stalled
 
 
+def reward_config(reward: Optional[RewardConfig | dict[str, Any]]) -> RewardConfig:
+    """``reward`` as a RewardConfig (None: the defaults; a mapping: those fields changed)."""
+    if reward is None or isinstance(reward, RewardConfig):
+        return reward or RewardConfig()
+    unknown = set(reward) - {f.name for f in dataclasses.fields(RewardConfig)}
+    if unknown:
+        raise ValueError(f"reward: unknown fields {sorted(unknown)} (RewardConfig has no such)")
+    return RewardConfig(**reward)
+
+
 class MinecraftTravelEnv(gym.Env):
     """Travel to a destination in a seeded world with continuous movement commands.
 
@@ -80,7 +92,8 @@ class MinecraftTravelEnv(gym.Env):
         missions: a fixed list of missions, played in order (cycling); overrides
             ``world_seeds`` (the benchmark's fixed set).
         max_ticks: ticks before the episode is truncated.
-        reward: the reward's weights and the stuck rule.
+        reward: the reward's weights and the stuck rule, or a mapping of some of its fields
+            (a run's ``--set 'env_kwargs.reward={tick_cost: 0.1}'``).
         real_time: Malmo's asynchronous mode: the world ticks every 50 ms whether or not
             the agent acts, a step's commands run at the next tick and its reply is the
             latest observation (False: synchronous, deterministic).
@@ -99,7 +112,7 @@ class MinecraftTravelEnv(gym.Env):
         world_seeds: tuple[int, ...] = TRAIN_WORLDS,
         missions: Optional[list[TravelMission]] = None,
         max_ticks: int = MAX_TICKS,
-        reward: Optional[RewardConfig] = None,
+        reward: Optional[RewardConfig | dict[str, Any]] = None,
         real_time: bool = False,
         ticks_per_step: int = 1,
     ) -> None:
@@ -122,7 +135,7 @@ class MinecraftTravelEnv(gym.Env):
         self.max_ticks = max_ticks
         self.real_time = real_time
         self.ticks_per_step = ticks_per_step
-        self.reward_fn = TravelReward(reward or RewardConfig())
+        self.reward_fn = TravelReward(reward_config(reward))
         self.steering = TreeSteering()
         self._server: Optional[WorldServer] = None
         self._client: Optional[MalmoClient] = None

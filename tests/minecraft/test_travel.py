@@ -286,6 +286,15 @@ def test_run_config_env_kwargs_reach_the_environment() -> None:
     bad = load_preset("minecraft-backbone", **{"env_kwargs.ticks_per_stpe": 4})
     with pytest.raises(ValueError, match="ticks_per_stpe"):
         bad.make_env()
+    weights = load_preset("minecraft-backbone", **{"env_kwargs.reward": {"tick_cost": 0.1}})
+    env = weights.make_env()
+    try:
+        assert env.unwrapped.reward_fn.config == RewardConfig(tick_cost=0.1)
+    finally:
+        env.close()
+    typo = load_preset("minecraft-backbone", **{"env_kwargs.reward": {"tick_cots": 0.1}})
+    with pytest.raises(ValueError, match="tick_cots"):
+        typo.make_env()
 
 
 def test_occupancy_is_sampled_in_the_agent_frame() -> None:
