@@ -23,7 +23,6 @@ from ``world_seeds`` and a destination in it (``travel_task.draw_missions``).
 from __future__ import annotations
 
 import dataclasses
-
 import random
 from typing import Any, Optional
 
