@@ -125,10 +125,11 @@ def split_jobs(
 
 def checkpoint_curve(
     run: Path, missions: list[TravelMission], env_kwargs: dict[str, Any], procs: int,
-    tree: dict[str, float], png: Path, out: Path,
+    tree_rows: list[dict], png: Path, out: Path,
 ) -> None:  # fmt: skip
-    """The benchmark over every checkpoint of ``run`` (the correction, ungated): success and
-    episodes stuck against env steps, with the tree alone's levels; also ``out/curve.csv``."""
+    """The benchmark over every checkpoint of ``run`` (the correction, ungated): success,
+    episodes stuck and the time ratio to the tree against env steps, with the tree alone's
+    levels; also ``out/curve.csv``."""
     from learner.checkpoint import load_checkpoint
 
     points = []
@@ -136,39 +137,61 @@ def checkpoint_curve(
         for ckpt in sorted((run / "checkpoints").glob("ckpt-*.pt")):
             jobs = split_jobs(CORRECTED, str(run), str(ckpt), missions, env_kwargs, procs)
             rows = [r for chunk in pool.map(run_chunk, jobs) for r in chunk]
-            s = summarise(rows)
+            s, p = summarise(rows), paired_speed(tree_rows, rows)
             steps = int(load_checkpoint(ckpt)["loop"]["env_steps"])
-            points.append((steps, 100 * s["success"], 100 * s["stuck"]))
+            points.append((steps, 100 * s["success"], 100 * s["stuck"], p["ratio"]))
             print(f"{ckpt.name}: {steps} env steps, success {points[-1][1]:.0f}%, "
-                  f"stuck {points[-1][2]:.0f}%", file=sys.stderr, flush=True)  # fmt: skip
+                  f"stuck {points[-1][2]:.0f}%, time ratio {p['ratio']:.3f} on "
+                  f"{p['both']}", file=sys.stderr, flush=True)  # fmt: skip
     with open(out / "curve.csv", "w", newline="") as f:
-        csv.writer(f).writerows([("env_steps", "success_pct", "stuck_pct"), *points])
-    plot_curve(points, tree, png, f"{run.name}: benchmark over checkpoints")
+        header = ("env_steps", "success_pct", "stuck_pct", "time_ratio_median")
+        csv.writer(f).writerows([header, *points])
+    plot_curve(points, summarise(tree_rows), png, f"{run.name}: benchmark over checkpoints")
 
 
 def plot_curve(
-    points: list[tuple[int, float, float]], tree: dict[str, float], png: Path, title: str
+    points: list[tuple[int, float, float, float]], tree: dict[str, float], png: Path, title: str
 ) -> None:
-    """(env steps, success %, stuck %) per checkpoint, with the tree alone's levels."""
+    """(env steps, success %, stuck %, time ratio) per checkpoint, with the tree's levels."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    steps, success, stuck = zip(*points, strict=True)
-    fig, ax = plt.subplots(figsize=(7, 4))
+    steps, success, stuck, ratio = zip(*points, strict=True)
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, height_ratios=(3, 2))
     ax.plot(steps, success, "o-", color="tab:green", label="tree + correction: success")
     ax.plot(steps, stuck, "o-", color="tab:red", label="tree + correction: episodes stuck")
     ax.axhline(100 * tree["success"], color="tab:green", ls="--", label="tree alone: success")
     ax.axhline(100 * tree["stuck"], color="tab:red", ls="--", label="tree alone: episodes stuck")
-    ax.set(xlabel="environment steps (checkpoint)", ylabel="% of destinations",
-           ylim=(-3, 103), title=title)  # fmt: skip
-    ax.grid(alpha=0.3)
+    ax.set(ylabel="% of destinations", ylim=(-3, 103), title=title)
     ax.legend(fontsize=8)
+    bx.plot(steps, ratio, "o-", color="tab:blue", label="tree + correction")
+    bx.axhline(1.0, color="black", ls="--", label="tree alone")
+    bx.set(xlabel="environment steps (checkpoint)",
+           ylabel="time / tree's time\n(median, both arrived)")  # fmt: skip
+    bx.legend(fontsize=8)
+    for axis in (ax, bx):
+        axis.grid(alpha=0.3)
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(png, dpi=120)
     plt.close(fig)
+
+
+def paired_speed(tree_rows: list[dict], rows: list[dict]) -> dict[str, float]:
+    """Time against the tree's on the missions both reached: the median ratio, and on
+    how many the controller was faster / slower."""
+    tree = {r["mission"]: r["ticks"] for r in tree_rows if r["arrived"]}
+    pairs = [
+        (r["ticks"], tree[r["mission"]]) for r in rows if r["arrived"] and r["mission"] in tree
+    ]
+    return {
+        "both": len(pairs),
+        "ratio": statistics.median(t / base for t, base in pairs) if pairs else float("nan"),
+        "faster": sum(t < base for t, base in pairs),
+        "slower": sum(t > base for t, base in pairs),
+    }
 
 
 def summarise(rows: list[dict]) -> dict[str, float]:
@@ -286,27 +309,20 @@ def main(argv: list[str] | None = None) -> int:
               f"{100 * s['stuck']:.0f}% | {s['stuck_events']} | {s['deaths']} | "
               f"{s['mean_return']:.2f} |")  # fmt: skip
     if args.run:
-        by = {(r["controller"], r["mission"]): r for r in rows}
+        tree_rows = [r for r in rows if r["controller"] == TREE]
         for name, _ in controllers[1:]:
-            both = [
-                i
-                for i in range(len(missions))
-                if by[(TREE, i)]["arrived"] and by[(name, i)]["arrived"]
-            ]
-            if both:
-                ratio = [by[(name, i)]["ticks"] / by[(TREE, i)]["ticks"] for i in both]
-                faster = sum(by[(name, i)]["ticks"] < by[(TREE, i)]["ticks"] for i in both)
-                print(f"\n{name}: missions both reached: {len(both)}; time ratio to the tree: "
-                      f"median {statistics.median(ratio):.3f}; faster on {faster}")  # fmt: skip
+            p = paired_speed(tree_rows, [r for r in rows if r["controller"] == name])
+            print(f"\n{name}: missions both reached: {p['both']}; time ratio to the tree: "
+                  f"median {p['ratio']:.3f}; faster on {p['faster']}, slower on "
+                  f"{p['slower']}")  # fmt: skip
         if args.png:
             level = tree_eval_level(Path(args.run))
             training_curve(Path(args.run), args.png, level)
             print(f"training curve: {args.png} (tree alone on the evaluator's missions: "
                   f"{level:.2f})")  # fmt: skip
     if args.run and args.curve:
-        tree = summarise([r for r in rows if r["controller"] == TREE])
         checkpoint_curve(
-            Path(args.run), missions, env_kwargs, args.procs, tree, args.curve, args.out
+            Path(args.run), missions, env_kwargs, args.procs, tree_rows, args.curve, args.out
         )
         print(f"benchmark over checkpoints: {args.curve}, {args.out / 'curve.csv'}")
     print(f"wall {time.perf_counter() - t0:.0f} s with {args.procs} processes; "
