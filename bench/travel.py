@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import multiprocessing as mp
 import statistics
 import sys
@@ -186,12 +187,21 @@ def paired_speed(tree_rows: list[dict], rows: list[dict]) -> dict[str, float]:
     pairs = [
         (r["ticks"], tree[r["mission"]]) for r in rows if r["arrived"] and r["mission"] in tree
     ]
+    faster, slower = sum(t < base for t, base in pairs), sum(t > base for t, base in pairs)
     return {
         "both": len(pairs),
         "ratio": statistics.median(t / base for t, base in pairs) if pairs else float("nan"),
-        "faster": sum(t < base for t, base in pairs),
-        "slower": sum(t > base for t, base in pairs),
+        "faster": faster,
+        "slower": slower,
+        "sign_p": sign_test(faster, slower),
     }
+
+
+def sign_test(wins: int, losses: int) -> float:
+    """Two-sided sign test: the chance of a split at least this uneven if each (non-tied)
+    mission were a coin flip."""
+    n, k = wins + losses, min(wins, losses)
+    return min(1.0, 2 * sum(math.comb(n, i) for i in range(k + 1)) / 2**n) if n else 1.0
 
 
 def summarise(rows: list[dict]) -> dict[str, float]:
@@ -314,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
             p = paired_speed(tree_rows, [r for r in rows if r["controller"] == name])
             print(f"\n{name}: missions both reached: {p['both']}; time ratio to the tree: "
                   f"median {p['ratio']:.3f}; faster on {p['faster']}, slower on "
-                  f"{p['slower']}")  # fmt: skip
+                  f"{p['slower']} (sign test p = {p['sign_p']:.2g})")  # fmt: skip
         if args.png:
             level = tree_eval_level(Path(args.run))
             training_curve(Path(args.run), args.png, level)
