@@ -54,7 +54,7 @@ class Controller:
             self.policy = TravelBackbone()
             return
         try:
-            self.behaviour, _ = load_behaviour(Path(run), checkpoint and Path(checkpoint))
+            self.behaviour, _ = load_behaviour(Path(checkpoint or run))
         except FileNotFoundError as error:
             raise SystemExit(f"bench/travel.py: {error}") from None
         if recover:  # the tree takes over from the correction when progress stalls

@@ -32,3 +32,21 @@ def latest_checkpoint(folder: Path) -> Optional[Path]:
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
     return torch.load(path, map_location="cpu", weights_only=False)
+
+
+def find_checkpoint(path: Path) -> tuple[Path, Path]:
+    """(checkpoint file, run folder) for a run folder (its latest checkpoint) or a checkpoint
+    file in one (``RUN/checkpoints/FILE``).
+
+    Raises:
+        FileNotFoundError: no checkpoint there.
+    """
+    path = Path(path)
+    if path.is_dir():
+        found = latest_checkpoint(path / "checkpoints")
+        if found is None:
+            raise FileNotFoundError(f"no checkpoint under {path}/checkpoints")
+        return found, path
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is neither a run folder nor a checkpoint")
+    return path, path.parent.parent

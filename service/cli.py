@@ -112,7 +112,10 @@ def _checkpoint_policy(path: Path, env_id: Optional[str]):
     try:
         behaviour, config = load_behaviour(path)
     except FileNotFoundError as error:
-        raise SystemExit(f"graft eval: {error} (nor 'hardcoded' or 'random')") from None
+        raise SystemExit(
+            f"graft eval: {error}; --policy takes 'hardcoded', 'random', a run folder or a "
+            "checkpoint"
+        ) from None
     if env_id not in (None, config.env_id):
         raise SystemExit(f"graft eval: {path} was trained on {config.env_id}, not {env_id}")
     return behaviour.greedy, config

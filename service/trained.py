@@ -4,7 +4,7 @@ config from ``RUN/config.yaml`` and a greedy behaviour from one of ``RUN/checkpo
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 from service.config import TrainConfig, load_preset
 
@@ -24,32 +24,23 @@ def run_config(run_dir: Path) -> TrainConfig:
     return load_preset(data.pop("preset"), **data)
 
 
-def load_behaviour(path: Path, checkpoint: Optional[Path] = None) -> tuple[Any, TrainConfig]:
+def load_behaviour(path: Path) -> tuple[Any, TrainConfig]:
     """The behaviour (its ``greedy`` is the trained policy, any algorithm) of a run folder
-    at ``checkpoint`` (default: its latest) or of a checkpoint file, and the run's config.
+    at its latest checkpoint or of a checkpoint file in one, and the run's config.
 
     Raises:
         FileNotFoundError: no such run folder or checkpoint.
     """
     import torch
 
-    from learner.checkpoint import latest_checkpoint, load_checkpoint
+    from learner.checkpoint import find_checkpoint, load_checkpoint
     from learner.registry import make_builder
 
-    path = Path(path)
-    if path.is_dir():
-        found = Path(checkpoint) if checkpoint else latest_checkpoint(path / "checkpoints")
-        if found is None:
-            raise FileNotFoundError(f"no checkpoint under {path}/checkpoints")
-        run_dir, path = path, found
-    else:
-        run_dir = path.parent.parent  # RUN/checkpoints/FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} is neither a run folder nor a checkpoint")
+    checkpoint, run_dir = find_checkpoint(path)
     config = run_config(run_dir)
     builder = make_builder(config)
     learner = builder.make_learner()
-    learner.load_state_dict(load_checkpoint(path)["algorithm"])
+    learner.load_state_dict(load_checkpoint(checkpoint)["algorithm"])
     behaviour = builder.make_behaviour(num_actors=1)
     behaviour.load(learner.policy_state())
     torch.set_num_threads(1)  # one episode at a time; leave the other core to the env

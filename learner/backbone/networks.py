@@ -45,13 +45,12 @@ def load_teacher(
     Raises:
         ValueError: If there is no checkpoint, or it is not a TD3 learner's.
     """
-    from learner.checkpoint import latest_checkpoint, load_checkpoint
+    from learner.checkpoint import find_checkpoint, load_checkpoint
 
-    where = Path(path)
-    found = latest_checkpoint(where / "checkpoints") if where.is_dir() else where
-    if found is None or not found.is_file():
-        raise ValueError(f"teacher {path!r}: no checkpoint found (a TD3 run folder or .pt file)")
-    run_dir = where if where.is_dir() else found.parent.parent
+    try:
+        found, run_dir = find_checkpoint(Path(path))
+    except FileNotFoundError as error:
+        raise ValueError(f"teacher {path!r}: {error} (a TD3 run folder or .pt file)") from None
     td3_data: dict[str, Any] = {}
     if (run_dir / "config.yaml").is_file():
         td3_data = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("td3", {})
