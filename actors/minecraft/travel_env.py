@@ -74,11 +74,14 @@ def correction_trusted(obs: np.ndarray, *, stalled: float = 0.5) -> np.ndarray:
 
 def reward_config(reward: Optional[RewardConfig | dict[str, Any]]) -> RewardConfig:
     """``reward`` as a RewardConfig (None: the defaults; a mapping: those fields changed)."""
-    if reward is None or isinstance(reward, RewardConfig):
-        return reward or RewardConfig()
-    unknown = set(reward) - {f.name for f in dataclasses.fields(RewardConfig)}
+    if reward is None:
+        return RewardConfig()
+    if isinstance(reward, RewardConfig):
+        return reward
+    fields = [f.name for f in dataclasses.fields(RewardConfig)]
+    unknown = sorted(set(reward) - set(fields))
     if unknown:
-        raise ValueError(f"reward: unknown fields {sorted(unknown)} (RewardConfig has no such)")
+        raise ValueError(f"reward: unknown fields {unknown}; the fields are {fields}")
     return RewardConfig(**reward)
 
 
