@@ -33,11 +33,11 @@ lint: setup
 
 # Generated gRPC code is checked in; CI regenerates it and fails on drift.
 proto: setup
-	$(BIN)/python -m grpc_tools.protoc -Iservice/_proto=protos/graft/replay/v1 \
+	$(BIN)/python -m grpc_tools.protoc -Iservice/replay/_proto=protos/graft/replay/v1 \
 		--python_out=. --grpc_python_out=. --pyi_out=. protos/graft/replay/v1/replay.proto
 
 proto-check: proto
-	git diff --exit-code -- service/_proto
+	git diff --exit-code -- service/replay/_proto
 
 bench: setup
 	$(BIN)/python bench/replay.py

@@ -17,7 +17,7 @@ import ray
 import torch
 
 from actors.behaviours.base import Behaviour
-from service.client import ReplayClient
+from service.replay.client import ReplayClient
 from service.weights import WeightSubscriber
 
 

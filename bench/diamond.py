@@ -18,10 +18,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from actors.minecraft.client import MalmoClient  # noqa: E402
-from actors.minecraft.diamond_tree import EpisodeResult, run_episode  # noqa: E402
-from actors.minecraft.missions import mission_xml, obtain_diamond  # noqa: E402
-from actors.minecraft.server import WorldServer  # noqa: E402
+from actors.minecraft.agent.diamond_tree import EpisodeResult, run_episode  # noqa: E402
+from actors.minecraft.malmo.client import MalmoClient  # noqa: E402
+from actors.minecraft.malmo.mission_xml import mission_xml, obtain_diamond  # noqa: E402
+from actors.minecraft.sim.server import WorldServer  # noqa: E402
 
 TIME_LIMIT_TICKS = 24_000
 

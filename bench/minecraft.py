@@ -26,17 +26,17 @@ from typing import Any
 import ray
 import torch
 
-from actors.minecraft.client import MalmoClient
 from actors.minecraft.encoding import ACTION_SPACE, observation_space
-from actors.minecraft.mission import parse_mission
-from actors.minecraft.missions import mission_xml
-from actors.minecraft.pool import ServerPool
+from actors.minecraft.malmo.client import MalmoClient
+from actors.minecraft.malmo.mission import parse_mission
+from actors.minecraft.malmo.mission_xml import mission_xml
 from actors.minecraft.ray_actor import MinecraftActor
+from actors.minecraft.sim.pool import ServerPool
 from actors.transitions import transition_signature
 from learner.td3.builder import make_td3_learner
 from learner.td3.config import TD3Config
-from service.client import ReplayClient
-from service.replay_process import ReplayProcess
+from service.replay.client import ReplayClient
+from service.run.replay_process import ReplayProcess
 from service.weights import WeightBroadcaster
 
 

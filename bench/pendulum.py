@@ -22,8 +22,8 @@ import torch
 
 from learner.loop import to_tensors
 from learner.td3.builder import make_td3_learner
-from service.config import TrainConfig, load_preset
-from service.launcher import train
+from service.run.config import TrainConfig, load_preset
+from service.run.launcher import train
 
 THRESHOLD = -200.0
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.client import ReplayClient
-from service.replay_process import ReplayProcess
+from service.replay.client import ReplayClient
+from service.run.replay_process import ReplayProcess
 
 
 @dataclass(frozen=True)

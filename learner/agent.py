@@ -2,7 +2,7 @@
 
 The launcher wires a preset into a run like this::
 
-    builder = make_builder(config, env)              # learner/registry.py
+    builder = make_builder(config, env)              # service/run/registry.py
     for phase in builder.phases():                   # one replay table per phase
         tables.append(table_spec(phase, builder.signature(...)))
     learner = builder.make_learner()                 # lives in the learner process

@@ -24,8 +24,8 @@ import torch
 
 from learner.agent import Algorithm, Phase
 from learner.checkpoint import save_checkpoint
-from service.client import SampleStream
 from service.metrics import MetricsLogger
+from service.replay.client import SampleStream
 
 STALL_CHECK_S = 10.0
 """Seconds without a sampled batch before the loop asks its watchdog what is wrong."""

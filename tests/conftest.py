@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import ray
 
-from service.client import ReplayClient
-from service.replay_process import ReplayProcess
+from service.replay.client import ReplayClient
+from service.run.replay_process import ReplayProcess
 
 PENDULUM_SIGNATURE = {
     "obs": {"dtype": "float32", "shape": [3]},

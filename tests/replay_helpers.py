@@ -6,7 +6,7 @@ import socket
 
 import numpy as np
 
-from service.client import ReplayClient
+from service.replay.client import ReplayClient
 
 SCALAR_SIGNATURE = {
     "x": {"dtype": "int64", "shape": []},

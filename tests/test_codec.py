@@ -6,7 +6,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from service.codec import CodecError, decode_batch, encode_batch
+from service.replay.codec import CodecError, decode_batch, encode_batch
 
 
 def test_round_trip_keeps_dtype_shape_and_values():

@@ -7,9 +7,9 @@ import json
 
 import pytest
 
-from service.cli import main
-from service.config import load_preset
-from service.launcher import train
+from service.run.cli import main
+from service.run.config import load_preset
+from service.run.launcher import train
 
 
 def tiny_preset(*, env_steps: int):

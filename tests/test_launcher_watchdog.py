@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import ray
 
-from service.launcher import _check_actors
+from service.run.launcher import _check_actors
 
 
 @ray.remote

@@ -470,8 +470,8 @@ def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
 
 
 def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_actor_frozen():
-    from learner.registry import make_builder
-    from service.config import load_preset
+    from service.run.config import load_preset
+    from service.run.registry import make_builder
 
     config = load_preset(
         "pendulum-backbone",

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from py_trees.common import Status
 
-from actors.behaviour_trees.pendulum import (
+from actors.evaluation import random_policy_for, run_episodes
+from actors.policies import GaussianExploration, UniformRandomPolicy, gaussian_log_prob
+from actors.trees.pendulum import (
     HardCodedPendulumPolicy,
     build_pendulum_tree,
     last_tick_statuses,
     render_tree_ascii,
 )
-from actors.evaluation import random_policy_for, run_episodes
-from actors.policies import GaussianExploration, UniformRandomPolicy, gaussian_log_prob
 
 
 def _obs(theta: float, theta_dot: float) -> np.ndarray:

@@ -8,8 +8,8 @@ import pytest
 from learner.checkpoint import save_checkpoint
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
-from service.config import load_preset, preset_names
-from service.launcher import train
+from service.run.config import load_preset, preset_names
+from service.run.launcher import train
 
 TINY = {
     "learning_starts": 100,
@@ -81,14 +81,14 @@ def test_checkpoints_keep_the_newest_or_all(tmp_path) -> None:
 
 
 def test_train_flag_given_twice_is_named() -> None:
-    from service.cli import main
+    from service.run.cli import main
 
     with pytest.raises(SystemExit, match=r"--seed and --set seed=\.\.\. both given"):
         main(["train", "--preset", "pendulum-td3", "--seed", "1", "--set", "seed=2"])
 
 
 def test_train_set_alone_overrides_a_flag_field() -> None:
-    from service.cli import _train_overrides, build_parser
+    from service.run.cli import _train_overrides, build_parser
 
     args = build_parser().parse_args(["train", "--set", "seed=2", "--set", "td3.gamma=0.9"])
     overrides = _train_overrides(args)

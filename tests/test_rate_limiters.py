@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from service.rate_limiters import MinSize, SampleToInsertRatio
-from service.signature import Signature
-from service.table import RateLimitTimeout, Table
+from service.replay.server.rate_limiters import MinSize, SampleToInsertRatio
+from service.replay.server.signature import Signature
+from service.replay.server.table import RateLimitTimeout, Table
 
 SIGNATURE = Signature.from_dict({"x": {"dtype": "float32", "shape": []}})
 
@@ -114,8 +114,8 @@ def test_ratio_holds_under_concurrent_writers_and_sampler():
 
 def test_ratio_holds_over_grpc_with_concurrent_clients():
     """A real server process: 4 writer clients and a sampling client, ratio 2 ± 40."""
-    from service.client import ReplayClient
-    from service.replay_process import ReplayProcess
+    from service.replay.client import ReplayClient
+    from service.run.replay_process import ReplayProcess
     from tests.replay_helpers import SCALAR_SIGNATURE, scalar_batch
 
     limiter = {"kind": "sample_to_insert_ratio", "samples_per_insert": 2, "min_size": 20,

@@ -9,8 +9,8 @@ import time
 
 import numpy as np
 
-from service.client import ReplayClient
-from service.replay_process import ReplayProcess
+from service.replay.client import ReplayClient
+from service.run.replay_process import ReplayProcess
 from tests.replay_helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
 TABLE = [{"name": "log", "max_size": 1_000_000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]
@@ -86,7 +86,16 @@ def test_sigkill_mid_stream_loses_and_doubles_nothing_acknowledged(tmp_path):
 
 def test_non_loopback_bind_without_token_is_refused_by_the_cli():
     result = subprocess.run(
-        [sys.executable, "-m", "service.replay_cli", "serve", "--host", "0.0.0.0", "--port", "0"],
+        [
+            sys.executable,
+            "-m",
+            "service.run.replay_cli",
+            "serve",
+            "--host",
+            "0.0.0.0",
+            "--port",
+            "0",
+        ],
         capture_output=True,
         text=True,
         timeout=60,
@@ -112,7 +121,7 @@ def test_sample_stream_reconnects_after_a_server_restart(tmp_path):
 
 LAUNCHER = """
 import sys, time
-from service.replay_process import ReplayProcess
+from service.run.replay_process import ReplayProcess
 table = [{"name": "log", "max_size": 100, "sampler": "fifo",
           "signature": {"x": {"dtype": "float32", "shape": []}}}]
 server = ReplayProcess(table, extra_args=["--checkpoint-dir", sys.argv[1]])

@@ -15,10 +15,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from service._proto import replay_pb2
-from service.client import ReplayClient
-from service.codec import encode_batch
-from service.replay_process import ReplayProcess
+from service.replay._proto import replay_pb2
+from service.replay.client import ReplayClient
+from service.replay.codec import encode_batch
+from service.run.replay_process import ReplayProcess
 from tests.replay_helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
 TABLE = [{"name": "t", "max_size": 1000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]

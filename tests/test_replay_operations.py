@@ -10,8 +10,8 @@ import grpc
 import pytest
 from grpc_health.v1 import health_pb2, health_pb2_grpc
 
-from service.client import ReplayClient, Unavailable
-from service.replay_process import ReplayProcess
+from service.replay.client import ReplayClient, Unavailable
+from service.run.replay_process import ReplayProcess
 from tests.replay_helpers import SCALAR_SIGNATURE, free_port, scalar_batch
 
 TABLE = [{"name": "t", "max_size": 100, "signature": SCALAR_SIGNATURE}]
@@ -53,7 +53,7 @@ def test_metrics_health_and_info_command():
         assert status.status == health_pb2.HealthCheckResponse.SERVING
 
         shown = subprocess.run(
-            [sys.executable, "-m", "service.cli", "replay", "info", server.address],
+            [sys.executable, "-m", "service.run.cli", "replay", "info", server.address],
             capture_output=True, text=True, timeout=60, check=True,
         ).stdout  # fmt: skip
         assert "table t: 7/100 items, 7 inserted, 3 sampled" in shown

@@ -6,12 +6,12 @@ import grpc
 import numpy as np
 import pytest
 
-from service._proto import replay_pb2
-from service.client import InvalidArgument, ReplayClient, TableNotFound
-from service.codec import encode_batch
-from service.replay import ReplayCore
-from service.server import InsecureBindError, ServerOptions, build_server
-from service.table_config import make_table
+from service.replay._proto import replay_pb2
+from service.replay.client import InvalidArgument, ReplayClient, TableNotFound
+from service.replay.codec import encode_batch
+from service.replay.server.core import ReplayCore
+from service.replay.server.servicer import InsecureBindError, ServerOptions, build_server
+from service.replay.server.table_config import make_table
 from tests.conftest import PENDULUM_SIGNATURE, pendulum_batch
 
 
@@ -129,7 +129,7 @@ def test_token_is_required_when_configured():
     running = build_server(core, ServerOptions(token="s3cret"))
     server, port = running.server, running.port
     try:
-        from service.client import Unauthenticated
+        from service.replay.client import Unauthenticated
 
         with pytest.raises(Unauthenticated):
             ReplayClient(f"127.0.0.1:{port}", max_retries=0).info()

@@ -6,10 +6,10 @@ import grpc
 import numpy as np
 import pytest
 
-from service._proto import replay_pb2
-from service.client import DeadlineExceeded, InvalidArgument, ReplayClient, TableNotFound
-from service.codec import encode_batch
-from service.replay_process import ReplayProcess
+from service.replay._proto import replay_pb2
+from service.replay.client import DeadlineExceeded, InvalidArgument, ReplayClient, TableNotFound
+from service.replay.codec import encode_batch
+from service.run.replay_process import ReplayProcess
 from tests.replay_helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
 # Chi-square critical value for 99 degrees of freedom at p = 0.001.

@@ -6,8 +6,8 @@ import pickle
 
 import numpy as np
 
-from service.replay_process import ReplayProcess
-from service.sharding import ShardedReplayClient
+from service.replay.sharding import ShardedReplayClient
+from service.run.replay_process import ReplayProcess
 from tests.replay_helpers import SCALAR_SIGNATURE, scalar_batch
 
 TABLE = [

@@ -17,11 +17,11 @@ def hardcoded_policy(env_id: str) -> HardCodedPolicy:
         ValueError: If no hard-coded policy exists for the environment.
     """
     if env_id == "Pendulum-v1":
-        from actors.behaviour_trees.pendulum import HardCodedPendulumPolicy
+        from actors.trees.pendulum import HardCodedPendulumPolicy
 
         return HardCodedPendulumPolicy()
     if env_id.endswith("MinecraftTravel-v0"):
-        from actors.minecraft.travel_env import TravelBackbone
+        from actors.minecraft.agent.travel_env import TravelBackbone
 
         return TravelBackbone()
     raise ValueError(

@@ -12,11 +12,11 @@ from typing import Optional
 
 import numpy as np
 
-from actors.minecraft import protocol as P
+from actors.minecraft.malmo import protocol as P
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from actors.minecraft.server import WorldServer
+    from actors.minecraft.sim.server import WorldServer
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     server = WorldServer(args.host, args.port, seed=args.seed, ms_per_tick=args.ms_per_tick)
@@ -36,9 +36,9 @@ def _view(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from actors.minecraft.client import MalmoClient
-    from actors.minecraft.missions import mission_xml
-    from actors.minecraft.server import WorldServer
+    from actors.minecraft.malmo.client import MalmoClient
+    from actors.minecraft.malmo.mission_xml import mission_xml
+    from actors.minecraft.sim.server import WorldServer
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -68,8 +68,8 @@ def _view(args: argparse.Namespace) -> int:
 
 
 def _tree(args: argparse.Namespace) -> int:
-    from actors.minecraft.diamond_tree import build_tree
-    from actors.minecraft.tree_render import ascii_tree, render_png
+    from actors.minecraft.agent.diamond_tree import build_tree
+    from actors.minecraft.agent.tree_render import ascii_tree, render_png
 
     root, _ = build_tree()
     print(ascii_tree(root))

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from actors.minecraft import obs_encoding
-from actors.minecraft.mission import Mission
+from actors.minecraft.agent import grid_encoding as obs_encoding
+from actors.minecraft.malmo.mission import Mission
 
 ACTION_NAMES = ("move", "strafe", "turn", "pitch", "jump", "attack")
 ACTION_SPACE = spaces.Box(-1.0, 1.0, shape=(len(ACTION_NAMES),), dtype=np.float32)

@@ -35,16 +35,16 @@ import numpy as np
 import ray
 import torch
 
-from actors.minecraft import protocol as P
 from actors.minecraft.behaviour import MinecraftBehaviour
-from actors.minecraft.client import MalmoClient, StepResult
 from actors.minecraft.encoding import action_commands, encode_observation, observation_space
 from actors.minecraft.inline import InlineTrainer
+from actors.minecraft.malmo import protocol as P
+from actors.minecraft.malmo.client import MalmoClient, StepResult
+from actors.minecraft.malmo.mission import Mission, parse_mission
 from actors.minecraft.metrics import TickMeter
-from actors.minecraft.mission import Mission, parse_mission
 from actors.minecraft.writer import TransitionWriter
 from learner.td3.config import TD3Config
-from service.client import ReplayClient
+from service.replay.client import ReplayClient
 from service.weights import WeightSubscriber
 
 # What a world server going away looks like from the client (refused, reset, closed, hung).

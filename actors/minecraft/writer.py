@@ -21,7 +21,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from service.client import ReplayClient, ReplayError
+from service.replay.client import ReplayClient, ReplayError
 
 
 class TransitionWriter:

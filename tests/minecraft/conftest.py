@@ -8,9 +8,9 @@ from typing import Optional
 
 import pytest
 
-from actors.minecraft.client import MalmoClient
-from actors.minecraft.missions import mission_xml
-from actors.minecraft.server import WorldServer
+from actors.minecraft.malmo.client import MalmoClient
+from actors.minecraft.malmo.mission_xml import mission_xml
+from actors.minecraft.sim.server import WorldServer
 
 # Bedrock, two dirt, grass: the ground's top face is y=4, the agent stands at y=4.
 FLAT = "3;7,2*3,2;1;"

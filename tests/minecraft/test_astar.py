@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from actors.minecraft import astar as A
+from actors.minecraft.agent import astar as A
 
 N = 15
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import time
 
-from actors.minecraft.client import MalmoClient
+from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.metrics import TickMeter
-from actors.minecraft.server import WorldServer
+from actors.minecraft.sim.server import WorldServer
 from tests.minecraft.conftest import flat_mission
 
 TOUCH_GRASS = (

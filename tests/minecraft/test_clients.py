@@ -9,10 +9,10 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from actors.minecraft.client import MalmoClient
-from actors.minecraft.missions import SAMPLE_PATH, mission_xml, obtain_diamond
-from actors.minecraft.pool import ServerPool
-from actors.minecraft.server import WorldServer
+from actors.minecraft.malmo.client import MalmoClient
+from actors.minecraft.malmo.mission_xml import SAMPLE_PATH, mission_xml, obtain_diamond
+from actors.minecraft.sim.pool import ServerPool
+from actors.minecraft.sim.server import WorldServer
 
 
 @pytest.fixture(scope="module")

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import time
 
-from actors.minecraft.client import MalmoClient
-from actors.minecraft.diamond_tree import run_episode
-from actors.minecraft.pool import ServerPool
+from actors.minecraft.agent.diamond_tree import run_episode
+from actors.minecraft.malmo.client import MalmoClient
+from actors.minecraft.sim.pool import ServerPool
 from tests.minecraft.conftest import flat_mission
 
 

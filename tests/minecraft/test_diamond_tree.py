@@ -13,8 +13,8 @@ import pytest
 from py_trees.common import Status
 
 from actors.minecraft import blocks as B
-from actors.minecraft.behaviours.percept import RADIUS, SIDE, ItemSeen, Percept
-from actors.minecraft.diamond_tree import build_tree
+from actors.minecraft.agent.diamond_tree import build_tree
+from actors.minecraft.agent.leaves.percept import RADIUS, SIDE, ItemSeen, Percept
 
 AGENT = (0, 64, 0)  # the agent's feet cell in these scenes (x, z; y given per scene)
 

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from actors.minecraft import obs_encoding as E
+from actors.minecraft.agent import grid_encoding as E
 from tests.minecraft.conftest import GROUND
 
 

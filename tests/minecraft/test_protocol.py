@@ -8,8 +8,8 @@ import socket
 
 import pytest
 
-from actors.minecraft import protocol as P
-from actors.minecraft.server import WorldServer
+from actors.minecraft.malmo import protocol as P
+from actors.minecraft.sim.server import WorldServer
 from tests.minecraft.conftest import flat_mission
 
 

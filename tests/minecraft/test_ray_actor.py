@@ -20,16 +20,16 @@ from actors.minecraft.encoding import (
     encode_observation,
     observation_space,
 )
-from actors.minecraft.mission import parse_mission
-from actors.minecraft.missions import mission_xml
-from actors.minecraft.pool import ServerPool
+from actors.minecraft.malmo.mission import parse_mission
+from actors.minecraft.malmo.mission_xml import mission_xml
 from actors.minecraft.ray_actor import MinecraftActor, MinecraftAgent
+from actors.minecraft.sim.pool import ServerPool
 from actors.policies import gaussian_log_prob
 from actors.transitions import transition_signature
 from learner.td3.builder import make_actor_network
 from learner.td3.config import TD3Config
-from service.client import ReplayClient
-from service.replay_process import ReplayProcess
+from service.replay.client import ReplayClient
+from service.run.replay_process import ReplayProcess
 from service.weights import WeightBroadcaster
 from tests.minecraft.conftest import flat_mission
 

@@ -13,9 +13,8 @@ import pytest
 
 from actors.behaviours.backbone import compose_action
 from actors.behaviours.hardcoded import hardcoded_policy
-from actors.minecraft.behaviours.percept import RADIUS, SIDE, Percept
-from actors.minecraft.blocks import ID
-from actors.minecraft.travel_control import (
+from actors.minecraft.agent.leaves.percept import RADIUS, SIDE, Percept
+from actors.minecraft.agent.travel_control import (
     JUMP_OFF,
     JUMP_ON,
     MU,
@@ -26,14 +25,15 @@ from actors.minecraft.travel_control import (
     observation,
     to_agent_frame,
 )
-from actors.minecraft.travel_env import ENV_ID, TravelBackbone
-from actors.minecraft.travel_task import (
+from actors.minecraft.agent.travel_env import ENV_ID, TravelBackbone
+from actors.minecraft.agent.travel_task import (
     RewardConfig,
     StuckDetector,
     TravelReward,
     draw_missions,
     route_to_go,
 )
+from actors.minecraft.blocks import ID
 
 ROUTE = ((0, 4, 0), (0, 4, 1), (0, 4, 2), (1, 4, 2))
 
@@ -275,7 +275,7 @@ def test_env_refuses_bad_timing_settings() -> None:
 
 
 def test_run_config_env_kwargs_reach_the_environment() -> None:
-    from service.config import load_preset
+    from service.run.config import load_preset
 
     config = load_preset("minecraft-backbone", **{"env_kwargs.ticks_per_step": 4})
     env = config.make_env()
@@ -298,7 +298,7 @@ def test_run_config_env_kwargs_reach_the_environment() -> None:
 
 
 def test_occupancy_is_sampled_in_the_agent_frame() -> None:
-    from actors.minecraft.travel_control import egocentric_occupancy
+    from actors.minecraft.agent.travel_control import egocentric_occupancy
 
     p = _flat_percept(0.5, 0.5, yaw=90.0)  # facing -x; right is -z
     p.ids[RADIUS, RADIUS, RADIUS - 1] = ID["stone"]  # (-1, 4, 0): one block ahead, feet level
@@ -314,8 +314,8 @@ def test_recovery_gate_drops_the_correction_once_progress_stalls() -> None:
     import torch
 
     from actors.behaviours.backbone import BackboneBehaviour
-    from actors.minecraft.travel_control import MU, OBS_DIM, STUCK
-    from actors.minecraft.travel_env import TravelBackbone, correction_trusted
+    from actors.minecraft.agent.travel_control import MU, OBS_DIM, STUCK
+    from actors.minecraft.agent.travel_env import TravelBackbone, correction_trusted
 
     class Push(torch.nn.Module):
         def forward(self, x: torch.Tensor) -> torch.Tensor:

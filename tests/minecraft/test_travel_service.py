@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.config import load_preset
-from service.launcher import train
+from service.run.config import load_preset
+from service.run.launcher import train
 
 TINY = {
     "num_actors": 2,

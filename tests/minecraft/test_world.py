@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from actors.minecraft import blocks as B
-from actors.minecraft import worldgen
-from actors.minecraft.crafting import CraftState, craft
-from actors.minecraft.inventory import Inventory
+from actors.minecraft.sim import worldgen
+from actors.minecraft.sim.crafting import CraftState, craft
+from actors.minecraft.sim.inventory import Inventory
 from tests.minecraft.conftest import GROUND
 
 

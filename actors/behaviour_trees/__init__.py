@@ -1,1 +1,0 @@
-"""graft: actors/behaviour_trees."""

@@ -1,0 +1,258 @@
+"""The travel task as a gymnasium environment over MalmoEnv, for the service's actors.
+
+``gym.make("actors.minecraft.agent.travel_env:MinecraftTravel-v0")`` imports this module (so
+Ray workers register it themselves). Each environment owns one simulated world server
+(``WorldServer`` on a free loopback port, in a thread of the same process) unless given
+the ``address`` of one, and talks to it only through graft's MalmoEnv client over the
+socket, synchronous (`ticks_per_step` ticks per step, 1 by default) or in real time.
+
+Per step::
+
+    action a = μ(s) + clip(π(s)) (composed by the behaviour; clipped to [−1, 1] here)
+    reply = client.step(move a0, strafe a1, turn a2, jump [a3 > 0], the tree's pitch)
+    p' = parse(reply.info); φ' = route_to_go(route, p')
+    r = (φ − φ') − tick_cost − stuck_penalty·[stuck]           (travel_task.TravelReward)
+    μ(s'), next cell = tree(p')                                (travel_control.TreeSteering)
+    s' = observation(p', μ(s'), ...)
+
+An episode terminates on arrival (feet in the destination cell) or death, and is
+truncated at ``max_ticks``. ``reset(seed=...)`` seeds the choice of missions: a world
+from ``world_seeds`` and a destination in it (``travel_task.draw_missions``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+from typing import Any, Optional
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from actors.minecraft.agent.leaves.percept import Percept, parse
+from actors.minecraft.agent.travel_control import (
+    ACTION_NAMES,
+    MU,
+    OBS_DIM,
+    STUCK,
+    TreeSteering,
+    compose_commands,
+    observation,
+)
+from actors.minecraft.agent.travel_task import (
+    RewardConfig,
+    TravelMission,
+    TravelReward,
+    draw_missions,
+    route_to_go,
+    travel_mission_xml,
+)
+from actors.minecraft.malmo.client import MalmoClient
+from actors.minecraft.sim.server import WorldServer
+
+ENV_ID = "actors.minecraft.agent.travel_env:MinecraftTravel-v0"
+TRAIN_WORLDS = tuple(range(1000, 1064))
+"""Worlds training draws from; bench/travel.py evaluates on worlds 0.. (disjoint)."""
+MAX_TICKS = 600
+
+
+class TravelBackbone:
+    """μ(s) for the backbone and options methods: the tree's steering, which the
+    environment computed and put in the observation (``travel_control.MU``)."""
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return np.array(np.asarray(obs)[..., MU], dtype=np.float32)
+
+
+def correction_trusted(obs: np.ndarray, *, stalled: float = 0.5) -> np.ndarray:
+    """The tree's recovery rule for a learned correction: once ``stalled`` · K ticks passed
+    without progress (half the stuck rule's K by default), the tree drops the correction
+    and steers alone until progress resumes. [B] bool, from the observation's counter."""
+    return np.asarray(obs)[..., STUCK] < stalled
+
+
+def reward_config(reward: Optional[RewardConfig | dict[str, Any]]) -> RewardConfig:
+    """``reward`` as a RewardConfig (None: the defaults; a mapping: those fields changed)."""
+    if reward is None:
+        return RewardConfig()
+    if isinstance(reward, RewardConfig):
+        return reward
+    fields = [f.name for f in dataclasses.fields(RewardConfig)]
+    unknown = sorted(set(reward) - set(fields))
+    if unknown:
+        raise ValueError(f"reward: unknown fields {unknown}; the fields are {fields}")
+    return RewardConfig(**reward)
+
+
+class MinecraftTravelEnv(gym.Env):
+    """Travel to a destination in a seeded world with continuous movement commands.
+
+    Args:
+        address: ``host:port`` of a running world server; None starts one in-process.
+        world_seeds: worlds to draw missions from.
+        missions: a fixed list of missions, played in order (cycling); overrides
+            ``world_seeds`` (the benchmark's fixed set).
+        max_ticks: ticks before the episode is truncated.
+        reward: the reward's weights and the stuck rule, or a mapping of some of its fields
+            (a run's ``--set 'env_kwargs.reward={tick_cost: 0.1}'``).
+        real_time: Malmo's asynchronous mode: the world ticks every 50 ms whether or not
+            the agent acts, a step's commands run at the next tick and its reply is the
+            latest observation (False: synchronous, deterministic).
+        ticks_per_step: synchronous mode: ticks each step advances, its commands held
+            (Malmo's continuous commands persist) and the frames between unseen: a slow
+            client, deterministically (a real-time client deciding every k-th tick).
+            The step ends early on arrival or death.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}
+
+    def __init__(
+        self,
+        *,
+        address: Optional[str] = None,
+        world_seeds: tuple[int, ...] = TRAIN_WORLDS,
+        missions: Optional[list[TravelMission]] = None,
+        max_ticks: int = MAX_TICKS,
+        reward: Optional[RewardConfig | dict[str, Any]] = None,
+        real_time: bool = False,
+        ticks_per_step: int = 1,
+    ) -> None:
+        if max_ticks < 1:
+            raise ValueError(f"max_ticks={max_ticks} must be >= 1")
+        if ticks_per_step < 1:
+            raise ValueError(f"ticks_per_step={ticks_per_step} must be >= 1")
+        if real_time and ticks_per_step > 1:
+            raise ValueError(
+                f"ticks_per_step={ticks_per_step} needs the synchronous world: in real time "
+                "the world decides how many ticks pass between steps"
+            )
+        if not world_seeds and not missions:
+            raise ValueError("world_seeds is empty and no missions were given: nothing to play")
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(OBS_DIM,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(len(ACTION_NAMES),), dtype=np.float32)
+        self.address = address
+        self.world_seeds = tuple(world_seeds)
+        self.fixed = list(missions) if missions else None
+        self.max_ticks = max_ticks
+        self.real_time = real_time
+        self.ticks_per_step = ticks_per_step
+        self.reward_fn = TravelReward(reward_config(reward))
+        self.steering = TreeSteering()
+        self._server: Optional[WorldServer] = None
+        self._client: Optional[MalmoClient] = None
+        self._rng = random.Random(0)
+        self._drawn: dict[int, list[TravelMission]] = {}
+        self._played = 0
+        self.mission: Optional[TravelMission] = None
+        self._percept: Optional[Percept] = None
+        self._waypoint: Optional[tuple[int, int, int]] = None
+        self._pitch = 0.0
+        self._ticks = 0
+
+    # ------------------------------------------------------------------ plumbing
+    def _connect(self) -> MalmoClient:
+        if self._client is None:
+            if self.address is None:
+                self._server = WorldServer(port=0)
+                self._server.start()
+                host, port = "127.0.0.1", self._server.port
+            else:
+                host, _, p = self.address.rpartition(":")
+                port = int(p)
+            self._client = MalmoClient(host, port, synchronous=not self.real_time, timeout=30.0)
+        return self._client
+
+    def _next_mission(self) -> TravelMission:
+        if self.fixed is not None:
+            m = self.fixed[self._played % len(self.fixed)]
+        else:
+            world = self._rng.choice(self.world_seeds)
+            m = draw_missions(world, 1, self._rng)[0]
+        self._played += 1
+        return m
+
+    def _observe(self, p: Percept, elapsed: int = 1) -> np.ndarray:
+        assert self.mission is not None
+        mu, self._waypoint = self.steering(p, self.mission.route)
+        self._pitch = self.steering.ctx.commands.pitch
+        stuck = self.reward_fn.stuck
+        obs = observation(
+            p,
+            mu=mu,
+            waypoint=self._waypoint,
+            destination=self.mission.destination,
+            previous=(self._percept.x, self._percept.y, self._percept.z) if self._percept else None,
+            stuck_fraction=stuck.ticks_without_progress / stuck.ticks,
+            elapsed=elapsed,
+        )
+        self._percept = p
+        return obs
+
+    # ------------------------------------------------------------------ gym API
+    def reset(
+        self, *, seed: Optional[int] = None, options: Optional[dict[str, Any]] = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None:
+            self._rng = random.Random(seed)
+            self._played = 0 if self.fixed is None else seed
+        client = self._connect()
+        self.mission = self._next_mission()
+        client.init(travel_mission_xml(self.mission, time_limit_ticks=self.max_ticks + 20))
+        client.reset()
+        reply = client.step("")
+        if not reply.info:
+            raise RuntimeError("the travel mission ended before its first observation")
+        p = parse(reply.info)
+        self.steering.reset()
+        self.reward_fn.reset(route_to_go(self.mission.route, p.x, p.y, p.z))
+        self._percept, self._ticks = None, 0
+        obs = self._observe(p)
+        return obs, {"phi": self.reward_fn.phi}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        assert self.mission is not None and self._client is not None
+        reply = self._client.step(compose_commands(action, self._pitch))
+        for _ in range(self.ticks_per_step - 1):  # hold the commands, unseen frames
+            if reply.done or not reply.info or self._ended(parse(reply.info)):
+                break
+            reply = self._client.step("")
+        prev = self._percept
+        assert prev is not None
+        p = parse(reply.info) if reply.info else prev
+        # Game ticks since the last observation: ticks_per_step in synchronous mode (fewer
+        # on arrival); in real time as many as passed (the skipped ones cost time too).
+        elapsed = max(1, p.tick - prev.tick)
+        self._ticks += elapsed
+        phi = route_to_go(self.mission.route, p.x, p.y, p.z)
+        reward, stuck = self.reward_fn.step(phi, ticks=elapsed)
+        arrived = p.cell == self.mission.destination
+        died = bool(reply.info) and not p.alive
+        terminated = arrived or died or (reply.done and not reply.info)
+        truncated = not terminated and (self._ticks >= self.max_ticks or reply.done)
+        obs = self._observe(p, elapsed)
+        info = {
+            "phi": phi,
+            "stuck": stuck,
+            "stuck_events": self.reward_fn.stuck.events,
+            "arrived": arrived,
+            "died": died,
+            "ticks": self._ticks,
+        }
+        return obs, float(reward), bool(terminated), bool(truncated), info
+
+    def _ended(self, p: Percept) -> bool:
+        assert self.mission is not None
+        return p.cell == self.mission.destination or not p.alive
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._server is not None:
+            self._server.stop()
+            self._server = None
+
+
+gym.register(id="MinecraftTravel-v0", entry_point=f"{__name__}:MinecraftTravelEnv")

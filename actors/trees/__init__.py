@@ -1,0 +1,1 @@
+"""graft: actors/trees."""

@@ -1,0 +1,407 @@
+"""Python client for the replay server.
+
+The client pickles as its address (and token), so it can be handed to Ray actors
+without dragging a live channel along; each process opens its own channel lazily.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+import uuid
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Optional
+
+import grpc
+import numpy as np
+
+from service.replay._proto import replay_pb2, replay_pb2_grpc
+from service.replay.codec import (
+    DEFAULT_MAX_BYTES,
+    TOKEN_METADATA_KEY,
+    Batch,
+    decode_batch,
+    encode_batch,
+)
+
+
+class ReplayError(RuntimeError):
+    """Base of the typed errors the client raises; `code` is the gRPC status."""
+
+    code = grpc.StatusCode.UNKNOWN
+
+
+class InvalidArgument(ReplayError):
+    code = grpc.StatusCode.INVALID_ARGUMENT
+
+
+class TableNotFound(ReplayError):
+    code = grpc.StatusCode.NOT_FOUND
+
+
+class DeadlineExceeded(ReplayError):
+    code = grpc.StatusCode.DEADLINE_EXCEEDED
+
+
+class Unauthenticated(ReplayError):
+    code = grpc.StatusCode.UNAUTHENTICATED
+
+
+class ResourceExhausted(ReplayError):
+    code = grpc.StatusCode.RESOURCE_EXHAUSTED
+
+
+class Unavailable(ReplayError):
+    code = grpc.StatusCode.UNAVAILABLE
+
+
+_ERRORS = {cls.code: cls for cls in ReplayError.__subclasses__()}
+
+
+def _typed(error: grpc.RpcError) -> ReplayError:
+    cls = _ERRORS.get(error.code(), ReplayError)
+    return cls(f"{error.code().name}: {error.details()}")
+
+
+@dataclass(frozen=True)
+class TableStatus:
+    """What `info()` reports about one table."""
+
+    name: str
+    size: int
+    max_size: int
+    inserts: int
+    samples: int
+    sampler: str
+    remover: str
+    rate_limiter: str
+    signature: dict
+    bytes_in_memory: int
+    rate_limiter_blocked_s: float
+
+
+class ReplayClient:
+    """Inserts into and samples from one replay server.
+
+    Args:
+        address: "host:port" of the server.
+        token: shared secret for servers bound beyond loopback.
+        max_retries: how often an UNAVAILABLE insert is retried (with backoff) before
+            giving up; resends carry the same sequence number, so nothing is doubled.
+    """
+
+    def __init__(
+        self,
+        address: str,
+        *,
+        token: Optional[str] = None,
+        max_retries: int = 8,
+        max_message_bytes: int = DEFAULT_MAX_BYTES,
+        tls_root_cert: Optional[str] = None,
+        writer_id: Optional[str] = None,
+    ) -> None:
+        self.address = address
+        self.token = token
+        self.tls_root_cert = tls_root_cert
+        self.max_retries = max_retries
+        self.max_message_bytes = max_message_bytes
+        self.writer_id = writer_id or uuid.uuid4().hex
+        self._sequence = 0
+        self._channel: Optional[grpc.Channel] = None
+        self._stub: Optional[replay_pb2_grpc.ReplayServiceStub] = None
+
+    def __reduce__(self):
+        return (
+            _rebuild_client,
+            # Not the writer id: every unpickled copy is a writer of its own.
+            (
+                self.address,
+                self.token,
+                self.max_retries,
+                self.max_message_bytes,
+                self.tls_root_cert,
+            ),
+        )
+
+    @property
+    def stub(self) -> replay_pb2_grpc.ReplayServiceStub:
+        if self._stub is None:
+            options = [
+                ("grpc.max_receive_message_length", self.max_message_bytes),
+                ("grpc.max_send_message_length", self.max_message_bytes),
+            ]
+            if self.tls_root_cert:
+                with open(self.tls_root_cert, "rb") as f:
+                    credentials = grpc.ssl_channel_credentials(root_certificates=f.read())
+                self._channel = grpc.secure_channel(self.address, credentials, options=options)
+            else:
+                self._channel = grpc.insecure_channel(self.address, options=options)
+            self._stub = replay_pb2_grpc.ReplayServiceStub(self._channel)
+        return self._stub
+
+    @property
+    def _metadata(self) -> tuple[tuple[str, str], ...]:
+        return ((TOKEN_METADATA_KEY, self.token),) if self.token else ()
+
+    def close(self) -> None:
+        if self._channel is not None:
+            self._channel.close()
+        self._channel = self._stub = None
+
+    def insert(
+        self, table: str, columns: Mapping[str, np.ndarray], *, timeout: Optional[float] = None
+    ) -> int:
+        """Stores one batch of columns; blocks while the table's rate limiter says wait.
+
+        Returns:
+            Items stored (0 if the server already held this batch from a lost ack).
+        """
+        self._sequence += 1
+        request = replay_pb2.InsertRequest(
+            table=table,
+            batch=encode_batch(columns),
+            writer_id=self.writer_id,
+            sequence=self._sequence,
+            timeout_s=timeout or 0.0,
+        )
+        for attempt in range(self.max_retries + 1):
+            try:
+                response = self.stub.Insert(iter((request,)), metadata=self._metadata)
+                return response.items_inserted
+            except grpc.RpcError as error:
+                if error.code() != grpc.StatusCode.UNAVAILABLE or attempt == self.max_retries:
+                    raise _typed(error) from None
+                time.sleep(min(0.05 * 2**attempt, 2.0))
+        raise AssertionError("unreachable")
+
+    def sample(
+        self,
+        table: str,
+        batch_size: int,
+        *,
+        sequence_length: int = 1,
+        timeout: Optional[float] = None,
+    ) -> Batch:
+        """Draws one batch (blocks until the rate limiter admits it or `timeout`).
+
+        With `sequence_length` k > 1 each item is a window of k consecutive steps of one
+        episode: data columns come shaped [B, k, ...] and `_key` [B, k].
+        """
+        request = replay_pb2.SampleRequest(
+            table=table,
+            batch_size=batch_size,
+            num_batches=1,
+            sequence_length=sequence_length,
+            timeout_s=timeout or 0.0,
+        )
+        try:
+            for response in self.stub.Sample(iter((request,)), metadata=self._metadata):
+                return decode_batch(response.batch, max_bytes=self.max_message_bytes)
+        except grpc.RpcError as error:
+            raise _typed(error) from None
+        raise ReplayError("server closed the sample stream without a batch")
+
+    def sample_stream(
+        self, table: str, batch_size: int, *, prefetch: int = 4, sequence_length: int = 1
+    ) -> SampleStream:
+        """An endless iterator of batches, fetched ahead by a background thread."""
+        return SampleStream(
+            self, table, batch_size, prefetch=prefetch, sequence_length=sequence_length
+        )
+
+    def update_priorities(self, table: str, keys: np.ndarray, priorities: np.ndarray) -> int:
+        """Sets priorities by item key (from a sample's `_key`); returns how many were live."""
+        request = replay_pb2.UpdatePrioritiesRequest(
+            table=table,
+            keys=np.asarray(keys, dtype=np.uint64).reshape(-1).tolist(),
+            priorities=np.asarray(priorities, dtype=np.float64).reshape(-1).tolist(),
+        )
+        try:
+            return self.stub.UpdatePriorities(request, metadata=self._metadata).updated
+        except grpc.RpcError as error:
+            raise _typed(error) from None
+
+    def checkpoint(self) -> str:
+        """Asks the server to write a checkpoint now; returns its path."""
+        try:
+            return self.stub.Checkpoint(
+                replay_pb2.CheckpointRequest(), metadata=self._metadata
+            ).path
+        except grpc.RpcError as error:
+            raise _typed(error) from None
+
+    def writer(self, table: str, *, batch_items: int = 1024) -> BatchingWriter:
+        """A buffer that inserts once `batch_items` rows have accumulated."""
+        return BatchingWriter(self, table, batch_items=batch_items)
+
+    def info(self) -> list[TableStatus]:
+        try:
+            response = self.stub.Info(replay_pb2.InfoRequest(), metadata=self._metadata)
+        except grpc.RpcError as error:
+            raise _typed(error) from None
+        return [
+            TableStatus(
+                name=t.name,
+                size=t.size,
+                max_size=t.max_size,
+                inserts=t.inserts,
+                samples=t.samples,
+                sampler=t.sampler,
+                remover=t.remover,
+                rate_limiter=t.rate_limiter,
+                signature=json.loads(t.signature_json),
+                bytes_in_memory=t.bytes_in_memory,
+                rate_limiter_blocked_s=t.rate_limiter_blocked_s,
+            )
+            for t in response.tables
+        ]
+
+    def wait_until_ready(self, timeout: float = 30.0) -> None:
+        """Blocks until the server answers, or raises Unavailable."""
+        channel = grpc.insecure_channel(self.address)
+        try:
+            grpc.channel_ready_future(channel).result(timeout=timeout)
+        except grpc.FutureTimeoutError:
+            raise Unavailable(
+                f"replay server at {self.address} did not answer in {timeout}s"
+            ) from None
+        finally:
+            channel.close()
+
+
+def _rebuild_client(address, token, max_retries, max_message_bytes, tls_root_cert) -> ReplayClient:
+    return ReplayClient(
+        address,
+        token=token,
+        max_retries=max_retries,
+        max_message_bytes=max_message_bytes,
+        tls_root_cert=tls_root_cert,
+    )
+
+
+class SampleStream:
+    """Batches prefetched over one bidirectional stream with credit-based flow control.
+
+    The client grants the server `prefetch` batches up front and one more per batch
+    it consumes, so the server never samples more than `prefetch` batches ahead:
+    the table's rate limiter then sees the learner's true pace. `wait_s` adds up the
+    time the consumer waited for a batch (time lost to the replay server). If the
+    server becomes UNAVAILABLE (restart), the stream reconnects with backoff.
+    """
+
+    def __init__(
+        self,
+        client: ReplayClient,
+        table: str,
+        batch_size: int,
+        *,
+        prefetch: int,
+        sequence_length: int = 1,
+    ) -> None:
+        self.table_inserts = 0
+        self.table_size = 0
+        self.wait_s = 0.0
+        self._client = client
+        self._prefetch = max(prefetch, 1)
+        self._batches: queue.Queue = queue.Queue()
+        self._request = replay_pb2.SampleRequest(
+            table=table, batch_size=batch_size, num_batches=1, sequence_length=sequence_length
+        )
+        self._closed = threading.Event()
+        self._credits: queue.Queue = queue.Queue()
+        self._call = self._open()
+        self._thread = threading.Thread(target=self._pump, daemon=True, name="replay-prefetch")
+        self._thread.start()
+
+    def _open(self):
+        """A new call, granted a full prefetch window (batches in flight were lost with the old)."""
+        credits: queue.Queue = queue.Queue()
+        first = replay_pb2.SampleRequest()
+        first.CopyFrom(self._request)
+        first.num_batches = self._prefetch
+        credits.put(first)
+        self._credits = credits
+
+        def requests() -> Iterator[replay_pb2.SampleRequest]:
+            while (request := credits.get()) is not None:
+                yield request
+
+        return self._client.stub.Sample(requests(), metadata=self._client._metadata)
+
+    def _pump(self) -> None:
+        attempt = 0
+        while not self._closed.is_set():
+            try:
+                for response in self._call:
+                    attempt = 0
+                    batch = decode_batch(response.batch, max_bytes=self._client.max_message_bytes)
+                    self._batches.put((batch, response.table_inserts, response.table_size))
+                break
+            except grpc.RpcError as error:
+                if self._closed.is_set() or error.code() == grpc.StatusCode.CANCELLED:
+                    break
+                if (
+                    error.code() != grpc.StatusCode.UNAVAILABLE
+                    or attempt >= self._client.max_retries
+                ):
+                    self._batches.put(_typed(error))
+                    break
+                time.sleep(min(0.05 * 2**attempt, 2.0))
+                attempt += 1
+                self._call = self._open()
+        self._batches.put(None)
+
+    def __iter__(self) -> Iterator[Batch]:
+        return self
+
+    def __next__(self) -> Batch:
+        return self.next_within(None)
+
+    def next_within(self, timeout: Optional[float]) -> Batch:
+        """The next batch; raises TimeoutError if none arrives within `timeout` seconds."""
+        start = time.perf_counter()
+        try:
+            item = self._batches.get(timeout=timeout)
+        except queue.Empty:
+            raise TimeoutError(f"no sampled batch within {timeout} s") from None
+        finally:
+            self.wait_s += time.perf_counter() - start
+        if item is None:
+            self._batches.put(None)  # stay exhausted
+            raise StopIteration
+        if isinstance(item, ReplayError):
+            raise item
+        self._credits.put(self._request)  # one consumed, one more granted
+        batch, self.table_inserts, self.table_size = item
+        return batch
+
+    def close(self) -> None:
+        self._closed.set()
+        self._credits.put(None)
+        self._call.cancel()
+
+
+class BatchingWriter:
+    """Accumulates rows and inserts them in batches of `batch_items` (fewer RPCs)."""
+
+    def __init__(self, client: ReplayClient, table: str, *, batch_items: int) -> None:
+        self.client, self.table, self.batch_items = client, table, batch_items
+        self._parts: list[Mapping[str, np.ndarray]] = []
+        self._rows = 0
+
+    def append(self, columns: Mapping[str, np.ndarray]) -> None:
+        """Adds rows (columns sharing their leading dimension); flushes when full."""
+        self._parts.append(columns)
+        self._rows += len(next(iter(columns.values())))
+        if self._rows >= self.batch_items:
+            self.flush()
+
+    def flush(self) -> int:
+        if not self._parts:
+            return 0
+        batch = {k: np.concatenate([p[k] for p in self._parts]) for k in self._parts[0]}
+        self._parts, self._rows = [], 0
+        return self.client.insert(self.table, batch)

@@ -1,0 +1,398 @@
+"""A replay table: preallocated columnar storage with a sampler, a remover and a rate limiter.
+
+Items are keyed by insertion number. Actors write trajectories; items of one
+(writer, `_stream`) link to their successor until `terminated` or `truncated` ends
+the episode, so a sample of k-step windows never crosses an episode boundary.
+A single transition is simply the k=1 window.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from service.replay.codec import Batch
+from service.replay.server.rate_limiters import MinSize, RateLimiter, SampleToInsertRatio
+from service.replay.server.samplers import Fifo, Lifo, Prioritized, Sampler, Uniform
+from service.replay.server.signature import Signature, SignatureError
+from service.replay.server.slots import EMPTY, FreeListSlots, RingSlots
+
+RESERVED_INSERT_COLUMNS = frozenset({"_priority", "_stream"})
+REMOVERS = ("fifo", "lifo")
+
+
+class RateLimitTimeout(TimeoutError):
+    """The rate limiter (or the wait for a complete window) outlasted the call's timeout."""
+
+
+@dataclass
+class TableStats:
+    """Counters a table reports through Info and metrics."""
+
+    inserts: int = 0
+    samples: int = 0
+    insert_blocked_s: float = 0.0
+    sample_blocked_s: float = 0.0
+
+
+class Table:
+    """One named table; thread-safe (inserts and samples come from many RPC threads)."""
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        max_size: int,
+        signature: Signature,
+        sampler: Optional[Sampler] = None,
+        remover: str = "fifo",
+        rate_limiter: Optional[RateLimiter] = None,
+        max_times_sampled: int = 0,
+        max_sequence_length: int = 1,
+        seed: Optional[int] = None,
+    ) -> None:
+        self.name = name
+        self.max_size = max_size
+        self.signature = signature
+        self.sampler = sampler or Uniform()
+        self.remover = remover
+        self.rate_limiter = rate_limiter or MinSize(1)
+        self.max_times_sampled = max_times_sampled
+        self.max_sequence_length = max_sequence_length
+        self._check_configuration()
+        self.stats = TableStats()
+        if remover == "fifo" and max_times_sampled == 0:
+            self.slots: RingSlots | FreeListSlots = RingSlots(max_size)
+        else:
+            self.slots = FreeListSlots(max_size, evict_newest=remover == "lifo")
+        if isinstance(self.sampler, Prioritized):
+            self.sampler.bind(max_size)
+        self._columns = {
+            column: np.zeros((max_size, *spec.shape), dtype=spec.dtype)
+            for column, spec in signature.columns.items()
+        }
+        self._times_sampled = np.zeros(max_size if max_times_sampled else 0, dtype=np.int32)
+        self._next_key = np.full(max_size if max_sequence_length > 1 else 0, EMPTY, np.int64)
+        self._streams: dict[tuple[str, int], tuple[int, bool]] = {}
+        self._ends = [c for c in ("terminated", "truncated") if c in signature.columns]
+        self._rng = np.random.default_rng(seed)
+        self._cond = threading.Condition()
+
+    def _check_configuration(self) -> None:
+        where = f"table '{self.name}'"
+        if self.max_size < 1:
+            raise ValueError(f"{where}: max_size must be >= 1, got {self.max_size}")
+        if self.remover not in REMOVERS:
+            raise ValueError(f"{where}: remover {self.remover!r} is not one of {REMOVERS}")
+        if self.max_times_sampled < 0:
+            raise ValueError(f"{where}: max_times_sampled must be >= 0 (0 = unlimited)")
+        if not 1 <= self.max_sequence_length <= self.max_size:
+            raise ValueError(f"{where}: max_sequence_length must lie in [1, max_size]")
+        if self.rate_limiter.min_size > self.max_size:
+            raise ValueError(
+                f"{where}: rate limiter min_size {self.rate_limiter.min_size} exceeds "
+                f"max_size {self.max_size}, so sampling could never start"
+            )
+        if self.max_sequence_length > 1 and isinstance(self.sampler, (Fifo, Lifo)):
+            raise ValueError(
+                f"{where}: a {self.sampler.name} sampler always picks the same items, so it "
+                "cannot redraw a window that is still incomplete; use uniform or prioritized"
+            )
+        if (
+            self.max_times_sampled
+            and isinstance(self.rate_limiter, SampleToInsertRatio)
+            and self.rate_limiter.samples_per_insert > self.max_times_sampled
+        ):
+            raise ValueError(
+                f"{where}: samples_per_insert {self.rate_limiter.samples_per_insert} exceeds "
+                f"max_times_sampled {self.max_times_sampled}: items would be used up faster "
+                "than the ratio lets inserts replace them, and sampling would deadlock"
+            )
+
+    @property
+    def size(self) -> int:
+        return self.slots.size
+
+    @property
+    def bytes_in_memory(self) -> int:
+        arrays = [*self._columns.values(), self._times_sampled, self._next_key]
+        if isinstance(self.slots, FreeListSlots):
+            arrays.append(self.slots.keys)
+        return sum(a.nbytes for a in arrays)
+
+    def describe(self) -> dict[str, str]:
+        return {
+            "sampler": self.sampler.describe(),
+            "remover": self.remover,
+            "rate_limiter": self.rate_limiter.describe(),
+        }
+
+    def _wait(self, admitted: Callable[[], bool], timeout: Optional[float], what: str) -> float:
+        """Sleeps on the condition (lock released) until `admitted()`; returns seconds waited."""
+        if admitted():
+            return 0.0
+        start = time.monotonic()
+        deadline = None if timeout is None else start + timeout
+        while not admitted():
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                raise RateLimitTimeout(
+                    f"table '{self.name}': {what} not admitted within {timeout:.3g} s "
+                    f"(size {self.size}, {self.rate_limiter.describe()})"
+                )
+            self._cond.wait(1.0 if remaining is None else min(remaining, 1.0))
+        return time.monotonic() - start
+
+    # ---------------------------------------------------------------- insert
+
+    def _reserved(self, batch: Batch, n: int) -> tuple[Optional[np.ndarray], np.ndarray]:
+        priority = batch.get("_priority")
+        if priority is not None:
+            if priority.shape != (n,) or priority.dtype.kind != "f":
+                raise SignatureError(f"column '_priority' must be float with shape ({n},)")
+            if not np.all(np.isfinite(priority) & (priority >= 0)):
+                raise SignatureError("column '_priority' must be finite and >= 0")
+            if not isinstance(self.sampler, Prioritized):
+                raise SignatureError(f"table '{self.name}' does not sample by priority")
+        stream = batch.get("_stream")
+        if stream is None:
+            return priority, np.zeros(n, dtype=np.int64)
+        if stream.shape != (n,) or stream.dtype.kind not in "iu":
+            raise SignatureError(f"column '_stream' must be integer with shape ({n},)")
+        return priority, stream.astype(np.int64)
+
+    def insert(
+        self,
+        batch: Batch,
+        *,
+        timeout: Optional[float] = None,
+        writer: str = "",
+        on_stored: Optional[Callable[[], None]] = None,
+        rate_limited: bool = True,
+    ) -> int:
+        """Validates and stores a batch (evicting per the remover); returns items stored.
+
+        `on_stored` runs under the table lock right after the data is in place, so a
+        write-ahead log sees inserts in exactly the order the table applied them.
+        `rate_limited=False` is for replaying a log on restart.
+        """
+        n = self.signature.validate(batch, extra=RESERVED_INSERT_COLUMNS)
+        priority, stream = self._reserved(batch, n)
+        if n == 0:
+            return 0
+        with self._cond:
+            s = self.stats
+            if rate_limited:
+                s.insert_blocked_s += self._wait(
+                    lambda: self.rate_limiter.insert_allowed(inserts=s.inserts, samples=s.samples),
+                    timeout,
+                    "insert",
+                )
+            self._store(batch, n, priority, stream, writer)
+            s.inserts += n
+            if on_stored is not None:
+                on_stored()
+            self._cond.notify_all()
+        return n
+
+    def _store(
+        self,
+        batch: Batch,
+        n: int,
+        priority: Optional[np.ndarray],
+        stream: np.ndarray,
+        writer: str,
+    ) -> None:
+        skip = max(0, n - self.max_size)  # a batch larger than the table keeps its newest rows
+        keys, rows, evicted = self.slots.allocate(n - skip)
+        for column, array in self._columns.items():
+            array[rows] = batch[column][skip:]
+        if self.max_times_sampled:
+            self._times_sampled[rows] = 0
+        if isinstance(self.sampler, Prioritized):
+            self.sampler.set(evicted, np.zeros(len(evicted)))
+            fresh = np.full(len(rows), self.sampler.max_priority)
+            self.sampler.set(rows, fresh if priority is None else priority[skip:])
+        if self.max_sequence_length > 1:
+            ended = np.zeros(n - skip, dtype=bool)
+            for column in self._ends:
+                ended |= batch[column][skip:].astype(bool)
+            self._link(keys, rows, stream[skip:], ended, writer)
+
+    def _link(
+        self, keys: np.ndarray, rows: np.ndarray, stream: np.ndarray, ended: np.ndarray, writer: str
+    ) -> None:
+        """Points each step at its successor in the same (writer, stream) episode."""
+        self._next_key[rows] = EMPTY
+        for s in np.unique(stream).tolist():
+            at = np.flatnonzero(stream == s)
+            linked = ~ended[at[:-1]]
+            self._next_key[rows[at[:-1]][linked]] = keys[at[1:]][linked]
+            previous = self._streams.get((writer, s))
+            if previous is not None and not previous[1]:
+                prev_key = np.array([previous[0]])
+                if self.slots.live(prev_key)[0]:
+                    self._next_key[self.slots.rows_of(prev_key)] = keys[at[0]]
+            self._streams[(writer, s)] = (int(keys[at[-1]]), bool(ended[at[-1]]))
+
+    # ---------------------------------------------------------------- sample
+
+    def _windows(self, start_rows: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Rows [B, k] of the windows starting at `start_rows`, and which are complete."""
+        window = np.empty((len(start_rows), k), dtype=np.int64)
+        window[:, 0] = start_rows
+        complete = np.ones(len(start_rows), dtype=bool)
+        for j in range(1, k):
+            successor = self._next_key[window[:, j - 1]]
+            complete &= successor != EMPTY
+            alive = np.zeros(len(start_rows), dtype=bool)
+            alive[complete] = self.slots.live(successor[complete])
+            complete &= alive
+            window[:, j] = np.where(
+                complete, self.slots.rows_of(np.where(complete, successor, 0)), 0
+            )
+        return window, complete
+
+    def _draw(self, batch_size: int, k: int) -> Optional[tuple[np.ndarray, np.ndarray]]:
+        """Draws start rows (and windows); None if too few complete windows were found."""
+        rows, probabilities = self.sampler.sample(self.slots, self._rng, batch_size)
+        if k == 1:
+            return rows[:, None], probabilities
+        found_rows, found_p, have = [], [], 0
+        for _ in range(32):  # rejection keeps the sampler's distribution over complete windows
+            window, complete = self._windows(rows, k)
+            found_rows.append(window[complete])
+            found_p.append(probabilities[complete])
+            have += int(complete.sum())
+            if have >= batch_size:
+                return np.concatenate(found_rows)[:batch_size], np.concatenate(found_p)[:batch_size]
+            rows, probabilities = self.sampler.sample(self.slots, self._rng, batch_size)
+        return None
+
+    def sample(
+        self, batch_size: int, *, sequence_length: int = 1, timeout: Optional[float] = None
+    ) -> Batch:
+        """Draws `batch_size` items (windows of `sequence_length` steps if > 1).
+
+        Returns the data columns (shaped [B, ...] or [B, k, ...]) plus `_key`, the
+        sampling `_probability` of each (start) item, and its importance `_weight`.
+        """
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        k = sequence_length
+        if not 1 <= k <= self.max_sequence_length:
+            raise ValueError(
+                f"sequence_length {k} is outside [1, {self.max_sequence_length}] "
+                f"(table '{self.name}' max_sequence_length)"
+            )
+        drawn: list[Any] = []
+
+        def admitted() -> bool:
+            s = self.stats
+            if not self.rate_limiter.sample_allowed(
+                size=self.size, inserts=s.inserts, samples=s.samples
+            ):
+                return False
+            found = self._draw(batch_size, k) if self.size else None
+            drawn[:] = [found] if found is not None else []
+            return bool(drawn)
+
+        with self._cond:
+            self.stats.sample_blocked_s += self._wait(admitted, timeout, "sample")
+            window_rows, probabilities = drawn[0]
+            out = self._gather(window_rows, k)
+            self._count_samples(window_rows[:, 0])
+            self.stats.samples += batch_size
+            size = max(self.size, 1)
+            self._cond.notify_all()
+        if isinstance(self.sampler, Prioritized):
+            out["_weight"] = self.sampler.importance_weights(probabilities, size)
+        else:
+            out["_weight"] = np.ones(batch_size, dtype=np.float32)
+        out["_probability"] = probabilities
+        return out
+
+    def _gather(self, window_rows: np.ndarray, k: int) -> Batch:
+        flat = window_rows.reshape(-1) if k > 1 else window_rows[:, 0]
+        out = {c: a[flat] for c, a in self._columns.items()}
+        keys = self.slots.keys_of(flat).astype(np.uint64)
+        if k > 1:
+            out = {c: a.reshape(len(window_rows), k, *a.shape[1:]) for c, a in out.items()}
+            keys = keys.reshape(len(window_rows), k)
+        out["_key"] = keys
+        return out
+
+    def _count_samples(self, start_rows: np.ndarray) -> None:
+        if not self.max_times_sampled:
+            return
+        np.add.at(self._times_sampled, start_rows, 1)
+        used_up = np.unique(start_rows[self._times_sampled[start_rows] >= self.max_times_sampled])
+        if len(used_up):
+            self.slots.remove(used_up)
+            if isinstance(self.sampler, Prioritized):
+                self.sampler.set(used_up, np.zeros(len(used_up)))
+
+    # ------------------------------------------------------------- priorities
+
+    def update_priorities(self, keys: np.ndarray, priorities: np.ndarray) -> int:
+        """Sets new priorities by item key; keys no longer stored are skipped."""
+        if not isinstance(self.sampler, Prioritized):
+            raise ValueError(f"table '{self.name}' samples {self.sampler.name}ly, not by priority")
+        if keys.shape != priorities.shape:
+            raise ValueError(f"{len(keys)} keys but {len(priorities)} priorities")
+        if not np.all(np.isfinite(priorities) & (priorities >= 0)):
+            raise ValueError("priorities must be finite and >= 0")
+        with self._cond:
+            live = self.slots.live(keys)
+            self.sampler.set(self.slots.rows_of(keys[live]), priorities[live])
+            self._cond.notify_all()
+        return int(live.sum())
+
+    # ------------------------------------------------------------- checkpoint
+
+    def snapshot(self) -> dict[str, Any]:
+        """Copies the table's state; the caller holds `lock` (see ReplayCore.checkpoint)."""
+        keys = self.slots.live_keys()
+        rows = self.slots.rows_of(keys)
+        state: dict[str, Any] = {f"col/{c}": a[rows] for c, a in self._columns.items()}
+        state["keys"] = keys
+        state["times_sampled"] = self._times_sampled[rows] if self.max_times_sampled else None
+        state["priorities"] = (
+            self.sampler.priorities(rows) if isinstance(self.sampler, Prioritized) else None
+        )
+        next_key = self._next_key[rows] if self.max_sequence_length > 1 else None
+        state["next_key"] = next_key
+        state["meta"] = {
+            "next_key": int(self.slots.next_key),
+            "inserts": self.stats.inserts,
+            "samples": self.stats.samples,
+            "max_priority": getattr(self.sampler, "max_priority", None),
+            "streams": [[w, s, k, e] for (w, s), (k, e) in self._streams.items()],
+        }
+        return state
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Loads a `snapshot` into this (empty) table."""
+        meta = state["meta"]
+        with self._cond:
+            rows = self.slots.restore(np.asarray(state["keys"], np.int64), meta["next_key"])
+            for column, array in self._columns.items():
+                array[rows] = state[f"col/{column}"]
+            if self.max_times_sampled and state.get("times_sampled") is not None:
+                self._times_sampled[rows] = state["times_sampled"]
+            if isinstance(self.sampler, Prioritized) and state.get("priorities") is not None:
+                self.sampler.set(rows, np.asarray(state["priorities"]))
+                self.sampler.max_priority = meta["max_priority"] or 1.0
+            if self.max_sequence_length > 1 and state.get("next_key") is not None:
+                self._next_key[rows] = state["next_key"]
+            self._streams = {(w, s): (k, e) for w, s, k, e in meta["streams"]}
+            self.stats.inserts, self.stats.samples = meta["inserts"], meta["samples"]
+
+    @property
+    def lock(self) -> threading.Condition:
+        return self._cond

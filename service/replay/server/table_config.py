@@ -1,0 +1,65 @@
+"""Builds tables from plain configuration data (YAML presets, `graft replay serve --config`).
+
+tables:
+  - name: transitions
+    max_size: 1000000
+    sampler: uniform              # or fifo, lifo, {kind: prioritized, priority_exponent: 0.6, ...}
+    remover: fifo                 # or lifo
+    rate_limiter: {kind: sample_to_insert_ratio, samples_per_insert: 256, min_size: 1000,
+                   error_buffer: 51200}
+    max_times_sampled: 0          # 0 = unlimited
+    max_sequence_length: 1        # longest window a sample may ask for
+    allow_nonfinite: false
+    signature: {obs: {dtype: float32, shape: [3]}, ...}
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Optional
+
+from service.replay.server.rate_limiters import MinSize, RateLimiter, SampleToInsertRatio
+from service.replay.server.samplers import make_sampler
+from service.replay.server.signature import Signature
+from service.replay.server.table import Table
+
+TABLE_KEYS = frozenset(
+    {
+        "name", "max_size", "signature", "sampler", "remover", "rate_limiter",
+        "max_times_sampled", "max_sequence_length", "allow_nonfinite",
+    }
+)  # fmt: skip
+
+
+def make_rate_limiter(spec: Optional[Mapping[str, Any]]) -> RateLimiter:
+    """``{"kind": "min_size", "min_size": N}`` or ``{"kind": "sample_to_insert_ratio", ...}``."""
+    spec = dict(spec or {"kind": "min_size", "min_size": 1})
+    kind = spec.pop("kind", "min_size")
+    if kind == "min_size":
+        return MinSize(**spec)
+    if kind == "sample_to_insert_ratio":
+        return SampleToInsertRatio(**spec)
+    raise ValueError(f"unknown rate limiter kind {kind!r}; use min_size or sample_to_insert_ratio")
+
+
+def make_table(spec: Mapping[str, Any], *, seed: Optional[int] = None) -> Table:
+    """Builds one table; refuses unknown keys and unworkable settings with the reason."""
+    unknown = sorted(set(spec) - TABLE_KEYS)
+    if unknown:
+        raise ValueError(f"table config has unknown key(s) {unknown}; known: {sorted(TABLE_KEYS)}")
+    for required in ("name", "max_size", "signature"):
+        if required not in spec:
+            raise ValueError(f"table config is missing '{required}'")
+    return Table(
+        spec["name"],
+        max_size=int(spec["max_size"]),
+        signature=Signature.from_dict(
+            spec["signature"], allow_nonfinite=bool(spec.get("allow_nonfinite", False))
+        ),
+        sampler=make_sampler(spec.get("sampler")),
+        remover=spec.get("remover", "fifo"),
+        rate_limiter=make_rate_limiter(spec.get("rate_limiter")),
+        max_times_sampled=int(spec.get("max_times_sampled", 0)),
+        max_sequence_length=int(spec.get("max_sequence_length", 1)),
+        seed=seed,
+    )

@@ -1,0 +1,188 @@
+"""Run configuration: a preset (YAML data) parsed once, at the entry point, into dataclasses."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from learner.backbone.config import BackboneConfig
+from learner.dqn.config import DQNConfig
+from learner.options.config import OptionsConfig
+from learner.pretrain.config import PretrainConfig
+from learner.td3.config import TD3Config
+
+ALGORITHMS = ("td3", "ddqn", "backbone_td3", "pretrain_td3", "options")
+SECTIONS = {
+    "td3": TD3Config,
+    "dqn": DQNConfig,
+    "backbone": BackboneConfig,
+    "pretrain": PretrainConfig,
+    "options": OptionsConfig,
+}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything a training run needs; one line per field, like a paper's hyper-parameter table."""
+
+    preset: str
+    """Name of the preset this run came from."""
+    env_id: str = "Pendulum-v1"
+    """Gymnasium environment id the actors step."""
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    """Keyword arguments of ``gym.make(env_id, ...)`` (e.g. ``ticks_per_step`` of the
+    Minecraft travel task); set one with ``--set env_kwargs.NAME=VALUE``."""
+    algorithm: str = "td3"
+    """Learning algorithm: td3, ddqn, backbone_td3, pretrain_td3 or options."""
+    env_steps: int = 20_000
+    """Budget of environment steps (transitions) over all actors."""
+    learning_starts: int = 1_000
+    """Uniform-random steps before the policy acts; also the table's minimum size to sample."""
+    updates_per_env_step: float = 1.0
+    """Learner updates per environment step, held by the replay table's rate limiter."""
+    slack_env_steps: int = 200
+    """How many env steps actors may run ahead of (or behind) the update ratio before waiting."""
+    num_actors: int = 2
+    """Ray actors stepping environments."""
+    envs_per_actor: int = 4
+    """Environments each actor steps side by side (one batched policy call per step)."""
+    steps_per_insert: int = 8
+    """Vectorised steps an actor collects before one insert (batch = steps × envs)."""
+    replay_max_size: int = 1_000_000
+    """Replay table capacity; the oldest transitions are evicted first."""
+    prefetch: int = 4
+    """Sampled batches the learner keeps in flight."""
+    publish_every: int = 50
+    """Learner updates between weight broadcasts."""
+    eval_every: int = 1_000
+    """Env steps between deterministic evaluations."""
+    eval_episodes: int = 10
+    """Episodes per evaluation."""
+    checkpoint_every: int = 5_000
+    """Learner updates between checkpoints (one more is written at the end)."""
+    keep_checkpoints: int = 3
+    """Newest checkpoints kept on disk; 0 keeps all (for learning curves over checkpoints)."""
+    seed: int = 0
+    """Seeds networks, actors' environments and exploration."""
+    td3: TD3Config = field(default_factory=TD3Config)
+    """TD3 hyper-parameters (td3, backbone_td3, pretrain_td3, the RL option)."""
+    dqn: DQNConfig = field(default_factory=DQNConfig)
+    """Double DQN hyper-parameters (ddqn, the policy over options)."""
+    backbone: BackboneConfig = field(default_factory=BackboneConfig)
+    """Backbone TD3: correction range, prefill noise, teacher (backbone_td3)."""
+    pretrain: PretrainConfig = field(default_factory=PretrainConfig)
+    """Demonstrations and pre-training losses (pretrain_td3)."""
+    options: OptionsConfig = field(default_factory=OptionsConfig)
+    """Option length and Retrace λ (options)."""
+
+    def __post_init__(self) -> None:
+        for name in (
+            "env_steps",
+            "num_actors",
+            "envs_per_actor",
+            "steps_per_insert",
+            "publish_every",
+            "eval_every",
+            "eval_episodes",
+            "checkpoint_every",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.algorithm not in ALGORITHMS:
+            raise ValueError(f"algorithm={self.algorithm!r} is unknown; choose from {ALGORITHMS}")
+        online = self.online_env_steps
+        if online < 0:
+            raise ValueError(
+                f"env_steps={self.env_steps} is below pretrain.demo_steps="
+                f"{self.pretrain.demo_steps}: the demonstrations count against the budget"
+            )
+        if online > 0 and not 0 < self.learning_starts < online:
+            raise ValueError(
+                f"learning_starts={self.learning_starts} must lie in (0, online env steps={online})"
+            )
+        if self.updates_per_env_step <= 0:
+            raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
+        if self.keep_checkpoints < 0:
+            raise ValueError(f"keep_checkpoints={self.keep_checkpoints} must be >= 0 (0: all)")
+        if not isinstance(self.env_kwargs, dict):
+            raise ValueError(f"env_kwargs={self.env_kwargs!r} must be a mapping of name: value")
+
+    @property
+    def online_env_steps(self) -> int:
+        """Env steps after the demonstrations (all of them unless pretrain_td3)."""
+        demos = self.pretrain.demo_steps if self.algorithm == "pretrain_td3" else 0
+        return self.env_steps - demos
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def make_env(self) -> Any:
+        """``gym.make(env_id, **env_kwargs)``.
+
+        Raises:
+            ValueError: the environment refused ``env_kwargs`` (names the keys).
+        """
+        import gymnasium as gym
+
+        try:
+            return gym.make(self.env_id, **self.env_kwargs)
+        except TypeError as e:
+            raise ValueError(
+                f"preset {self.preset}: env_kwargs {sorted(self.env_kwargs)} rejected by "
+                f"{self.env_id}: {e}"
+            ) from e
+
+
+def _build(cls: type, data: dict[str, Any], where: str) -> Any:
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(names)}")
+    return cls(**data)
+
+
+def preset_names() -> list[str]:
+    folder = resources.files("service.run") / "presets"
+    return sorted(
+        p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml")
+    )
+
+
+def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
+    """Reads a preset by name (service/run/presets/NAME.yaml) or path; `overrides` win.
+
+    An override key "section.field" (e.g. "pretrain.demo_noise") sets one field of a
+    section; pass such keys with `**{"pretrain.demo_noise": 0.1}`.
+
+    Raises:
+        ValueError: unknown preset or keys, or values a run cannot use.
+    """
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        candidate = resources.files("service.run") / "presets" / f"{name_or_path}.yaml"
+        if not candidate.is_file():
+            raise ValueError(f"unknown preset {name_or_path!r}; presets: {preset_names()}")
+        text, name = candidate.read_text(), name_or_path
+    else:
+        text, name = path.read_text(), path.stem
+    data = yaml.safe_load(text) or {}
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        section, _, field_name = key.rpartition(".")  # "pretrain.demo_noise" -> section
+        if section:
+            data[section] = {**(data.get(section) or {}), field_name: value}
+        else:
+            data[key] = value
+    data.setdefault("preset", name)
+    for key, cls in SECTIONS.items():
+        section = data.pop(key, {}) or {}
+        if not isinstance(section, cls):
+            section = _build(cls, section, f"preset {name}: {key}")
+        data[key] = section
+    return _build(TrainConfig, data, f"preset {name}")

@@ -1,0 +1,336 @@
+"""Orchestration of one training run: Ray, the replay server, actors, evaluator and learner.
+
+graft train --preset pendulum-td3
+  ├─ replay server      (child process, gRPC on loopback; one table per phase)
+  ├─ weight broadcaster (Ray actor)
+  ├─ N env actors       (Ray actors, the algorithm's behaviour) ──insert──▶ replay
+  ├─ evaluator          (Ray actor, the behaviour's greedy policy)
+  └─ learner loop       (this process) ◀──sample── replay, ──publish──▶ broadcaster
+
+What differs between algorithms (phases, tables' columns, learner, behaviour) comes
+from the algorithm's builder (service/run/registry.py); this module knows none of them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import secrets
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import ray
+import torch
+import yaml
+from tqdm import tqdm
+
+from actors.env_actor import EnvActor, Segment
+from actors.evaluator import Evaluator
+from actors.transitions import replay_signature
+from learner.agent import Phase
+from learner.checkpoint import latest_checkpoint, load_checkpoint
+from learner.loop import LearnerLoop, LoopSettings, LoopState
+from service.metrics import MetricsLogger, plot_learning_curve
+from service.replay.client import ReplayClient
+from service.run.config import TrainConfig
+from service.run.registry import make_builder
+from service.run.replay_process import ReplayProcess
+from service.weights import WeightBroadcaster
+
+# Reference levels drawn on learning curves (measured with `graft eval`, 100 episodes).
+REFERENCE_LEVELS = {"Pendulum-v1": {"hard-coded policy": -429.0}}
+
+
+def table_spec(
+    phase: Phase, *, signature: dict[str, Any], max_size: int, slack_env_steps: int
+) -> dict[str, Any]:
+    """The replay table of one phase, its rate limiter holding the phase's update ratio."""
+    if phase.samples_per_insert is None:
+        limiter: dict[str, Any] = {"kind": "min_size", "min_size": phase.min_size}
+    else:
+        limiter = {
+            "kind": "sample_to_insert_ratio",
+            "samples_per_insert": phase.samples_per_insert,
+            "min_size": phase.min_size,
+            "error_buffer": slack_env_steps * phase.samples_per_insert,
+            "sample_credit": phase.sample_credit,
+        }
+    spec = {"name": phase.name, "max_size": max_size, "signature": signature}
+    if phase.sequence_length > 1:
+        spec["max_sequence_length"] = phase.sequence_length
+    return {**spec, "rate_limiter": limiter}
+
+
+def _signature(config: TrainConfig, behaviour: Any) -> dict[str, Any]:
+    env = config.make_env()
+    signature = replay_signature(env.observation_space, behaviour.columns())
+    env.close()
+    return signature
+
+
+def preset_tables(
+    config: TrainConfig,
+    *,
+    phases: Optional[list[Phase]] = None,
+    signature: Optional[dict[str, Any]] = None,
+) -> list[dict[str, Any]]:
+    """Every replay table a preset's run uses, one per phase (built when not given)."""
+    if phases is None or signature is None:
+        builder = make_builder(config)
+        behaviour = builder.make_behaviour(num_actors=config.num_actors)
+        phases, signature = builder.phases(), _signature(config, behaviour)
+    return [
+        table_spec(
+            p,
+            signature=signature,
+            max_size=config.replay_max_size,
+            slack_env_steps=config.slack_env_steps,
+        )
+        for p in phases
+    ]
+
+
+def transition_table_spec(config: TrainConfig) -> dict[str, Any]:
+    """The table of a preset's last (online) phase, e.g. for `graft replay serve --preset`."""
+    return preset_tables(config)[-1]
+
+
+def _resumed_phases(phases: list[Phase], state: LoopState, config: TrainConfig) -> list[Phase]:
+    """The phases left after a checkpoint: the fresh table refills, then updates resume."""
+    if len(phases) != 1:
+        raise ValueError(
+            f"resume is supported for single-phase algorithms; {config.algorithm} has "
+            f"{len(phases)} phases (its pre-training data is not in the checkpoint)"
+        )
+    remaining = config.env_steps - state.env_steps
+    if remaining <= config.learning_starts:
+        raise ValueError(
+            f"nothing left to train: the checkpoint is at {state.env_steps} env steps, "
+            f"the budget is {config.env_steps} and refilling replay takes "
+            f"{config.learning_starts}; raise --env-steps"
+        )
+    # Replay contents are not in the learner checkpoint: the new table refills to
+    # learning_starts with the restored policy before updates resume.
+    more = int((remaining - config.learning_starts) * config.updates_per_env_step)
+    return [
+        dataclasses.replace(
+            phases[0], env_steps=remaining, warmup_steps=0, updates=state.updates + more
+        )
+    ]
+
+
+def _segments(phases: list[Phase], num_actors: int) -> list[Segment]:
+    """Each actor's share of every phase's env steps (rounded up)."""
+    return [
+        Segment(p.name, -(-p.env_steps // num_actors), -(-p.warmup_steps // num_actors))
+        for p in phases
+        if p.env_steps > 0
+    ]
+
+
+def connect_ray(address: str) -> bool:
+    """Starts a local Ray instance ('local') or joins a cluster; True if we started it."""
+    if ray.is_initialized():
+        return False
+    if address == "local":
+        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False)
+        return True
+    ray.init(address=address, log_to_driver=False)
+    return False
+
+
+def default_run_dir(config: TrainConfig) -> Path:
+    return Path("runs") / f"{config.preset}-s{config.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+@dataclass
+class RunResult:
+    """What a finished run reports (also written to summary.json)."""
+
+    run_dir: Path
+    summary: dict[str, Any]
+    evaluations: list[dict[str, Any]]
+
+
+def train(
+    config: TrainConfig,
+    *,
+    address: str = "local",
+    run_dir: Optional[Path] = None,
+    resume: bool = False,
+    progress: bool = True,
+) -> RunResult:
+    """Runs one preset end to end and writes the run folder."""
+    run_dir = Path(run_dir) if run_dir else default_run_dir(config)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+    torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
+    start = time.perf_counter()
+    builder = make_builder(config)
+    behaviour = builder.make_behaviour(num_actors=config.num_actors)
+    signature = _signature(config, behaviour)
+    algorithm = builder.make_learner()
+    state = LoopState()
+    phases = builder.phases()
+    if resume and (found := latest_checkpoint(run_dir / "checkpoints")):
+        saved = load_checkpoint(found)
+        algorithm.load_state_dict(saved["algorithm"])
+        state = LoopState(**saved["loop"])
+        phases = _resumed_phases(phases, state, config)
+        print(f"resumed from {found} at {state.updates} updates, {state.env_steps} env steps")
+    tables = preset_tables(config, phases=phases, signature=signature)
+    started_ray = connect_ray(address)
+    # Beyond one machine the replay server must listen on the network: then it needs a token.
+    host = "127.0.0.1" if address == "local" else "0.0.0.0"
+    token = None if address == "local" else secrets.token_urlsafe(24)
+    replay = ReplayProcess(tables, host=host, token=token, log_path=run_dir / "replay.log")
+    actors: list[Any] = []
+    try:
+        connect_to = replay.address
+        if host == "0.0.0.0":
+            connect_to = f"{ray.util.get_node_ip_address()}:{replay.address.rsplit(':', 1)[1]}"
+        client = ReplayClient(connect_to, token=token)
+        broadcaster = WeightBroadcaster.remote()
+        evaluator = Evaluator.remote(
+            env_id=config.env_id,
+            env_kwargs=config.env_kwargs,
+            behaviour=builder.make_behaviour(num_actors=1),
+            seed=10_000 + config.seed,
+        )
+        resumed_env_steps = state.env_steps
+        segments = _segments(phases, config.num_actors)
+        for i in range(config.num_actors):
+            actor = EnvActor.remote(
+                env_id=config.env_id,
+                num_envs=config.envs_per_actor,
+                seed=config.seed * 1000 + i * config.envs_per_actor,
+                replay=client,
+                broadcaster=broadcaster,
+                behaviour=behaviour,
+                steps_per_insert=config.steps_per_insert,
+                env_kwargs=config.env_kwargs,
+            )
+            actors.append(actor)
+        runs = [a.run.remote(segments) for a in actors]
+        logger = MetricsLogger(run_dir)
+
+        def open_stream(phase: Phase) -> Any:
+            return client.sample_stream(
+                phase.name, builder.batch_size, prefetch=config.prefetch, **_window(phase)
+            )
+
+        settings = LoopSettings(
+            publish_every=config.publish_every,
+            eval_every=config.eval_every,
+            eval_episodes=config.eval_episodes,
+            checkpoint_every=config.checkpoint_every,
+            keep_checkpoints=config.keep_checkpoints,
+        )
+        with tqdm(
+            total=sum(p.updates for p in phases),
+            initial=state.updates,
+            unit="upd",
+            disable=not progress,
+            dynamic_ncols=True,
+        ) as bar:
+
+            def on_progress(s: LoopState) -> None:
+                if s.updates % 100 == 0:
+                    bar.update(s.updates - bar.n)
+                    last = s.evaluations[-1]["mean"] if s.evaluations else float("nan")
+                    bar.set_postfix(
+                        env_steps=s.env_steps, eval_return=f"{last:.0f}", version=s.version
+                    )
+
+            loop = LearnerLoop(
+                algorithm,
+                phases=phases,
+                open_stream=open_stream,
+                broadcaster=broadcaster,
+                evaluator=evaluator,
+                logger=logger,
+                checkpoint_dir=run_dir / "checkpoints",
+                settings=settings,
+                state=state,
+                on_progress=on_progress,
+                watchdog=lambda: _check_actors(runs),
+            )
+            final = loop.run()
+            bar.update(final.updates - bar.n)
+        ray.get(broadcaster.stop.remote())
+        actor_reports = ray.get(runs, timeout=120)
+        # The learner may stop before it sees the actors' last inserts: count them directly.
+        final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)
+        loop.checkpoint()  # again, with the true env-step count a resume continues from
+        _log_behaviour_stats(logger, actor_reports, config.num_actors, resumed_env_steps)
+        logger.close()
+    finally:
+        for actor in actors:
+            ray.kill(actor)
+        replay.stop()
+        if started_ray:
+            ray.shutdown()
+    wall = time.perf_counter() - start
+    summary = _summarise(config, final, actor_reports, wall)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    plot_learning_curve(
+        run_dir / "metrics.csv",
+        run_dir / "learning_curve.png",
+        title=f"{config.preset} (seed {config.seed})",
+        reference=REFERENCE_LEVELS.get(config.env_id),
+    )
+    return RunResult(run_dir, summary, final.evaluations)
+
+
+def _check_actors(runs: list[Any]) -> None:
+    """Raises the error of an actor that died; the learner would otherwise wait forever."""
+    finished, _ = ray.wait(runs, num_returns=len(runs), timeout=0)
+    for ref in finished:
+        ray.get(ref)  # re-raises the actor's exception, with its traceback
+    if len(finished) == len(runs):
+        raise RuntimeError(
+            "every actor finished, but the learner is still waiting for sampled batches: "
+            "the rate limiter and the update budget disagree (see replay.log)"
+        )
+
+
+def _window(phase: Phase) -> dict[str, int]:
+    """Sampling arguments for a phase: windows of k steps when it asks for them."""
+    return {"sequence_length": phase.sequence_length} if phase.sequence_length > 1 else {}
+
+
+def _log_behaviour_stats(
+    logger: MetricsLogger, reports: list[dict[str, Any]], num_actors: int, offset: int
+) -> None:
+    """Actor-side behaviour scalars (ε, option usage), placed at the run's env-step scale."""
+    for report in reports:
+        for row in report.get("behaviour_stats", []):
+            steps = offset + row["actor_steps"] * num_actors
+            scalars = {k: v for k, v in row.items() if k != "actor_steps"}
+            logger.log(
+                {f"behaviour/{k}": v for k, v in scalars.items()}, env_steps=steps, updates=0
+            )
+
+
+def _summarise(
+    config: TrainConfig, s: LoopState, reports: list[dict[str, Any]], wall: float
+) -> dict[str, Any]:
+    final_eval = s.evaluations[-1] if s.evaluations else {"mean": float("nan"), "std": float("nan")}
+    busy = s.wait_s + s.update_s
+    return {
+        "preset": config.preset,
+        "seed": config.seed,
+        "env_steps": s.env_steps,
+        "updates": s.updates,
+        "policy_version": s.version,
+        "wall_s": round(wall, 1),
+        "final_eval_return_mean": final_eval["mean"],
+        "final_eval_return_std": final_eval["std"],
+        "learner_updates_per_s": round(s.updates / max(s.update_s + s.wait_s, 1e-9), 1),
+        "learner_wait_fraction": round(s.wait_s / max(busy, 1e-9), 4),
+        "actor_env_steps": [r["env_steps"] for r in reports],
+        "actor_versions_adopted": [len(r["versions_seen"]) for r in reports],
+        "actor_last_version": [max(r["versions_seen"], default=-1) for r in reports],
+    }

@@ -1,0 +1,91 @@
+"""Starting and stopping a replay server as a separate OS process."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Optional
+
+
+class ReplayProcess:
+    """A `graft replay serve` child process; `address` is known once it listens."""
+
+    def __init__(
+        self,
+        tables: list[dict[str, Any]],
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        token: Optional[str] = None,
+        log_path: Optional[Path] = None,
+        startup_timeout_s: float = 60.0,
+        extra_args: Sequence[str] = (),
+    ) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix="graft-replay-")
+        config = Path(self._dir.name) / "tables.json"
+        config.write_text(json.dumps({"tables": tables}))
+        ready = Path(self._dir.name) / "ready.json"
+        command = [
+            sys.executable,
+            "-m",
+            "service.run.replay_cli",
+            "serve",
+            "--config",
+            str(config),
+            "--host",
+            host,
+            "--port",
+            str(port),
+            "--ready-file",
+            str(ready),
+            "--exit-with-parent",
+            str(os.getpid()),
+        ]
+        if token:
+            command += ["--token", token]
+        command += list(extra_args)
+        self._log = open(log_path, "ab") if log_path else subprocess.DEVNULL
+        self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + startup_timeout_s
+        while not ready.exists():
+            if self.process.poll() is not None:
+                raise RuntimeError(
+                    f"replay server exited with code {self.process.returncode} during start-up"
+                    + (f"; see {log_path}" if log_path else "")
+                )
+            if time.monotonic() > deadline:
+                self.stop()
+                raise TimeoutError(f"replay server did not start within {startup_timeout_s}s")
+            time.sleep(0.05)
+        self.address: str = json.loads(ready.read_text())["address"]
+
+    def stop(self, timeout_s: float = 15.0) -> None:
+        """SIGTERM (graceful: final checkpoint, drain), then SIGKILL if it hangs."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        if self._log is not subprocess.DEVNULL:
+            self._log.close()
+        self._dir.cleanup()
+
+    def kill(self) -> None:
+        """SIGKILL: no goodbye, no final checkpoint (for crash tests)."""
+        self.process.kill()
+        self.process.wait()
+
+    def __enter__(self) -> ReplayProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

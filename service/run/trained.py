@@ -1,0 +1,47 @@
+"""A trained run, loaded back the same way everywhere (`graft eval`, the benchmarks): its
+config from ``RUN/config.yaml`` and a greedy behaviour from one of ``RUN/checkpoints``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from service.run.config import TrainConfig, load_preset
+
+
+def run_config(run_dir: Path) -> TrainConfig:
+    """The config a run folder was trained with.
+
+    Raises:
+        FileNotFoundError: ``run_dir`` has no config.yaml.
+    """
+    import yaml
+
+    path = Path(run_dir) / "config.yaml"
+    if not path.is_file():
+        raise FileNotFoundError(f"{run_dir} is not a run folder: no config.yaml")
+    data = yaml.safe_load(path.read_text()) or {}
+    return load_preset(data.pop("preset"), **data)
+
+
+def load_behaviour(path: Path) -> tuple[Any, TrainConfig]:
+    """The behaviour (its ``greedy`` is the trained policy, any algorithm) of a run folder
+    at its latest checkpoint or of a checkpoint file in one, and the run's config.
+
+    Raises:
+        FileNotFoundError: no such run folder or checkpoint.
+    """
+    import torch
+
+    from learner.checkpoint import find_checkpoint, load_checkpoint
+    from service.run.registry import make_builder
+
+    checkpoint, run_dir = find_checkpoint(path)
+    config = run_config(run_dir)
+    builder = make_builder(config)
+    learner = builder.make_learner()
+    learner.load_state_dict(load_checkpoint(checkpoint)["algorithm"])
+    behaviour = builder.make_behaviour(num_actors=1)
+    behaviour.load(learner.policy_state())
+    torch.set_num_threads(1)  # one episode at a time; leave the other core to the env
+    return behaviour, config
