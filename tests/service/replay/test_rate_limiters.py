@@ -116,7 +116,7 @@ def test_ratio_holds_over_grpc_with_concurrent_clients():
     """A real server process: 4 writer clients and a sampling client, ratio 2 ± 40."""
     from service.replay.client import ReplayClient
     from service.run.replay_process import ReplayProcess
-    from tests.replay_helpers import SCALAR_SIGNATURE, scalar_batch
+    from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
 
     limiter = {"kind": "sample_to_insert_ratio", "samples_per_insert": 2, "min_size": 20,
                "error_buffer": 40}  # fmt: skip

@@ -13,7 +13,7 @@ from actors.minecraft import blocks as B
 from actors.minecraft.sim import worldgen
 from actors.minecraft.sim.crafting import CraftState, craft
 from actors.minecraft.sim.inventory import Inventory
-from tests.minecraft.conftest import GROUND
+from tests.actors.minecraft.conftest import GROUND
 
 
 def _inv(**items: int) -> Inventory:

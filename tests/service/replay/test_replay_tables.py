@@ -10,7 +10,7 @@ from service.replay._proto import replay_pb2
 from service.replay.client import DeadlineExceeded, InvalidArgument, ReplayClient, TableNotFound
 from service.replay.codec import encode_batch
 from service.run.replay_process import ReplayProcess
-from tests.replay_helpers import SCALAR_SIGNATURE, read_all, scalar_batch
+from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
 # Chi-square critical value for 99 degrees of freedom at p = 0.001.
 CHI2_99_P001 = 148.2

@@ -8,7 +8,7 @@ import numpy as np
 
 from service.replay.sharding import ShardedReplayClient
 from service.run.replay_process import ReplayProcess
-from tests.replay_helpers import SCALAR_SIGNATURE, scalar_batch
+from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
 
 TABLE = [
     {

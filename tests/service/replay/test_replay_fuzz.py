@@ -19,7 +19,7 @@ from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
 from service.run.replay_process import ReplayProcess
-from tests.replay_helpers import SCALAR_SIGNATURE, read_all, scalar_batch
+from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
 TABLE = [{"name": "t", "max_size": 1000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]
 EXAMPLES_PER_STRATEGY = 2_600  # four strategies: 10,400 payloads in all

@@ -10,7 +10,7 @@ import pytest
 
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.sim.server import WorldServer
-from tests.minecraft.conftest import flat_mission
+from tests.actors.minecraft.conftest import flat_mission
 
 
 def _connect(server: WorldServer, hello: bytes = P.HELLO.encode()) -> socket.socket:

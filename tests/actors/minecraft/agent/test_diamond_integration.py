@@ -8,7 +8,7 @@ import time
 from actors.minecraft.agent.diamond_tree import run_episode
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.sim.pool import ServerPool
-from tests.minecraft.conftest import flat_mission
+from tests.actors.minecraft.conftest import flat_mission
 
 
 def _pool() -> ServerPool:

@@ -9,7 +9,7 @@ import time
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.metrics import TickMeter
 from actors.minecraft.sim.server import WorldServer
-from tests.minecraft.conftest import flat_mission
+from tests.actors.minecraft.conftest import flat_mission
 
 TOUCH_GRASS = (
     '<RewardForTouchingBlockType><Block type="grass" reward="1" behaviour="constant"/>'

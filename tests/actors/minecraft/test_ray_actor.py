@@ -31,7 +31,7 @@ from learner.td3.config import TD3Config
 from service.replay.client import ReplayClient
 from service.run.replay_process import ReplayProcess
 from service.weights import WeightBroadcaster
-from tests.minecraft.conftest import flat_mission
+from tests.actors.minecraft.conftest import flat_mission
 
 MISSION = flat_mission(grid_radius=1, ms_per_tick=20)
 OBS_DIM = 8 + 27

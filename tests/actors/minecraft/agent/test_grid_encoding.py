@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from actors.minecraft.agent import grid_encoding as E
-from tests.minecraft.conftest import GROUND
+from tests.actors.minecraft.conftest import GROUND
 
 
 def _info(**over: object) -> dict:

@@ -11,7 +11,7 @@ import numpy as np
 
 from service.replay.client import ReplayClient
 from service.run.replay_process import ReplayProcess
-from tests.replay_helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
+from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
 TABLE = [{"name": "log", "max_size": 1_000_000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]
 
