@@ -32,6 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from actors.minecraft.agent.travel_task import TravelMission, mission_pool  # noqa: E402
+from actors.minecraft.sim import worldgen  # noqa: E402
 from service.run.trained import load_behaviour, run_config  # noqa: E402
 
 TREE, CORRECTED = "tree", "tree + correction"
@@ -270,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     worlds = list(range(args.first_world, args.first_world + args.worlds))
-    missions = mission_pool(worlds, args.per_world, seed=0)
+    missions = mission_pool(worlds, args.per_world, seed=0, terrain_of=worldgen.generate)
     print(f"{len(missions)} missions in {len(worlds)} worlds ({time.perf_counter() - t0:.0f} s)",
           file=sys.stderr, flush=True)  # fmt: skip
     try:

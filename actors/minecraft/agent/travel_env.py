@@ -1,10 +1,13 @@
 """The travel task as a gymnasium environment over MalmoEnv, for the service's actors.
 
 ``gym.make("actors.minecraft.agent.travel_env:MinecraftTravel-v0")`` imports this module (so
-Ray workers register it themselves). Each environment owns one simulated world server
-(``WorldServer`` on a free loopback port, in a thread of the same process) unless given
-the ``address`` of one, and talks to it only through graft's MalmoEnv client over the
-socket, synchronous (`ticks_per_step` ticks per step, 1 by default) or in real time.
+Ray workers register it themselves). Each environment talks to its world only through
+graft's MalmoEnv client over a socket, synchronous (`ticks_per_step` ticks per step, 1
+by default) or in real time. Given an ``address`` it plays the Minecraft there (a real
+one, or a simulated world server); without one it starts its own simulated server (on a
+free loopback port, in a thread of the same process). The simulator is named by import
+strings (``world_server``, ``terrain``) resolved only when used, so this module runs
+without ``actors.minecraft.sim`` when given an address and its missions.
 
 Per step::
 
@@ -17,14 +20,16 @@ Per step::
 
 An episode terminates on arrival (feet in the destination cell) or death, and is
 truncated at ``max_ticks``. ``reset(seed=...)`` seeds the choice of missions: a world
-from ``world_seeds`` and a destination in it (``travel_task.draw_missions``).
+from ``world_seeds`` and a destination in its terrain (``travel_task.draw_missions``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import random
-from typing import Any, Optional
+from collections.abc import Callable
+from typing import Any, Optional, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -42,6 +47,7 @@ from actors.minecraft.agent.travel_control import (
 )
 from actors.minecraft.agent.travel_task import (
     RewardConfig,
+    TerrainSource,
     TravelMission,
     TravelReward,
     draw_missions,
@@ -49,12 +55,42 @@ from actors.minecraft.agent.travel_task import (
     travel_mission_xml,
 )
 from actors.minecraft.malmo.client import MalmoClient
-from actors.minecraft.sim.server import WorldServer
 
 ENV_ID = "actors.minecraft.agent.travel_env:MinecraftTravel-v0"
 TRAIN_WORLDS = tuple(range(1000, 1064))
 """Worlds training draws from; bench/travel.py evaluates on worlds 0.. (disjoint)."""
 MAX_TICKS = 600
+SIM_WORLD_SERVER = "actors.minecraft.sim.server:WorldServer"
+"""The simulated world server, started when no address is given."""
+SIM_TERRAIN = "actors.minecraft.sim.worldgen:generate"
+"""The simulator's terrain of a world seed, which missions are drawn from."""
+
+
+class LocalWorldServer(Protocol):
+    """A world server the environment runs itself (the simulator's ``WorldServer``)."""
+
+    def start(self) -> int:
+        """Start serving; returns the port."""
+        ...
+
+    def stop(self) -> None:
+        """Stop serving and close every connection."""
+        ...
+
+
+def load(spec: str) -> Any:
+    """The object an import string ``"package.module:name"`` names.
+
+    Raises:
+        ValueError: ``spec`` is not of that form, or its module has no such name.
+    """
+    module, sep, name = spec.partition(":")
+    if not sep or not module or not name:
+        raise ValueError(f"{spec!r} is not an import string 'package.module:name'")
+    obj = getattr(importlib.import_module(module), name, None)
+    if obj is None:
+        raise ValueError(f"{spec!r}: module {module} has no {name}")
+    return obj
 
 
 class TravelBackbone:
@@ -89,10 +125,16 @@ class MinecraftTravelEnv(gym.Env):
     """Travel to a destination in a seeded world with continuous movement commands.
 
     Args:
-        address: ``host:port`` of a running world server; None starts one in-process.
+        address: ``host:port`` of a running Minecraft or world server; None starts
+            ``world_server`` in-process.
         world_seeds: worlds to draw missions from.
         missions: a fixed list of missions, played in order (cycling); overrides
             ``world_seeds`` (the benchmark's fixed set).
+        world_server: import string of the server started when ``address`` is None,
+            called with ``port=0`` (a ``LocalWorldServer``).
+        terrain: import string of the function giving a world seed's terrain
+            (``travel_task.TerrainSource``) that missions are drawn from; unused when
+            ``missions`` are given.
         max_ticks: ticks before the episode is truncated.
         reward: the reward's weights and the stuck rule, or a mapping of some of its fields
             (a run's ``--set 'env_kwargs.reward={tick_cost: 0.1}'``).
@@ -117,6 +159,8 @@ class MinecraftTravelEnv(gym.Env):
         reward: Optional[RewardConfig | dict[str, Any]] = None,
         real_time: bool = False,
         ticks_per_step: int = 1,
+        world_server: str = SIM_WORLD_SERVER,
+        terrain: str = SIM_TERRAIN,
     ) -> None:
         if max_ticks < 1:
             raise ValueError(f"max_ticks={max_ticks} must be >= 1")
@@ -139,10 +183,14 @@ class MinecraftTravelEnv(gym.Env):
         self.ticks_per_step = ticks_per_step
         self.reward_fn = TravelReward(reward_config(reward))
         self.steering = TreeSteering()
-        self._server: Optional[WorldServer] = None
+        # Resolved here, only when they will be used: a bad import string fails at once.
+        self._new_server: Optional[Callable[..., LocalWorldServer]] = (
+            load(world_server) if address is None else None
+        )
+        self._terrain_of: Optional[TerrainSource] = None if missions else load(terrain)
+        self._server: Optional[LocalWorldServer] = None
         self._client: Optional[MalmoClient] = None
         self._rng = random.Random(0)
-        self._drawn: dict[int, list[TravelMission]] = {}
         self._played = 0
         self.mission: Optional[TravelMission] = None
         self._percept: Optional[Percept] = None
@@ -153,11 +201,11 @@ class MinecraftTravelEnv(gym.Env):
     # ------------------------------------------------------------------ plumbing
     def _connect(self) -> MalmoClient:
         if self._client is None:
-            if self.address is None:
-                self._server = WorldServer(port=0)
-                self._server.start()
-                host, port = "127.0.0.1", self._server.port
+            if self._new_server is not None:
+                self._server = self._new_server(port=0)
+                host, port = "127.0.0.1", self._server.start()
             else:
+                assert self.address is not None
                 host, _, p = self.address.rpartition(":")
                 port = int(p)
             self._client = MalmoClient(host, port, synchronous=not self.real_time, timeout=30.0)
@@ -167,8 +215,9 @@ class MinecraftTravelEnv(gym.Env):
         if self.fixed is not None:
             m = self.fixed[self._played % len(self.fixed)]
         else:
+            assert self._terrain_of is not None
             world = self._rng.choice(self.world_seeds)
-            m = draw_missions(world, 1, self._rng)[0]
+            m = draw_missions(world, 1, self._rng, terrain=self._terrain_of(world))[0]
         self._played += 1
         return m
 

@@ -2,13 +2,13 @@
 and the reward the travel controller is trained on (progress, a per-tick cost, a penalty
 for being stuck).
 
-A mission is drawn from the generated world itself (``worldgen.generate`` is the
-simulator's terrain, same seed same world): a breadth-first search over *walkable*
-cells (feet and head free, solid ground, no liquid; moves to the 4 neighbours that a
-player makes without digging: level, a one-block jump with head room, a drop of up to
-3) finds every cell reachable from the spawn, the destination is drawn among those at
-10-30 blocks, and the search's shortest path is the mission's **route** (the map a
-player would be given). Progress is measured along it::
+A mission is drawn from the world's terrain, given as an argument (``Terrain``; by
+default the simulator's generated world of the seed, same seed same world): a
+breadth-first search over *walkable* cells (feet and head free, solid ground, no liquid;
+moves to the 4 neighbours that a player makes without digging: level, a one-block jump
+with head room, a drop of up to 3) finds every cell reachable from the spawn, the
+destination is drawn among those at 10-30 blocks, and the search's shortest path is the
+mission's **route** (the map a player would be given). Progress is measured along it::
 
     φ(p) = min over route cells i with |y_i - y| <= 2 and |p - c_i|_xz <= 3 of
            (n - 1 - i) + |p - c_i|_xz
@@ -30,19 +30,51 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Protocol
 
 import numpy as np
 
 from actors.minecraft import blocks as B
-from actors.minecraft.sim import worldgen
 
 Cell = tuple[int, int, int]
 HORIZONTAL = ((1, 0), (-1, 0), (0, 1), (0, -1))
 MAX_DROP = 3
 SHORTCUT = 3.0
 """Blocks of straight way to a route cell that φ credits (corner cutting)."""
+
+
+class Terrain(Protocol):
+    """What drawing a mission needs to know of a world: its blocks and its spawn.
+
+    The simulator's ``worldgen.Terrain`` is one (``actors.minecraft.sim.worldgen:generate``
+    gives a seed's); against a real Minecraft, blocks read from the game around the spawn.
+    """
+
+    @property
+    def blocks(self) -> np.ndarray:
+        """Block ids (``blocks.ID``), indexed ``[x - x0, y, z - z0]``."""
+        ...
+
+    @property
+    def x0(self) -> int:
+        """World x of index 0."""
+        ...
+
+    @property
+    def z0(self) -> int:
+        """World z of index 0."""
+        ...
+
+    @property
+    def spawn(self) -> tuple[float, float, float]:
+        """Feet position (x, y, z) the player spawns at."""
+        ...
+
+
+TerrainSource = Callable[[int], Terrain]
+"""A world seed's terrain."""
 
 
 @dataclass(frozen=True)
@@ -167,9 +199,9 @@ class TravelReward:
 
 # ----------------------------------------------------------------- missions
 class WalkMap:
-    """Walkable cells of a generated world and the moves between them."""
+    """Walkable cells of a world and the moves between them."""
 
-    def __init__(self, terrain: worldgen.Terrain, centre: Cell, radius: int) -> None:
+    def __init__(self, terrain: Terrain, centre: Cell, radius: int) -> None:
         """Only the columns within ``radius`` of ``centre`` (x, z) are walkable."""
         blocks = terrain.blocks
         i0 = max(0, centre[0] - terrain.x0 - radius)
@@ -247,15 +279,15 @@ def _path(parent: dict[Cell, Optional[Cell]], end: Cell) -> tuple[Cell, ...]:
 
 
 def draw_missions(
-    world_seed: int, count: int, rng: random.Random, *, min_dist: float = 10.0,
-    max_dist: float = 30.0,
+    world_seed: int, count: int, rng: random.Random, *, terrain: Terrain,
+    min_dist: float = 10.0, max_dist: float = 30.0,
 ) -> list[TravelMission]:  # fmt: skip
-    """``count`` missions in one world, all starting at its spawn, destinations drawn by ``rng``.
+    """``count`` missions in world ``world_seed`` (its ``terrain``), all starting at its
+    spawn, destinations drawn by ``rng``.
 
     Raises:
         ValueError: the world has no reachable cell at 10-30 blocks from the spawn.
     """
-    terrain = worldgen.generate(world_seed)
     sx, sy, sz = terrain.spawn
     start_cell = (math.floor(sx), int(round(sy)), math.floor(sz))
     walk = WalkMap(terrain, start_cell, int(max_dist) + 4)
@@ -287,10 +319,12 @@ def draw_missions(
     ]
 
 
-def mission_pool(world_seeds: list[int], per_world: int, seed: int) -> list[TravelMission]:
+def mission_pool(
+    world_seeds: list[int], per_world: int, seed: int, *, terrain_of: TerrainSource
+) -> list[TravelMission]:
     """A fixed list of missions: ``per_world`` destinations in each world, seeded."""
     rng = random.Random(seed)
-    return [m for w in world_seeds for m in draw_missions(w, per_world, rng)]
+    return [m for w in world_seeds for m in draw_missions(w, per_world, rng, terrain=terrain_of(w))]
 
 
 def travel_mission_xml(m: TravelMission, *, time_limit_ticks: int, ms_per_tick: int = 50) -> str:

@@ -4,8 +4,14 @@ environment against a real world server over MalmoEnv."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import os
 import random
+import subprocess
+import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -29,11 +35,15 @@ from actors.minecraft.agent.travel_env import ENV_ID, TravelBackbone
 from actors.minecraft.agent.travel_task import (
     RewardConfig,
     StuckDetector,
+    TravelMission,
     TravelReward,
     draw_missions,
+    mission_pool,
     route_to_go,
 )
 from actors.minecraft.blocks import ID
+from actors.minecraft.sim import worldgen
+from actors.minecraft.sim.server import WorldServer
 
 ROUTE = ((0, 4, 0), (0, 4, 1), (0, 4, 2), (1, 4, 2))
 
@@ -146,8 +156,8 @@ def test_reward_config_refuses_bad_values_naming_the_field() -> None:
 
 # ------------------------------------------------------------------ missions
 def test_missions_are_seeded_walkable_and_in_range() -> None:
-    a = draw_missions(3, 3, random.Random(0))
-    b = draw_missions(3, 3, random.Random(0))
+    a = draw_missions(3, 3, random.Random(0), terrain=worldgen.generate(3))
+    b = draw_missions(3, 3, random.Random(0), terrain=worldgen.generate(3))
     assert a == b
     for m in a:
         start = (math.floor(m.start[0]), int(m.start[1]), math.floor(m.start[2]))
@@ -157,6 +167,53 @@ def test_missions_are_seeded_walkable_and_in_range() -> None:
         for u, v in zip(m.route, m.route[1:], strict=False):
             assert abs(u[0] - v[0]) + abs(u[2] - v[2]) == 1  # 4-neighbour moves
             assert -3 <= v[1] - u[1] <= 1  # one-block jumps, drops of up to 3
+
+
+# Drawn by the code before the terrain became an argument (the simulator's worldgen then
+# imported by travel_task): the same seeds must keep giving the same missions.
+RECORDED_POOL = [  # mission_pool(worlds 0-3, 2 per world, seed=0): world, start, destination
+    (0, (0.5, 69.0, 0.5), (8, 70, 12)),
+    (0, (0.5, 69.0, 0.5), (11, 71, -1)),
+    (1, (-1.5, 65.0, 1.5), (-25, 68, -2)),
+    (1, (-1.5, 65.0, 1.5), (-6, 65, -13)),
+    (2, (0.5, 66.0, 0.5), (18, 69, 8)),
+    (2, (0.5, 66.0, 0.5), (16, 69, -14)),
+    (3, (-3.5, 65.0, 6.5), (8, 67, 29)),
+    (3, (-3.5, 65.0, 6.5), (-4, 63, -10)),
+]
+RECORDED_ROUTES_SHA256 = "0005a8c13cd2fbf659d48602ca653673c7876f5f5dde0c3d5da0cef6124f6ab0"
+
+
+def _routes_digest(missions: list[TravelMission]) -> str:
+    routes = [[list(c) for c in m.route] for m in missions]
+    return hashlib.sha256(json.dumps(routes).encode()).hexdigest()
+
+
+def test_mission_pool_is_the_recorded_one() -> None:
+    missions = mission_pool([0, 1, 2, 3], 2, seed=0, terrain_of=worldgen.generate)
+    assert [(m.world_seed, m.start, m.destination) for m in missions] == RECORDED_POOL
+    assert _routes_digest(missions) == RECORDED_ROUTES_SHA256
+
+
+def test_env_draws_the_recorded_mission_from_the_simulator_terrain() -> None:
+    """The default ``terrain`` import string is the simulator's generator."""
+    env = gym.make(ENV_ID, world_seeds=(1000, 1001, 1002, 1003))
+    try:
+        env.reset(seed=11)
+        m = env.unwrapped.mission
+        assert (m.world_seed, m.start, m.destination) == (1003, (0.5, 66.0, 0.5), (25, 69, -16))
+        assert _routes_digest([m]) == (
+            "4838bbe602cfa54564781a81a854756f8fc2bc57c93383c04d12c36258dee6e3"
+        )
+    finally:
+        env.close()
+
+
+def test_env_refuses_a_bad_import_string_at_once() -> None:
+    with pytest.raises(ValueError, match="package.module:name"):
+        gym.make(ENV_ID, terrain="actors.minecraft.sim.worldgen")
+    with pytest.raises(ValueError, match="has no nope"):
+        gym.make(ENV_ID, world_server="actors.minecraft.sim.server:nope")
 
 
 # ------------------------------------------------------------------ observation and μ(s)
@@ -246,7 +303,7 @@ def test_backbone_action_and_commands() -> None:
 def test_env_over_malmoenv_tree_reaches_the_destination(ticks_per_step: int) -> None:
     """The tree alone (a = μ(s)) on one seeded mission, a real world server on a socket;
     with 3 ticks per step each step advances 3 game ticks (the last may end early)."""
-    missions = draw_missions(2, 1, random.Random(5))
+    missions = draw_missions(2, 1, random.Random(5), terrain=worldgen.generate(2))
     env = gym.make(ENV_ID, missions=missions, max_ticks=400, ticks_per_step=ticks_per_step)
     try:
         obs, _ = env.reset(seed=0)
@@ -265,6 +322,53 @@ def test_env_over_malmoenv_tree_reaches_the_destination(ticks_per_step: int) -> 
         assert total == pytest.approx(expected, abs=1e-4)
     finally:
         env.close()
+
+
+_WITHOUT_SIM = """
+import json, sys
+
+class NoSimulator:  # as if actors/minecraft/sim/ were deleted
+    def find_spec(self, name, path=None, target=None):
+        if name == "actors.minecraft.sim" or name.startswith("actors.minecraft.sim."):
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+
+sys.meta_path.insert(0, NoSimulator())
+import gymnasium as gym
+from actors.minecraft.agent.travel_env import ENV_ID, TravelBackbone
+from actors.minecraft.agent.travel_task import TravelMission
+
+address, m = sys.argv[1], json.loads(sys.argv[2])
+mission = TravelMission(
+    m["world_seed"], tuple(m["start"]), tuple(m["destination"]), tuple(map(tuple, m["route"]))
+)
+env = gym.make(ENV_ID, address=address, missions=[mission], max_ticks=400)
+obs, _ = env.reset(seed=0)
+for _ in range(400):
+    obs, _, terminated, truncated, info = env.step(TravelBackbone()(obs))
+    if terminated or truncated:
+        break
+env.close()
+print(json.dumps({"arrived": info["arrived"], "modules": sorted(sys.modules)}))
+"""
+
+
+def test_env_plays_a_given_address_without_the_simulator(server: WorldServer) -> None:
+    """The agent runs against a Minecraft at an address (here a simulated one, in this
+    process) with the simulator package unimportable in its own process."""
+    m = draw_missions(2, 1, random.Random(5), terrain=worldgen.generate(2))[0]
+    mission = {"world_seed": m.world_seed, "start": m.start, "destination": m.destination,
+               "route": m.route}  # fmt: skip
+    root = str(Path(__file__).resolve().parents[4])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run(
+        [sys.executable, "-c", _WITHOUT_SIM, f"127.0.0.1:{server.port}", json.dumps(mission)],
+        capture_output=True, text=True, env=env, timeout=120, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert out["arrived"]
+    assert not [name for name in out["modules"] if name.startswith("actors.minecraft.sim")]
 
 
 def test_env_refuses_bad_timing_settings() -> None:
