@@ -73,7 +73,7 @@ def parse_settings(pairs: list[str]) -> dict[str, object]:
 def _eval(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from actors.evaluation import random_policy_for, run_episodes
+    from actors.evaluator import random_policy_for, run_episodes
 
     env_id, env_kwargs = args.env_id or "Pendulum-v1", None
     if args.policy == "hardcoded":

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from py_trees.common import Status
 
-from actors.evaluation import random_policy_for, run_episodes
+from actors.evaluator import random_policy_for, run_episodes
 from actors.policies import GaussianExploration, UniformRandomPolicy, gaussian_log_prob
 from actors.trees.pendulum import (
     HardCodedPendulumPolicy,
