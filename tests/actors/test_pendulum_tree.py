@@ -40,7 +40,7 @@ def test_tree_action_sign_cases(theta: float, theta_dot: float, expected: float)
     assert action[0] == expected
 
 
-STATUS_CASES = [  # None: the behaviour was not ticked
+STATUS_CASES = [  # None: the node was not ticked
     pytest.param(
         BELOW,
         {
