@@ -28,8 +28,10 @@ def test_backbone_action_composition_clips_the_correction_then_the_action():
 
 def _pendulum_backbone(correction: nn.Module, backbone, **kwargs) -> BackboneBehaviour:
     """A backbone behaviour over Pendulum's torque box [−2, 2], exploration σ = 0.2."""
-    box = {"low": np.array([-2.0]), "high": np.array([2.0])}
-    return BackboneBehaviour(correction, backbone, std=0.2, prefill_std=0.3, **box, **kwargs)
+    low, high = np.array([-2.0]), np.array([2.0])
+    return BackboneBehaviour(
+        correction, backbone, std=0.2, prefill_std=0.3, low=low, high=high, **kwargs
+    )
 
 
 def test_correction_network_starts_at_zero_so_the_agent_starts_as_the_backbone():
