@@ -234,7 +234,7 @@ def training_curve(run: Path, png: Path, tree_level: float) -> None:
 def tree_eval_level(run: Path) -> float:
     """The tree alone's mean return on the evaluator's episodes of ``run`` (same seeds,
     same environment settings)."""
-    from actors.evaluation import run_episodes
+    from actors.evaluator import run_episodes
     from actors.minecraft.agent.travel_env import ENV_ID, TravelBackbone
 
     config = run_config(run)

@@ -1,1 +1,1 @@
-"""graft: actors/trees."""
+"""Hard-coded policies written as py_trees behaviour trees (the Pendulum swing-up of sec. IV-B)."""

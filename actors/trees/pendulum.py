@@ -47,7 +47,7 @@ class BelowPivot(py_trees.behaviour.Behaviour):
         """Initialises the condition.
 
         Args:
-            name: Behaviour name shown in the tree.
+            name: Node name shown in the tree.
             namespace: Blackboard namespace of the tree.
         """
         super().__init__(name)
@@ -67,7 +67,7 @@ class _TorqueAction(py_trees.behaviour.Behaviour):
         """Initialises the action.
 
         Args:
-            name: Behaviour name shown in the tree.
+            name: Node name shown in the tree.
             namespace: Blackboard namespace of the tree.
             max_torque: Torque magnitude written to the blackboard.
         """
@@ -153,7 +153,7 @@ def build_pendulum_tree(
         ],
     )
     tree = py_trees.trees.BehaviourTree(root)
-    # py_trees leaves a behaviour that was not ticked with its status from an earlier
+    # py_trees leaves a node that was not ticked with its status from an earlier
     # tick; the snapshot records what the last tick actually visited.
     tree.visitors.append(py_trees.visitors.SnapshotVisitor())
     return tree
@@ -168,16 +168,16 @@ def _snapshot(tree: py_trees.trees.BehaviourTree) -> py_trees.visitors.SnapshotV
 
 
 def last_tick_statuses(tree: py_trees.trees.BehaviourTree) -> dict[str, Status | None]:
-    """Status of every behaviour in the last tick, by name; None for those not ticked.
+    """Status of every tree node in the last tick, by name; None for those not ticked.
 
     Args:
         tree: A tree from :func:`build_pendulum_tree`.
 
     Returns:
-        ``{behaviour name: status}`` in depth-first order.
+        ``{node name: status}`` in depth-first order.
     """
     visited = _snapshot(tree).visited
-    return {behaviour.name: visited.get(behaviour.id) for behaviour in tree.root.iterate()}
+    return {node.name: visited.get(node.id) for node in tree.root.iterate()}
 
 
 def render_tree_ascii(
@@ -187,7 +187,7 @@ def render_tree_ascii(
 
     Args:
         tree: The tree to render; a freshly built pendulum tree when None.
-        show_status: Mark the behaviours the last tick visited with their status.
+        show_status: Mark the nodes the last tick visited with their status.
 
     Returns:
         The multi-line ASCII drawing.

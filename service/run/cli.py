@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Optional
 
+from service.run.figures import FIGURES
 from service.run.replay_cli import add_replay_commands
 
 
@@ -73,7 +74,7 @@ def parse_settings(pairs: list[str]) -> dict[str, object]:
 def _eval(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from actors.evaluation import random_policy_for, run_episodes
+    from actors.evaluator import random_policy_for, run_episodes
 
     env_id, env_kwargs = args.env_id or "Pendulum-v1", None
     if args.policy == "hardcoded":
@@ -199,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     experiment = commands.add_parser(
         "experiment", help="reproduce a paper figure over seeds (runs in parallel on Ray)"
     )
-    experiment.add_argument("figure", choices=["fig2", "fig3", "fig4", "fig5"])
+    experiment.add_argument("figure", choices=sorted(FIGURES))
     experiment.add_argument("--seeds", type=int, default=5)
     experiment.add_argument("--parallel", type=int, default=2, help="runs at a time")
     experiment.add_argument("--env-steps", type=int, help="override every variant's budget")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from py_trees.common import Status
 
-from actors.evaluation import random_policy_for, run_episodes
+from actors.evaluator import random_policy_for, run_episodes
 from actors.policies import GaussianExploration, UniformRandomPolicy, gaussian_log_prob
 from actors.trees.pendulum import (
     HardCodedPendulumPolicy,
@@ -40,7 +40,7 @@ def test_tree_action_sign_cases(theta: float, theta_dot: float, expected: float)
     assert action[0] == expected
 
 
-STATUS_CASES = [  # None: the behaviour was not ticked
+STATUS_CASES = [  # None: the node was not ticked
     pytest.param(
         BELOW,
         {

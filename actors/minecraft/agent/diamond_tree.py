@@ -16,7 +16,7 @@ Shape (``graft minecraft tree`` prints it in full)::
 "Ensure X" is ``Selector(Has X?, Sequence(ensure inputs..., act))``: each tick the tree
 re-checks from the top (``memory=False`` everywhere), so it resumes from whatever the
 inventory holds and repairs itself when things are lost. Every move goes through the
-A* travel sub-tree (``behaviours.travel``); the grid observation is x-ray, so ores are
+A* travel sub-tree (``leaves.travel``); the grid observation is x-ray, so ores are
 chosen from it directly, and no block touching a liquid is ever broken.
 """
 
@@ -32,16 +32,16 @@ from py_trees.composites import Selector, Sequence
 
 from actors.minecraft.agent.leaves import conditions as C
 from actors.minecraft.agent.leaves.context import CONTEXT_KEY, Context, new_namespace
-from actors.minecraft.agent.leaves.items import Craft
-from actors.minecraft.agent.leaves.percept import Percept, parse
-from actors.minecraft.agent.leaves.survival import Eat, EscapeLiquid
-from actors.minecraft.agent.leaves.targets import (
+from actors.minecraft.agent.leaves.goals import (
     ChooseBlock,
     ChooseDrop,
     Descend,
     Explore,
     MineTarget,
 )
+from actors.minecraft.agent.leaves.items import Craft
+from actors.minecraft.agent.leaves.percept import Percept, parse
+from actors.minecraft.agent.leaves.survival import Eat, EscapeLiquid
 from actors.minecraft.agent.leaves.travel import travel_subtree
 from actors.minecraft.malmo.client import MalmoClient
 

@@ -148,7 +148,7 @@ def observation(
 ) -> np.ndarray:
     """The correction network's input, float32 [OBS_DIM]::
 
-    [0:8]     the sec. III-D stats (obs_encoding: position / 64, sin, cos yaw, pitch / 90,
+    [0:8]     the sec. III-D stats (grid_encoding: position / 64, sin, cos yaw, pitch / 90,
               life / 20, food / 20)
     [8:108]   occupancy {0, 1} of the cells dx, dz in -2..2, dy in -1..2 around the
               feet (the sec. III-D cube's cells nearest the body), index

@@ -1,9 +1,10 @@
 """Mission XML builders for the simulator (and for a real Malmo Minecraft).
 
-``obtain_diamond()`` is the sample mission shipped as ``missions/obtain_diamond.xml``:
-survival in a seeded default world, the observations issue 6's tree needs (full stats, a
-15×15×15 grid named ``cube``, full inventory, nearby entities, ray), every command
-handler it uses, a reward for the diamond and a 20-minute time limit.
+``obtain_diamond()`` is the sample mission shipped beside this module as
+``obtain_diamond.xml``: survival in a seeded default world, the observations the
+obtain-diamond tree needs (full stats, a 15×15×15 grid named ``cube``, full inventory,
+nearby entities, ray), every command handler it uses, a reward for the diamond and a
+20-minute time limit.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from pathlib import Path
 from typing import Optional
 
 NS = "http://ProjectMalmo.microsoft.com"
-SAMPLE_PATH = Path(__file__).with_name("missions") / "obtain_diamond.xml"
+SAMPLE_PATH = Path(__file__).with_name("obtain_diamond.xml")
 
 
 def mission_xml(

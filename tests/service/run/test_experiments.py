@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.run.experiments import curves, read_rows, run_experiment
+from service.run.experiments import read_rows, run_experiment
+from service.run.plots import curves
 
 
 def test_fig5_two_seeds_in_parallel_writes_csv_and_figure(ray_local, tmp_path):

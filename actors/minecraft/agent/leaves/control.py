@@ -1,8 +1,8 @@
 """Steering and aiming: the continuous movement commands that take the agent to a block
 centre and point the crosshair at a block face.
 
-``steer`` is the tree's own controller μ(s) for a move (issue 6's backbone RL learns a
-correction on top of it): holonomic (move and strafe in the agent's frame, so turning is
+``steer`` is the tree's own controller μ(s) for a move (the travel task's backbone RL
+learns a correction on top of it): holonomic (move and strafe in the agent's frame, so turning is
 not needed to walk), proportional near the target, jumping when the next cell is higher.
 """
 

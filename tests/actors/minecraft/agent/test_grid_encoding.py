@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 
-from actors.minecraft.agent import grid_encoding as E
+from actors.minecraft.agent import grid_encoding
 from tests.actors.minecraft.conftest import GROUND
 
 
 def _info(**over: object) -> dict:
-    names = ["air"] * E.CUBE_CELLS
+    names = ["air"] * grid_encoding.CUBE_CELLS
     info = {
         "XPos": 10.5,
         "YPos": 4.0,
@@ -34,13 +34,13 @@ def _info(**over: object) -> dict:
 
 
 def test_layout_of_stats_cube_and_items() -> None:
-    names = ["air"] * E.CUBE_CELLS
+    names = ["air"] * grid_encoding.CUBE_CELLS
     names[(0 + 7) * 225 + (0 + 7) * 15 + (1 + 7)] = "stone"  # dx=1, dy=0, dz=0
     names[(-1 + 7) * 225 + (2 + 7) * 15 + (0 + 7)] = "log"  # dx=0, dy=-1, dz=2
     names[(3 + 7) * 225 + (0 + 7) * 15 + (0 + 7)] = "water"  # liquids are empty
     names[0] = "some_modded_block"  # unknown -> full
-    v = E.encode(_info(cube=names), k=3)
-    assert v.shape == (E.size(3),) == (8 + 3375 + 12,)
+    v = grid_encoding.encode(_info(cube=names), k=3)
+    assert v.shape == (grid_encoding.size(3),) == (8 + 3375 + 12,)
     assert v.dtype == np.float32
     np.testing.assert_allclose(
         v[:8],
@@ -48,14 +48,14 @@ def test_layout_of_stats_cube_and_items() -> None:
          0.75],
         atol=1e-6,
     )  # fmt: skip
-    cube = v[8 : 8 + E.CUBE_CELLS]
+    cube = v[8 : 8 + grid_encoding.CUBE_CELLS]
     assert set(np.unique(cube)) == {0.0, 1.0}
     assert cube.sum() == 3
-    assert v[E.cube_offset(1, 0, 0)] == 1.0
-    assert v[E.cube_offset(0, -1, 2)] == 1.0
-    assert v[E.cube_offset(0, 3, 0)] == 0.0
-    assert v[E.cube_offset(-7, -7, -7)] == 1.0
-    items = v[E.items_offset() :].reshape(3, 4)
+    assert v[grid_encoding.cube_offset(1, 0, 0)] == 1.0
+    assert v[grid_encoding.cube_offset(0, -1, 2)] == 1.0
+    assert v[grid_encoding.cube_offset(0, 3, 0)] == 0.0
+    assert v[grid_encoding.cube_offset(-7, -7, -7)] == 1.0
+    items = v[grid_encoding.items_offset() :].reshape(3, 4)
     # Nearest first: the dirt 1.6 above, then the log 4 east; the third slot is empty.
     np.testing.assert_allclose(items[0], [0, 1.6 / 16, 0, 1], atol=1e-6)
     np.testing.assert_allclose(items[1], [4 / 16, 0, 0, 1], atol=1e-6)
@@ -65,10 +65,10 @@ def test_layout_of_stats_cube_and_items() -> None:
 def test_encodes_a_real_server_observation(sync_client) -> None:
     client = sync_client(grid_radius=7, decorators='<DrawBlock x="1" y="4" z="0" type="stone"/>')
     r = client.step("move 0")
-    v = E.encode(r.info, k=2)
-    assert v.shape == (E.size(2),)
-    assert v[E.cube_offset(1, 0, 0)] == 1.0  # the drawn stone, east of the agent
-    assert v[E.cube_offset(0, -1, 0)] == 1.0  # the grass under the agent
-    assert v[E.cube_offset(0, 0, 0)] == 0.0  # the agent's own block
-    assert v[E.cube_offset(0, 1, 0)] == 0.0
+    v = grid_encoding.encode(r.info, k=2)
+    assert v.shape == (grid_encoding.size(2),)
+    assert v[grid_encoding.cube_offset(1, 0, 0)] == 1.0  # the drawn stone, east of the agent
+    assert v[grid_encoding.cube_offset(0, -1, 0)] == 1.0  # the grass under the agent
+    assert v[grid_encoding.cube_offset(0, 0, 0)] == 0.0  # the agent's own block
+    assert v[grid_encoding.cube_offset(0, 1, 0)] == 0.0
     assert v[1] == GROUND / 64

@@ -1,0 +1,176 @@
+"""The hard-coded policy as backbone (learner/backbone and the backbone behaviour): action
+composition (eq. 10), the observed backbone, the teacher target (eq. 11) and the burn-in."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from actors.behaviours.backbone import BackboneBehaviour, compose_action
+from learner.backbone.learning import teacher_target
+from learner.backbone.networks import zero_output_
+from learner.td3.networks import Actor
+
+# --- the behaviour: eq. (10) ----------------------------------------------------------
+
+
+def test_backbone_action_composition_clips_the_correction_then_the_action():
+    mu = np.array([[1.8], [-1.0], [0.0]], np.float32)
+    correction = np.array([[1.0], [-0.3], [-5.0]], np.float32)
+    action = compose_action(mu, correction, limit=0.5, low=np.array([-2.0]), high=np.array([2.0]))
+    # 1.8 + 0.5 = 2.3 -> 2.0;  -1.0 - 0.3 = -1.3;  0.0 + clip(-5) = -0.5
+    np.testing.assert_allclose(action, [[2.0], [-1.3], [-0.5]], rtol=1e-6)
+
+
+def _pendulum_backbone(correction: nn.Module, backbone, **kwargs) -> BackboneBehaviour:
+    """A backbone behaviour over Pendulum's torque box [−2, 2], exploration σ = 0.2."""
+    low, high = np.array([-2.0]), np.array([2.0])
+    return BackboneBehaviour(
+        correction, backbone, std=0.2, prefill_std=0.3, low=low, high=high, **kwargs
+    )
+
+
+def test_correction_network_starts_at_zero_so_the_agent_starts_as_the_backbone():
+    correction = zero_output_(Actor(3, 1, np.array([-0.5]), np.array([0.5]), (8,)))
+    backbone = lambda obs: np.full((len(obs), 1), 1.7, np.float32)  # noqa: E731
+    behaviour = _pendulum_backbone(correction, backbone, limit=0.5)
+    obs = np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32)
+    np.testing.assert_allclose(behaviour.greedy(obs), np.full((5, 1), 1.7))
+    env_action, columns = behaviour.act(obs, np.random.default_rng(1), warmup=False)
+    # Replay stores μ(s) and the (unclipped) correction separately; noise is on the correction.
+    np.testing.assert_allclose(columns["backbone_action"], np.full((5, 1), 1.7))
+    expected = np.clip(1.7 + np.clip(columns["action"], -0.5, 0.5), -2.0, 2.0)
+    np.testing.assert_allclose(env_action, expected, rtol=1e-6)
+    assert np.abs(columns["action"]).max() > 0.0
+
+
+class _Recorder(nn.Module):
+    """A correction network that records its input and outputs zero."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        self.seen = x.clone()
+        return torch.zeros(x.shape[0], 1)
+
+
+def test_observed_backbone_is_an_input_of_the_correction_and_recorded_at_s_prime():
+    correction = _Recorder()
+    backbone = lambda obs: np.where(obs[:, 2:] >= 0, 2.0, -2.0).astype(np.float32)  # noqa: E731
+    behaviour = _pendulum_backbone(correction, backbone, limit=4.0, observe_backbone=True)
+    obs = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, -3.0]], np.float32)
+    behaviour.greedy(obs)
+    # [s, μ(s) / 2]: μ = +2 and −2 -> +1 and −1.
+    torch.testing.assert_close(
+        correction.seen, torch.tensor([[1.0, 0.0, 0.5, 1.0], [0.0, 1.0, -3.0, -1.0]])
+    )
+    assert "next_backbone_action" in behaviour.columns()
+    next_obs = np.array([[1.0, 0.0, -0.1], [0.0, 1.0, 0.2]], np.float32)
+    np.testing.assert_allclose(
+        behaviour.next_columns(next_obs)["next_backbone_action"], [[-2.0], [2.0]]
+    )
+
+
+def test_observed_backbone_ticks_mu_once_per_state():
+    ticked: list[int] = []
+
+    def backbone(obs: np.ndarray) -> np.ndarray:
+        ticked.append(len(obs))
+        return np.where(obs[:, 2:] >= 0, 2.0, -2.0).astype(np.float32)
+
+    behaviour = _pendulum_backbone(_Recorder(), backbone, limit=4.0, observe_backbone=True)
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(4, 3)).astype(np.float32)
+    behaviour.act(obs, rng, warmup=False)
+    next_obs = rng.normal(size=(4, 3)).astype(np.float32)
+    mu_next = behaviour.next_columns(next_obs)["next_backbone_action"]
+    restarted = next_obs.copy()
+    restarted[1] = [0.0, 1.0, -5.0]  # env 1's episode ended: its next s is a reset state
+    _, columns = behaviour.act(restarted, rng, warmup=False)
+    # 4 rows, 4 rows of s', then only the restarted row: μ(s') is reused for the others.
+    assert ticked == [4, 4, 1]
+    np.testing.assert_array_equal(columns["backbone_action"][[0, 2, 3]], mu_next[[0, 2, 3]])
+    np.testing.assert_array_equal(columns["backbone_action"][1], [-2.0])
+
+
+# --- the learner: eq. (11), the observed backbone, the burn-in ------------------------
+
+
+def test_observing_learner_appends_mu_to_obs_and_next_obs():
+    from learner.backbone.learning import ObservingBackboneLearner
+    from learner.td3.config import TD3Config
+
+    learner = ObservingBackboneLearner(
+        3, np.array([4.0], np.float32), np.array([2.0]), config=TD3Config(hidden_sizes=(8,)), seed=0
+    )
+    assert learner.actor.net[0].in_features == 4  # s (3) + μ(s) (1)
+    batch = {
+        "obs": torch.zeros(5, 3),
+        "action": torch.zeros(5, 1),
+        "backbone_action": torch.full((5, 1), 2.0),
+        "reward": torch.ones(5),
+        "terminated": torch.zeros(5, dtype=torch.bool),
+        "next_obs": torch.zeros(5, 3),
+    }
+    with pytest.raises(ValueError, match="next_backbone_action"):
+        learner.update(batch)
+    metrics = learner.update({**batch, "next_backbone_action": torch.full((5, 1), -2.0)})
+    assert math.isfinite(metrics["losses/critic"])
+
+
+def test_observe_backbone_refuses_a_teacher():
+    from learner.backbone.config import BackboneConfig
+
+    with pytest.raises(ValueError, match="observe_backbone"):
+        BackboneConfig(observe_backbone=True, teacher="runs/teacher")
+
+
+def test_eq11_teacher_target():
+    y = teacher_target(
+        torch.tensor([1.0, -1.0]),
+        torch.tensor([False, True]),
+        gamma=0.9,
+        teacher_next_value=torch.tensor([-10.0, -20.0]),
+        next_correction_value=torch.tensor([2.0, 3.0]),
+    )
+    # 1 + 0.9·(−10 + 2) = −6.2; the terminal row keeps only r.
+    torch.testing.assert_close(y, torch.tensor([-6.2, -1.0]))
+
+
+def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_actor_frozen():
+    from service.run.config import load_preset
+    from service.run.registry import make_builder
+
+    config = load_preset(
+        "pendulum-backbone",
+        env_steps=3000,
+        learning_starts=2000,
+        **{"td3.burn_in_updates": 500, "td3.frozen_actor_updates": 500},
+    )
+    builder = make_builder(config)
+    (phase,) = builder.phases()
+    # 1,000 online updates (3,000 - 2,000 steps at 1 per step) plus the 500 of the burn-in,
+    # which the rate limiter lets the learner draw at min_size: 500 batches of 256 items.
+    assert phase.updates == 1500
+    assert phase.min_size == 2000
+    assert phase.sample_credit == 500 * 256
+    learner = builder.make_learner()
+    before = [p.clone() for p in learner.actor.parameters()]
+    batch = {
+        "obs": torch.zeros(256, 3),
+        "action": torch.zeros(256, 1),
+        "backbone_action": torch.full((256, 1), 2.0),
+        "next_backbone_action": torch.full((256, 1), -2.0),
+        "reward": torch.ones(256),
+        "terminated": torch.zeros(256, dtype=torch.bool),
+        "next_obs": torch.zeros(256, 3),
+    }
+    for _ in range(500):
+        learner.update(batch)
+    assert learner.num_actor_updates == 0  # the correction is still exactly zero
+    assert all(torch.equal(a, b) for a, b in zip(before, learner.actor.parameters(), strict=True))
+    learner.update(batch)
+    learner.update(batch)
+    assert learner.num_actor_updates == 1

@@ -1,0 +1,134 @@
+"""Double DQN (learner/dqn) and its ε-greedy behaviour: targets against hand-computed values, the
+target network and the learning-rate schedule."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
+from learner.dqn.learning import double_q_target, linear_decay
+from tests.learner.helpers import Table
+
+
+def test_double_dqn_target_lets_the_online_net_choose_and_the_target_net_value():
+    online = Table([[1.0, 3.0], [5.0, 2.0]])  # argmax: action 1, then action 0
+    target = Table([[10.0, 20.0], [30.0, 40.0]])
+    reward = torch.tensor([1.0, 2.0])
+    discount = 0.9 * (1.0 - torch.tensor([0.0, 1.0]))  # second s' is terminal
+    y = double_q_target(reward, discount, torch.zeros(2, 4), online=online, target=target)
+    # 1 + 0.9 * Q_target(s', 1) = 1 + 18; terminal: just r. (Plain DQN would take 40 for row 2.)
+    torch.testing.assert_close(y, torch.tensor([19.0, 2.0]))
+
+
+def test_epsilon_greedy_log_likelihoods_and_schedule():
+    q = np.array([[0.0, 1.0, 0.0]] * 4000)
+    action, log_prob = epsilon_greedy(q, 0.3, np.random.default_rng(0))
+    greedy = action == 1
+    np.testing.assert_allclose(log_prob[greedy], math.log(0.7 + 0.1), rtol=1e-6)
+    np.testing.assert_allclose(log_prob[~greedy], math.log(0.1), rtol=1e-6)
+    assert abs(greedy.mean() - 0.8) < 0.03
+    assert linear_epsilon(500, start=1.0, end=0.1, decay_steps=1000) == pytest.approx(0.55)
+    assert linear_epsilon(5000, start=1.0, end=0.1, decay_steps=1000) == pytest.approx(0.1)
+
+
+def _dqn_batch() -> dict[str, torch.Tensor]:
+    """8 identical transitions of a 2-feature, 2-action task: action 0, reward 1."""
+    return {
+        "obs": torch.ones(8, 2),
+        "action": torch.zeros(8, dtype=torch.int64),
+        "reward": torch.ones(8),
+        "terminated": torch.zeros(8, dtype=torch.bool),
+        "next_obs": torch.ones(8, 2),
+    }
+
+
+@pytest.mark.parametrize("tau, moved", [(1.0, 1.0), (0.25, 0.25)])
+def test_dqn_target_network_moves_every_target_update_every_updates(tau, moved):
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+
+    learner = DQNLearner(
+        2, 2, config=DQNConfig(hidden_sizes=(4,), target_update_every=3, target_tau=tau), seed=0
+    )
+    before = [p.clone() for p in learner.target_q.parameters()]
+    batch = _dqn_batch()
+    for _ in range(2):
+        learner.update(batch)
+    assert all(
+        torch.equal(a, b) for a, b in zip(before, learner.target_q.parameters(), strict=True)
+    )
+    learner.update(batch)  # the third update moves the target a `tau` step towards online
+    for old, new, online in zip(
+        before, learner.target_q.parameters(), learner.q.parameters(), strict=True
+    ):
+        torch.testing.assert_close(new, old + moved * (online - old))
+
+
+@pytest.mark.parametrize(
+    "step, expected",
+    [(0, 4e-3), (1, 3e-3), (2, 2e-3), (3, 1e-3), (4, 0.0), (9, 0.0)],  # 4e-3 · (1 − step/4)
+)
+def test_learning_rate_decays_linearly_to_its_end_value_and_stays(step, expected):
+    assert linear_decay(4e-3, 0.0, step=step, steps=4) == pytest.approx(expected)
+
+
+def test_dqn_learner_steps_at_the_scheduled_rate_and_stops_moving_at_zero():
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+
+    config = DQNConfig(hidden_sizes=(4,), learning_rate=4e-3, learning_rate_end=0.0)
+    learner = DQNLearner(2, 2, config=config, seed=0, total_updates=4)
+    batch = _dqn_batch()
+    rates = [learner.update(batch)["charts/learning_rate"] for _ in range(4)]
+    assert rates == pytest.approx([4e-3, 3e-3, 2e-3, 1e-3])
+    # Past the schedule the rate is 0: Adam's step is lr-scaled, so the network is frozen.
+    before = [p.clone() for p in learner.q.parameters()]
+    assert learner.update(batch)["charts/learning_rate"] == 0.0
+    assert all(torch.equal(a, b) for a, b in zip(before, learner.q.parameters(), strict=True))
+    # A resumed learner continues the schedule from its update count.
+    resumed = DQNLearner(2, 2, config=config, seed=1, total_updates=4)
+    learner.num_updates = 2
+    resumed.load_state_dict(learner.state_dict())
+    assert resumed.learning_rate == pytest.approx(2e-3)
+
+
+def test_dqn_learning_rate_schedule_refuses_what_cannot_decay():
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+
+    for end in (-1e-4, 2e-3):  # below 0, above the start rate
+        with pytest.raises(ValueError, match="learning_rate_end"):
+            DQNConfig(learning_rate=1e-3, learning_rate_end=end)
+    with pytest.raises(ValueError, match="total_updates"):
+        DQNLearner(2, 2, config=DQNConfig(learning_rate_end=0.0), seed=0)
+    # Without an end value the rate is constant, whatever the update count.
+    learner = DQNLearner(2, 2, config=DQNConfig(learning_rate=1e-3), seed=0)
+    learner.num_updates = 10**6
+    assert learner.learning_rate == 1e-3
+
+
+def test_dqn_builder_decays_the_rate_over_the_runs_updates():
+    from gymnasium import spaces
+
+    from learner.agent import Budget
+    from learner.dqn.builder import DQNBuilder
+    from learner.dqn.config import DQNConfig
+
+    builder = DQNBuilder(
+        spaces.Box(-1.0, 1.0, shape=(4,)),
+        spaces.Discrete(2),
+        config=DQNConfig(hidden_sizes=(4,), learning_rate=1e-3, learning_rate_end=1e-4),
+        budget=Budget(
+            env_steps=5000, learning_starts=1000, updates_per_env_step=0.5, slack_env_steps=0
+        ),
+        seed=0,
+    )
+    learner = builder.make_learner()
+    learner.num_updates = 1000  # half of (5000 − 1000) · 0.5 = 2000 updates
+    assert learner.learning_rate == pytest.approx(5.5e-4)
+    learner.num_updates = 2000
+    assert learner.learning_rate == pytest.approx(1e-4)

@@ -1,0 +1,199 @@
+"""Hierarchical options (learner/options and the options behaviour): the k-step option target
+(eq. 13), Retrace (eq. 14) and option scheduling, against values computed by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from actors.behaviours.options import HARDCODED, RL, OptionsBehaviour
+from learner.dqn.learning import double_q_target
+from learner.options.targets import (
+    gaussian_log_prob,
+    importance_ratio,
+    k_step_return,
+    retrace_targets,
+    retrace_traces,
+)
+from tests.learner.helpers import Table
+
+# --- the k-step option target, eq. (13) -----------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "terminated, expected",
+    [
+        # Σ γ^i r_i = 1 + 0.5·2 + 0.25·4 = 3; γ^3 = 0.125; Q_target(s_3, argmax online = 0) = 8.
+        (False, 3.0 + 0.125 * 8.0),
+        (True, 3.0),  # the window ends on a terminal state: no bootstrap
+    ],
+)
+def test_eq13_k_step_option_target(terminated, expected):
+    rewards = torch.tensor([[1.0, 2.0, 4.0]])
+    done = torch.tensor([[False, False, terminated]])
+    returns, discount = k_step_return(rewards, done, gamma=0.5)
+    y = double_q_target(
+        returns,
+        discount,
+        torch.zeros(1, 3),
+        online=Table([[2.0, 1.0]]),
+        target=Table([[8.0, 99.0]]),
+    )
+    torch.testing.assert_close(y, torch.tensor([expected]))
+
+
+# --- Retrace, eq. (14) ----------------------------------------------------------------
+
+
+def test_gaussian_log_likelihood_ratio():
+    # a = 0.5, σ = 0.5: under π (mean 0.5) z = 0, under π_old (mean 0) z = 1.
+    action, std = torch.tensor([[0.5]]), 0.5
+    behaviour_log_prob = torch.tensor([-0.5 - math.log(0.5) - 0.5 * math.log(2 * math.pi)])
+    torch.testing.assert_close(
+        gaussian_log_prob(action, torch.zeros(1, 1), std), behaviour_log_prob
+    )
+    ratio = importance_ratio(action, torch.tensor([[0.5]]), std, behaviour_log_prob)
+    torch.testing.assert_close(ratio, torch.tensor([math.exp(0.5)]))
+
+
+@pytest.mark.parametrize(
+    "last_terminated, expected",
+    [
+        # Q2 = 3 + 0.9·30 = 30;  Q1 = 2 + 0.9·(20 + 0.5·(30 − 18)) = 25.4;
+        # Q0 = 1 + 0.9·(10 + 1·(25.4 − 11)) = 22.96
+        (False, [22.96, 25.4, 30.0]),
+        # Q2 = 3 (terminal);  Q1 = 2 + 0.9·(20 + 0.5·(3 − 18)) = 13.25;
+        # Q0 = 1 + 0.9·(10 + 1·(13.25 − 11)) = 12.025
+        (True, [12.025, 13.25, 3.0]),
+    ],
+)
+def test_retrace_on_a_three_step_window(last_terminated, expected):
+    rewards = torch.tensor([[1.0, 2.0, 3.0]])
+    discounts = 0.9 * (1.0 - torch.tensor([[0.0, 0.0, float(last_terminated)]]))
+    next_values = torch.tensor([[10.0, 20.0, 30.0]])  # V(s1), V(s2), V(s3)
+    next_q = torch.tensor([[11.0, 18.0, 0.0]])  # Q(s1, a1), Q(s2, a2), unused
+    # ρ1 = 2 is truncated to c1 = 1; ρ2 = 0.5 passes as c2 = 0.5 (λ = 1).
+    traces = retrace_traces(torch.tensor([[9.0, 2.0, 0.5]]), lam=1.0)
+    torch.testing.assert_close(traces, torch.tensor([[1.0, 1.0, 0.5]]))
+    next_traces = torch.cat([traces[:, 1:], torch.zeros(1, 1)], dim=1)
+    q_ret = retrace_targets(rewards, discounts, next_values, next_q, next_traces)
+    torch.testing.assert_close(q_ret, torch.tensor([expected]))
+
+
+def test_retrace_with_zero_traces_is_the_one_step_target():
+    rewards, discounts = torch.tensor([[1.0, 2.0]]), torch.tensor([[0.9, 0.9]])
+    next_values = torch.tensor([[10.0, 20.0]])
+    q_ret = retrace_targets(
+        rewards, discounts, next_values, torch.tensor([[50.0, 0.0]]), torch.zeros(1, 2)
+    )
+    torch.testing.assert_close(q_ret, rewards + discounts * next_values)
+
+
+class ConstantCritic(nn.Module):
+    """(Q1, Q2)(s, a) = (value, value + 1): the TD3 target takes the smaller."""
+
+    def __init__(self, value: float) -> None:
+        super().__init__()
+        self.value = value
+
+    def forward(self, obs: torch.Tensor, act: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        q = torch.full(obs.shape[:-1], self.value)
+        return q, q + 1.0
+
+
+def test_options_retrace_uses_option_values_and_cuts_traces_at_option_boundaries():
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+    from learner.options.learning import OptionsLearner, RetraceTD3Learner
+    from learner.td3.config import TD3Config
+
+    rl = RetraceTD3Learner(
+        3, 1, np.array([-2.0]), np.array([2.0]), config=TD3Config(hidden_sizes=(4,)), seed=0
+    )
+    learner = OptionsLearner(
+        DQNLearner(3, 2, config=DQNConfig(hidden_sizes=(4,)), seed=0),
+        rl,
+        option_length=3,
+        retrace_lambda=1.0,
+        behaviour_std=0.5,
+        gamma=0.9,
+    )
+    learner.options.target_q = Table([[30.0, 20.0]])  # Q_Ω(s, hard-coded), Q_Ω(s, RL)
+    rl.target_critic = ConstantCritic(5.0)
+    rl.actor.forward = lambda obs: torch.full((*obs.shape[:-1], 1), 0.5)  # π(s) = 0.5
+    log_pi = -math.log(0.5) - 0.5 * math.log(2 * math.pi)  # log N(0.5 | 0.5, 0.5²)
+    window = {
+        "obs": torch.zeros(1, 3, 3),
+        "next_obs": torch.zeros(1, 3, 3),
+        "action": torch.tensor([[[0.0], [0.5], [0.5]]]),
+        "reward": torch.tensor([[1.0, 2.0, 3.0]]),
+        "terminated": torch.zeros(1, 3, dtype=torch.bool),
+        "option": torch.full((1, 3), RL),
+        # Steps 1-2 of one RL option (it ends after the second), then a new RL option.
+        "option_step": torch.tensor([[1, 2, 0]]),
+        # ρ_1 = 2 (truncated to c_1 = 1); step 2 starts a new option: its trace is cut.
+        "log_prob": torch.tensor([[0.0, log_pi - math.log(2.0), log_pi]]),
+    }
+    q_ret = learner.retrace(window)
+    # Q2 = 3 + 0.9·Q_Ω(s3, RL) = 21;  Q1 = 2 + 0.9·max_o Q_Ω(s2, o) = 29 (option ended, c2 = 0);
+    # Q0 = 1 + 0.9·(Q_Ω(s1, RL) + c1·(Q1 − Q'(s1, a1))) = 1 + 0.9·(20 + 29 − 5) = 40.6
+    torch.testing.assert_close(q_ret, torch.tensor([[40.6, 29.0, 21.0]]))
+
+
+# --- the options behaviour ------------------------------------------------------------
+
+
+def greedy_options(option_q: nn.Module, actor: nn.Module) -> OptionsBehaviour:
+    """k = 3, ε = 0, μ(s) = −1 everywhere."""
+    return OptionsBehaviour(
+        option_q,
+        actor,
+        lambda obs: np.full((len(obs), 1), -1.0, np.float32),
+        option_length=3,
+        std=0.1,
+        low=np.array([-2.0]),
+        high=np.array([2.0]),
+        epsilon_start=0.0,
+        epsilon_end=0.0,
+        decay_env_steps=1,
+        num_actors=1,
+    )
+
+
+def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_end():
+    behaviour = greedy_options(Table([[0.0, 1.0]]), Table([[0.25]]))  # Q_Ω prefers RL
+    rng, obs = np.random.default_rng(0), np.zeros((1, 3), np.float32)
+    steps = []
+    for t in range(5):
+        _, columns = behaviour.act(obs, rng, warmup=False)
+        steps.append((int(columns["option"][0]), int(columns["option_step"][0])))
+        if t == 3:
+            behaviour.end_episodes(np.array([True]))
+    assert steps == [(RL, 0), (RL, 1), (RL, 2), (RL, 0), (RL, 0)]
+    # The hard-coded option acts μ(s) and records no density.
+    behaviour.option_q = Table([[1.0, 0.0]])
+    behaviour.end_episodes(np.array([True]))
+    action, columns = behaviour.act(obs, rng, warmup=False)
+    assert columns["option"][0] == HARDCODED and columns["log_prob"][0] == 0.0
+    np.testing.assert_allclose(action, [[-1.0]])
+
+
+def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
+    def options_table(q: list[float]) -> dict[str, torch.Tensor]:
+        return {"options.rows": torch.tensor([q]), "actor.rows": torch.tensor([[0.25]])}
+
+    class Loadable(Table):
+        def load_state_dict(self, state, strict=True):  # noqa: ANN001
+            self.rows = state["rows"]
+
+    behaviour = greedy_options(Loadable([[0.0, 1.0]]), Loadable([[0.25]]))
+    obs = np.zeros((2, 3), np.float32)
+    behaviour.load(options_table([0.0, 1.0]))  # prefers RL
+    np.testing.assert_allclose(behaviour.greedy(obs), [[0.25], [0.25]])
+    behaviour.load(options_table([1.0, 0.0]))  # now prefers the hard-coded option
+    np.testing.assert_allclose(behaviour.greedy(obs), [[-1.0], [-1.0]])
+    assert behaviour.stats() == {"options/rl_fraction": 0.5}

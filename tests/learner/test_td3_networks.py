@@ -1,0 +1,89 @@
+"""TD3's networks and builder (learner/td3/networks.py, builder.py): bounds, heads, the
+broadcast policy state and the spaces TD3 refuses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+from torch import nn
+
+from learner.td3.builder import make_actor_network, make_td3_learner
+from learner.td3.networks import Actor, TwinCritic
+from tests.learner.helpers import ACT_DIM, HIGH, LOW, OBS_DIM, SMALL, td3_batch
+
+# --- networks -------------------------------------------------------------------------
+
+
+def test_actor_rescales_tanh_into_bounds() -> None:
+    actor = Actor(OBS_DIM, ACT_DIM, LOW, HIGH, hidden_sizes=(4,))
+    for p in actor.parameters():
+        nn.init.zeros_(p)
+    last = actor.net[-1]
+    assert isinstance(last, nn.Linear)
+    last.bias.data = torch.tensor([0.0, 100.0])  # tanh -> 0 and 1
+    out = actor(torch.randn(5, OBS_DIM))
+    torch.testing.assert_close(out, torch.tensor([[1.0, 1.0]]).expand(5, -1))
+    with torch.no_grad():
+        last.bias.data = torch.tensor([-100.0, 0.0])
+        torch.testing.assert_close(actor(torch.zeros(1, OBS_DIM)), torch.tensor([[-1.0, 0.5]]))
+
+
+def test_twin_critic_shapes_and_q1_head() -> None:
+    critic = TwinCritic(OBS_DIM, ACT_DIM, hidden_sizes=(8,))
+    obs, act = torch.randn(7, OBS_DIM), torch.randn(7, ACT_DIM)
+    q1, q2 = critic(obs, act)
+    assert q1.shape == q2.shape == (7,)
+    assert torch.equal(critic.q1(obs, act), q1)
+    assert not torch.equal(q1, q2)
+
+
+@pytest.mark.parametrize(
+    ("low", "high"),
+    [([-1.0, -np.inf], [1.0, 1.0]), ([1.0, 0.0], [1.0, 1.0]), ([-1.0], [1.0])],
+    ids=["unbounded", "empty", "wrong_shape"],
+)
+def test_actor_refuses_bad_bounds(low: list[float], high: list[float]) -> None:
+    with pytest.raises(ValueError, match="action bounds"):
+        Actor(OBS_DIM, ACT_DIM, np.array(low), np.array(high), hidden_sizes=(4,))
+
+
+# --- builder --------------------------------------------------------------------------
+
+
+def test_act_and_policy_state_roundtrip_through_builder() -> None:
+    obs_space = spaces.Box(-np.inf, np.inf, shape=(OBS_DIM,), dtype=np.float32)
+    action_space = spaces.Box(LOW, HIGH, dtype=np.float32)
+    learner = make_td3_learner(obs_space, action_space, SMALL, seed=0)
+    state = learner.policy_state()
+    assert all(v.device.type == "cpu" and not v.requires_grad for v in state.values())
+
+    actor = make_actor_network(OBS_DIM, ACT_DIM, LOW, HIGH, SMALL)
+    actor.load_state_dict(state)
+    obs = np.random.default_rng(0).normal(size=(4, OBS_DIM)).astype(np.float32)
+    action = learner.act(obs)
+    assert action.shape == (4, ACT_DIM) and action.dtype == np.float32
+    assert ((action >= LOW) & (action <= HIGH)).all()
+    with torch.no_grad():
+        np.testing.assert_array_equal(actor(torch.from_numpy(obs)).numpy(), action)
+    assert learner.act(obs[0]).shape == (ACT_DIM,)
+    learner.update(td3_batch())  # the broadcast copy does not alias live weights
+    assert all(torch.equal(v, actor.state_dict()[k]) for k, v in state.items())
+
+
+@pytest.mark.parametrize(
+    ("obs_space", "action_space"),
+    [
+        (spaces.Discrete(3), spaces.Box(-1.0, 1.0, shape=(1,))),
+        (spaces.Box(-1.0, 1.0, shape=(2, 2)), spaces.Box(-1.0, 1.0, shape=(1,))),
+        (spaces.Box(-1.0, 1.0, shape=(2,)), spaces.Discrete(2)),
+        (spaces.Box(-1.0, 1.0, shape=(2,)), spaces.Box(-np.inf, np.inf, shape=(1,))),
+    ],
+    ids=["discrete_obs", "image_obs", "discrete_action", "unbounded_action"],
+)
+def test_builder_refuses_spaces_td3_cannot_handle(
+    obs_space: spaces.Space, action_space: spaces.Space
+) -> None:
+    with pytest.raises(ValueError):
+        make_td3_learner(obs_space, action_space, SMALL, seed=0)
