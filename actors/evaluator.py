@@ -9,15 +9,17 @@ return does not depend on how many environments run at once.
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import Any, Optional
 
 import gymnasium as gym
 import numpy as np
 import ray
 import torch
+from ray import ObjectRef
 
-from actors.behaviours.base import Behaviour
 from actors.policies import UniformRandomPolicy
+from service.core import Behaviour, EvalTag, Evaluation, Weights
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """A batched policy: observations [B, *obs_shape] -> actions [B, *action_shape]."""
@@ -135,9 +137,7 @@ class Evaluator:
         self.env_id, self.seed, self.env_kwargs = env_id, seed, env_kwargs
         self.behaviour = behaviour
 
-    def evaluate(
-        self, weights: dict[str, Any], *, episodes: int, tag: Any = None
-    ) -> dict[str, Any]:
+    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Evaluation:
         """Returns mean and std of the episode returns, echoing `tag` back.
 
         `stats` carries what the behaviour counted while acting greedily (e.g. how often
@@ -158,3 +158,27 @@ class Evaluator:
             "std": float(returns.std()),
             "stats": self.behaviour.stats(),
         }
+
+
+class RemoteEvaluator:
+    """The learner's `Evaluator` (service/core.py): an `Evaluator` Ray actor runs the episodes."""
+
+    def __init__(
+        self,
+        *,
+        env_id: str,
+        behaviour: Behaviour,
+        seed: int,
+        env_kwargs: Optional[dict[str, Any]] = None,
+    ) -> None:
+        # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
+        self._actor = Evaluator.remote(  # type: ignore[attr-defined]
+            env_id=env_id, behaviour=behaviour, seed=seed, env_kwargs=env_kwargs
+        )
+
+    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
+        """Starts the episodes in the actor and returns at once."""
+        ref: ObjectRef[Evaluation] = self._actor.evaluate.remote(
+            weights, episodes=episodes, tag=tag
+        )
+        return ref.future()

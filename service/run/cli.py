@@ -74,9 +74,10 @@ def parse_settings(pairs: list[str]) -> dict[str, object]:
 def _eval(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from actors.evaluator import random_policy_for, run_episodes
+    from actors.evaluator import Policy, random_policy_for, run_episodes
 
     env_id, env_kwargs = args.env_id or "Pendulum-v1", None
+    policy: Policy
     if args.policy == "hardcoded":
         if env_id != "Pendulum-v1":
             raise SystemExit("graft eval: the hard-coded policy is for Pendulum-v1")

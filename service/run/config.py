@@ -181,8 +181,8 @@ def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
             data[key] = value
     data.setdefault("preset", name)
     for key, cls in SECTIONS.items():
-        section = data.pop(key, {}) or {}
-        if not isinstance(section, cls):
-            section = _build(cls, section, f"preset {name}: {key}")
-        data[key] = section
+        given = data.pop(key, {}) or {}
+        if not isinstance(given, cls):
+            given = _build(cls, given, f"preset {name}: {key}")
+        data[key] = given
     return _build(TrainConfig, data, f"preset {name}")

@@ -2,7 +2,7 @@
 
 graft train --preset pendulum-td3
   ├─ replay server      (child process, gRPC on loopback; one table per phase)
-  ├─ weight broadcaster (Ray actor)
+  ├─ weight broadcaster (Ray actor behind the learner's BroadcastPublisher)
   ├─ N env actors       (Ray actors, the algorithm's behaviour) ──insert──▶ replay
   ├─ evaluator          (Ray actor, the behaviour's greedy policy)
   └─ learner loop       (this process) ◀──sample── replay, ──publish──▶ broadcaster
@@ -27,17 +27,18 @@ import yaml
 from tqdm import tqdm
 
 from actors.env_actor import EnvActor, Segment
-from actors.evaluator import Evaluator
+from actors.evaluator import RemoteEvaluator
 from actors.transitions import replay_signature
 from learner.agent import Phase
 from learner.checkpoint import latest_checkpoint, load_checkpoint
 from learner.loop import LearnerLoop, LoopSettings, LoopState
+from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
 from service.run.config import TrainConfig
 from service.run.registry import make_builder
 from service.run.replay_process import ReplayProcess
-from service.weights import WeightBroadcaster
+from service.weights import BroadcastPublisher
 
 # Reference levels drawn on learning curves (measured with `graft eval`, 100 episodes).
 REFERENCE_LEVELS = {"Pendulum-v1": {"hard-coded policy": -429.0}}
@@ -63,7 +64,7 @@ def table_spec(
     return {**spec, "rate_limiter": limiter}
 
 
-def _signature(config: TrainConfig, behaviour: Any) -> dict[str, Any]:
+def _signature(config: TrainConfig, behaviour: Behaviour) -> dict[str, Any]:
     env = config.make_env()
     signature = replay_signature(env.observation_space, behaviour.columns())
     env.close()
@@ -151,7 +152,7 @@ class RunResult:
 
     run_dir: Path
     summary: dict[str, Any]
-    evaluations: list[dict[str, Any]]
+    evaluations: list[Evaluation]
 
 
 def train(
@@ -186,14 +187,14 @@ def train(
     host = "127.0.0.1" if address == "local" else "0.0.0.0"
     token = None if address == "local" else secrets.token_urlsafe(24)
     replay = ReplayProcess(tables, host=host, token=token, log_path=run_dir / "replay.log")
-    actors: list[Any] = []
+    actors: list[Any] = []  # Ray handles: their `.remote` methods exist only at run time
     try:
         connect_to = replay.address
         if host == "0.0.0.0":
             connect_to = f"{ray.util.get_node_ip_address()}:{replay.address.rsplit(':', 1)[1]}"
         client = ReplayClient(connect_to, token=token)
-        broadcaster = WeightBroadcaster.remote()
-        evaluator = Evaluator.remote(
+        publisher = BroadcastPublisher()
+        evaluator = RemoteEvaluator(
             env_id=config.env_id,
             env_kwargs=config.env_kwargs,
             behaviour=builder.make_behaviour(num_actors=1),
@@ -202,12 +203,13 @@ def train(
         resumed_env_steps = state.env_steps
         segments = _segments(phases, config.num_actors)
         for i in range(config.num_actors):
-            actor = EnvActor.remote(
+            # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
+            actor = EnvActor.remote(  # type: ignore[attr-defined]
                 env_id=config.env_id,
                 num_envs=config.envs_per_actor,
                 seed=config.seed * 1000 + i * config.envs_per_actor,
                 replay=client,
-                broadcaster=broadcaster,
+                weights=publisher.subscriber(),
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
                 env_kwargs=config.env_kwargs,
@@ -216,7 +218,7 @@ def train(
         runs = [a.run.remote(segments) for a in actors]
         logger = MetricsLogger(run_dir)
 
-        def open_stream(phase: Phase) -> Any:
+        def open_stream(phase: Phase) -> SampleStream:
             return client.sample_stream(
                 phase.name, builder.batch_size, prefetch=config.prefetch, **_window(phase)
             )
@@ -248,7 +250,7 @@ def train(
                 algorithm,
                 phases=phases,
                 open_stream=open_stream,
-                broadcaster=broadcaster,
+                publisher=publisher,
                 evaluator=evaluator,
                 logger=logger,
                 checkpoint_dir=run_dir / "checkpoints",
@@ -259,7 +261,7 @@ def train(
             )
             final = loop.run()
             bar.update(final.updates - bar.n)
-        ray.get(broadcaster.stop.remote())
+        publisher.stop()
         actor_reports = ray.get(runs, timeout=120)
         # The learner may stop before it sees the actors' last inserts: count them directly.
         final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)

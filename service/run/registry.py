@@ -25,15 +25,16 @@ def make_builder(config: TrainConfig) -> AgentBuilder:
         updates_per_env_step=config.updates_per_env_step,
         slack_env_steps=config.slack_env_steps,
     )
-    common = {"budget": budget, "seed": config.seed}
     if config.algorithm == "ddqn":
         from learner.dqn.builder import DQNBuilder
 
-        return DQNBuilder(obs_space, action_space, config=config.dqn, **common)
+        return DQNBuilder(
+            obs_space, action_space, config=config.dqn, budget=budget, seed=config.seed
+        )
     # Every other algorithm is TD3 plus something: the TD3 builder checks the spaces.
     from learner.td3.builder import TD3Builder
 
-    td3 = TD3Builder(obs_space, action_space, config=config.td3, **common)
+    td3 = TD3Builder(obs_space, action_space, config=config.td3, budget=budget, seed=config.seed)
     if config.algorithm == "td3":
         return td3
     if config.algorithm == "backbone_td3":

@@ -75,7 +75,7 @@ class ReplayProcess:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
-        if self._log is not subprocess.DEVNULL:
+        if not isinstance(self._log, int):  # an open log file, not subprocess.DEVNULL
             self._log.close()
         self._dir.cleanup()
 
