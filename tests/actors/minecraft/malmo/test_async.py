@@ -159,8 +159,9 @@ def test_a_new_mission_keeps_none_of_the_previous_tick_deadline() -> None:
         fast = MalmoClient("127.0.0.1", server.port, timeout=10, step_timeout=2.0)
         fast.init(flat_mission(ms_per_tick=10))
         fast.reset()
-        # Ticking at 10 ms from its own start, not after the old mission's 4.5 s deadline
-        # (the bound is 200 of its ticks).
-        assert fast.observe().info["TotalTime"] >= 1
+        first = fast.step("")
+        # The next step waits for the next tick: 10 ms after the new mission started, not
+        # at the old mission's 4.5 s deadline (the bound is 200 of its ticks).
+        assert fast.step("").info["TotalTime"] > first.info["TotalTime"]
         fast.close()
         slow.close()
