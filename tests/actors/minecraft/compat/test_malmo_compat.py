@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import json
 import socket
+import subprocess
+import sys
 import threading
 import warnings
 from collections.abc import Callable, Iterator
@@ -25,6 +27,7 @@ import pytest
 
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.malmo.client import MalmoClient, MissionRefused
+from actors.minecraft.sim.pool import free_port_block, wait_ready
 from actors.minecraft.sim.server import WorldServer
 from actors.minecraft.sim.timing import Timing
 
@@ -309,3 +312,35 @@ def test_a_turn_based_step_out_of_turn_is_not_sent(two_servers: list[WorldServer
     assert np.isclose(_z(two_servers[0]), 1.5)  # role 0 moved once, not twice
     for c in clients:
         c.close()
+
+
+def test_two_agents_against_minecraft_serve_with_two_instances() -> None:
+    base = free_port_block(2)
+    root = str(Path(__file__).resolve().parents[4])
+    cmd = [
+        sys.executable, "-m", "actors.minecraft.cli", "minecraft", "serve",
+        "--port", str(base), "--instances", "2", "--loading-s", "0.05", "--ending-s", "0.05",
+    ]  # fmt: skip
+    proc = subprocess.Popen(cmd, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for port in (base, base + 1):
+            wait_ready("127.0.0.1", port)
+        clients = [
+            MalmoClient("127.0.0.1", base + k, role=k, exp_uid="pair", timeout=10) for k in range(2)
+        ]  # role 1 finds role 0 at base + 1 - 1, as Malmo's samples number their ports
+
+        def play(k: int) -> Callable[[], None]:
+            def run() -> None:
+                clients[k].init(TWO_AGENTS)
+                clients[k].reset()
+                assert clients[k].step("move 1").sent
+
+            return run
+
+        _in_threads(play(0), play(1))
+        assert clients[0].step("turn 1").sent  # role 0's second turn: role 1 has moved
+        for c in clients:
+            c.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)
