@@ -25,6 +25,7 @@ from typing import Optional
 
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.malmo.mission import MissionError, parse_mission
+from actors.minecraft.sim import support
 from actors.minecraft.sim.observe import info_json
 from actors.minecraft.sim.render import render
 from actors.minecraft.sim.world import World
@@ -285,6 +286,8 @@ class WorldServer:
         try:
             token = P.Token.parse(token_text)
             mission = parse_mission(xml)
+            for warning in support.check(mission):  # refuses what the simulator lacks
+                log.warning("mission approximated: %s", warning)
             if token.role != 0 or token.agent_count > 1 or mission.agent_count > 1:
                 raise MissionError("multi-agent missions are not simulated (role 0 only)")
         except (P.ProtocolError, MissionError) as e:
