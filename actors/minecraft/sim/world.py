@@ -216,7 +216,8 @@ class World:
         )
         if self.time_limit_ticks is not None and self.tick_count >= self.time_limit_ticks:
             self.request_quit("time up", self.mission.server_quit_description)
-        self.rules.tick(self, self._touching())
+        r = self.mission.rules
+        self.rules.tick(self, self._touching() if r.touch or r.quit_touch else [])
         if not p.alive:
             self.request_quit("player died: " + p.death_cause, AGENT_DIED)
         if self._quits:
