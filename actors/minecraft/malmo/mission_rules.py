@@ -85,6 +85,17 @@ class CommandQuota:
 
 
 @dataclass(frozen=True)
+class CatchRule:
+    """A RewardForCatchingMob or AgentQuitFromCatchingMob ``Mob``: a mob of ``types``
+    trapped anywhere (``everywhere``: the ``global`` attribute) or next to the agent."""
+
+    types: frozenset[str]
+    everywhere: bool = False
+    reward: float = 0.0
+    description: str = ""
+
+
+@dataclass(frozen=True)
 class Rules:
     """Rewards and agent quits of one AgentSection.
 
@@ -99,12 +110,14 @@ class Rules:
         time: RewardForTimeTaken, or None.
         damage: RewardForDamagingEntity (reward per point of damage dealt).
         chat: RewardForSendingMatchingChatMessage (regex, reward).
+        catch: RewardForCatchingMob.
         quit_collect: AgentQuitFromCollectingItem.
         quit_touch: AgentQuitFromTouchingBlockType.
         quit_positions: AgentQuitFromReachingPosition.
         quit_time: AgentQuitFromTimeUp (limit in game ms, description), or None.
         quota_total: AgentQuitFromReachingCommandQuota ``total`` and its description.
         quotas: its per-verb ``Quota`` entries.
+        quit_catch: AgentQuitFromCatchingMob.
     """
 
     collect: tuple[TypedReward, ...] = ()
@@ -117,12 +130,14 @@ class Rules:
     time: Optional[TimeReward] = None
     damage: tuple[TypedReward, ...] = ()
     chat: tuple[tuple[str, float], ...] = ()
+    catch: tuple[CatchRule, ...] = ()
     quit_collect: tuple[TypedQuit, ...] = ()
     quit_touch: tuple[TypedQuit, ...] = ()
     quit_positions: tuple[PositionQuit, ...] = ()
     quit_time: Optional[tuple[float, str]] = None
     quota_total: Optional[tuple[int, str]] = None
     quotas: tuple[CommandQuota, ...] = ()
+    quit_catch: tuple[CatchRule, ...] = ()
 
 
 def _tag(e: ET.Element) -> str:
@@ -173,6 +188,13 @@ def parse_rules(agent_handlers: ET.Element) -> Rules:
             kw["time"] = TimeReward(_f(h, "initialReward"), _f(h, "delta"), h.get("density", ""))
         elif t == "RewardForSendingMatchingChatMessage":
             kw["chat"] = tuple((c.get("regex", ""), _f(c, "reward")) for c in kids)
+        elif t in ("RewardForCatchingMob", "AgentQuitFromCatchingMob"):
+            key = "catch" if t == "RewardForCatchingMob" else "quit_catch"
+            kw[key] = tuple(
+                CatchRule(_types(m), _bool(m, "global", False), _f(m, "reward"),
+                          m.get("description", ""))
+                for m in kids
+            )  # fmt: skip
         elif t in ("AgentQuitFromCollectingItem", "AgentQuitFromTouchingBlockType"):
             key = "quit_collect" if t == "AgentQuitFromCollectingItem" else "quit_touch"
             kw[key] = tuple(TypedQuit(_types(i), i.get("description", "")) for i in kids)

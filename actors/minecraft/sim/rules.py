@@ -14,12 +14,37 @@ import math
 import re
 from typing import TYPE_CHECKING
 
+from actors.minecraft import blocks as B
 from actors.minecraft.malmo.mission_rules import Rules
 
 if TYPE_CHECKING:
     from actors.minecraft.sim.world import World
 
 AGENT_DIED = "MALMO_AGENT_DIED"  # Malmo's quit code when the player dies
+
+
+def trapped(world: World) -> list[tuple[str, tuple[int, int]]]:
+    """Mobs that cannot step away, as Malmo's RewardForCatchingMob sees it: at the
+    agent's height, with no north/south/east/west neighbour that is air and free of a
+    player. Returns (mob name, (x, z) cell) pairs."""
+    b = world.player.body
+    player_cell = (math.floor(b.x), math.floor(b.y), math.floor(b.z))
+    out = []
+    for m in world.mobs:
+        x, y, z = (int(v) for v in (m.body.x, m.body.y, m.body.z))  # Java's (int) casts
+        if y != int(b.y):
+            continue
+        free = any(
+            world.get(x + dx, y, z + dz) == B.AIR and (x + dx, y, z + dz) != player_cell
+            for dx, dz in ((1, 0), (-1, 0), (0, 1), (0, -1))
+        )
+        if not free:
+            out.append((m.name, (math.floor(m.body.x), math.floor(m.body.z))))
+    return out
+
+
+def _next_to(cell: tuple[int, int], here: tuple[int, int]) -> bool:
+    return abs(cell[0] - here[0]) + abs(cell[1] - here[1]) <= 1
 
 
 class RuleState:
@@ -120,10 +145,27 @@ class RuleState:
                 self.time_total += t.delta
                 if t.density == "PER_TICK_ACCUMULATED":
                     world.pending_reward += self.time_total
+        if self.rules.catch or self.rules.quit_catch:
+            self._catching(world)
         if self.rules.quit_time is not None:
             limit, description = self.rules.quit_time
             if world.tick_count * 50.0 >= limit:
                 world.request_quit("agent time up", description)
+
+    def _catching(self, world: World) -> None:
+        """RewardForCatchingMob, every tick a mob stays trapped (Malmo's ``oneshot`` never
+        takes effect), and AgentQuitFromCatchingMob."""
+        caught = trapped(world)
+        b = world.player.body
+        here = (math.floor(b.x), math.floor(b.z))
+        for rule in self.rules.catch:
+            for name, cell in caught:
+                if name in rule.types and (rule.everywhere or _next_to(cell, here)):
+                    world.pending_reward += rule.reward
+        for rule in self.rules.quit_catch:
+            if any(n in rule.types and (rule.everywhere or _next_to(c, here)) for n, c in caught):
+                world.request_quit("caught a mob", rule.description)
+                break
 
     def _touch_applies(self, i: int, cell: tuple[int, int, int], now_ms: float) -> bool:
         behaviour = self.rules.touch[i].behaviour

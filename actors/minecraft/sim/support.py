@@ -30,9 +30,9 @@ IMPLEMENTED: frozenset[str] = frozenset(
     InventoryCommands ChatCommands SimpleCraftCommands MissionQuitCommands TurnBasedCommands
     RewardForTouchingBlockType RewardForSendingCommand RewardForCollectingItem
     RewardForDiscardingItem RewardForReachingPosition RewardForMissionEnd RewardForTimeTaken
-    RewardForDamagingEntity RewardForSendingMatchingChatMessage
+    RewardForDamagingEntity RewardForSendingMatchingChatMessage RewardForCatchingMob
     AgentQuitFromTimeUp AgentQuitFromReachingPosition AgentQuitFromTouchingBlockType
-    AgentQuitFromCollectingItem AgentQuitFromReachingCommandQuota
+    AgentQuitFromCollectingItem AgentQuitFromReachingCommandQuota AgentQuitFromCatchingMob
     """.split()
 )
 
@@ -63,7 +63,6 @@ REFUSED: dict[str, str] = {
     "RewardForCraftingItem": _NOT,
     "RewardForSmeltingItem": _NOT,
     "RewardForStructureCopying": _NOT,
-    "RewardForCatchingMob": _NOT,
     "NearbyCraftCommands": _NOT + " (use SimpleCraftCommands)",
     "NearbySmeltCommands": _NOT + " (use SimpleCraftCommands)",
     "PlaceCommands": _NOT,
@@ -71,7 +70,6 @@ REFUSED: dict[str, str] = {
     "AgentQuitFromPossessingItem": _NOT,
     "AgentQuitFromCraftingItem": _NOT,
     "AgentQuitFromSmeltingItem": _NOT,
-    "AgentQuitFromCatchingMob": _NOT,
 }
 
 
