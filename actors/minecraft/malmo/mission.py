@@ -178,14 +178,6 @@ class Mission:
         """Bytes per pixel of the frame (3, or 4 with depth)."""
         return 4 if self.want_depth else 3
 
-    def handler_for(self, verb: str) -> Optional[Handler]:
-        """The first handler that takes ``verb`` (any case), or None."""
-        v = verb.lower()
-        for h in self.handlers:
-            if h.accepts(v):
-                return h
-        return None
-
     def block_types(self) -> frozenset[str]:
         """Every block type the mission draws."""
         return frozenset(op.type for op in self.drawing if op.kind not in ("item", "entity"))

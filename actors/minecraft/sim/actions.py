@@ -37,7 +37,7 @@ def apply(world: World, command: str) -> None:
         try:
             handled = run(world, h, verb, parameter)
         except (ValueError, IndexError):
-            handled = False  # Malmo: a NumberFormatException, the command is dropped
+            break  # Malmo: a NumberFormatException ends the command's handling
         if handled:
             world.recent_commands.append(f"{verb} {parameter}")
             world.rules.handled(world, verb, parameter)
