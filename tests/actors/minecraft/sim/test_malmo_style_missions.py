@@ -6,11 +6,13 @@ Each runs through a real world server and graft's client."""
 
 from __future__ import annotations
 
+import socket
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from actors.minecraft.malmo import protocol as P
 from actors.minecraft.malmo.client import MalmoClient, MissionRefused, StepResult
 from actors.minecraft.sim.server import WorldServer
 
@@ -62,6 +64,28 @@ def test_missions_with_unimplemented_handlers_are_refused_by_name(
         c.reset()
     assert f"{element} is refused" in str(e.value)
     c.close()
+
+
+def test_schema_invalid_missions_are_refused_at_mission_init(server: WorldServer) -> None:
+    good = (MISSIONS / "lava_bridge.xml").read_text()
+    cases = [
+        (P.mission_init_xml(good.replace("<ObservationFromFullStats/>", "<ObservationFromStats/>"),
+                            "exp"), "unknown element <ObservationFromStats>"),
+        (P.mission_init_xml(good, "exp").replace('PlatformVersion="0.37.0"',
+                                                 'PlatformVersion="0.30.0"'),
+         "version mismatch: got 0.30.0, expected 0.37.0"),
+        (P.mission_init_xml(good.replace('type="lapis_block"/>\n', 'type="lapis"/>\n', 1),
+                            "exp"), "'lapis' is not a Minecraft block type"),
+    ]  # fmt: skip
+    with socket.create_connection(("127.0.0.1", server.port), timeout=10) as s:
+        P.send(s, P.HELLO.encode())
+        for wire, reason in cases:
+            P.send(s, wire.encode(), b"exp:0:1:1")
+            ok, why = P.unpack_int(P.recv(s)), P.recv(s).decode()
+            assert ok == 0 and reason in why, why
+        P.send(s, P.mission_init_xml(good, "exp").encode(), b"exp:0:1:1")
+        assert P.unpack_int(P.recv(s)) == 1  # the same connection, still serving
+        P.recv(s)
 
 
 def test_an_agent_placed_on_a_227_layer_world_stands_on_it(run) -> None:
