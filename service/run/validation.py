@@ -207,8 +207,10 @@ def _import(where: str, module_name: str) -> types.ModuleType:
             "or its folder on import_path?)"
         ) from None
     except Exception as e:  # the user's module itself fails: say where, in one line
-        at = f" ({e.filename}, line {e.lineno})" if isinstance(e, SyntaxError) else ""
-        first = str(e).splitlines()[0] if str(e) else ""
+        if isinstance(e, SyntaxError):
+            at, first = f" ({e.filename}, line {e.lineno})", e.msg
+        else:
+            at, first = "", str(e).splitlines()[0] if str(e) else ""
         raise ConfigError(
             f"{where}: importing {module_name} raised {type(e).__name__}{at}: {first}"
         ) from None
