@@ -3,23 +3,26 @@ queues the commands of a mission without one), small when the agent reads no pix
 
 from __future__ import annotations
 
+import random
+
 import pytest
 
 from actors.minecraft.agent.travel_task import draw_missions, travel_mission_xml
 from actors.minecraft.malmo.client import with_seed
 from actors.minecraft.malmo.mission import parse_mission
 from actors.minecraft.malmo.mission_xml import SAMPLE_PATH, SMALL_VIDEO, mission_xml, obtain_diamond
+from actors.minecraft.sim import worldgen
 from tests.actors.minecraft.conftest import flat_mission
 
 
 def _missions() -> dict[str, str]:
-    travel = draw_missions(3, 1, __import__("random").Random(0))[0]
+    travel = draw_missions(3, 1, random.Random(0), terrain=worldgen.generate(3))[0]
     return {
         "mission_xml()": mission_xml(),
         "mission_xml(width=None)": mission_xml(width=None, height=None),
         "obtain_diamond()": obtain_diamond(),
         "obtain_diamond(pixels=False)": obtain_diamond(pixels=False),
-        "missions/obtain_diamond.xml": SAMPLE_PATH.read_text(),
+        "obtain_diamond.xml": SAMPLE_PATH.read_text(),
         "travel_mission_xml": travel_mission_xml(travel, time_limit_ticks=100),
         "flat_mission()": flat_mission(),
     }
