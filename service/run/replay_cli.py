@@ -117,7 +117,7 @@ def _serve(args: argparse.Namespace) -> None:
             checkpoint_every_s=args.checkpoint_every_s if args.checkpoint_dir else 0.0,
             parent_pid=args.exit_with_parent,
         )
-    except ValueError as error:
+    except (ValueError, OSError) as error:
         raise SystemExit(f"graft replay serve: {error}") from None
 
 

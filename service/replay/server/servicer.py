@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent import futures
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn, Optional
@@ -28,6 +29,7 @@ from service.replay.codec import (
     decode_batch,
     encode_batch,
 )
+from service.replay.server.durability import StorageError
 from service.replay.server.prom import ReplayMetrics
 from service.replay.server.signature import SignatureError
 from service.replay.server.store import ReplayCore, UnknownTable
@@ -47,6 +49,7 @@ _STATUS_OF = (
     (PayloadTooLarge, grpc.StatusCode.RESOURCE_EXHAUSTED),
     (UnknownTable, grpc.StatusCode.NOT_FOUND),
     (RateLimitTimeout, grpc.StatusCode.DEADLINE_EXCEEDED),
+    (StorageError, grpc.StatusCode.UNAVAILABLE),  # e.g. a full disk; a resend may succeed
     ((CodecError, SignatureError, ValueError), grpc.StatusCode.INVALID_ARGUMENT),
 )
 
@@ -149,7 +152,10 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
     def Checkpoint(  # noqa: N802
         self, request: replay_pb2.CheckpointRequest, context: grpc.ServicerContext
     ) -> replay_pb2.CheckpointResponse:
-        path = self.core.checkpoint()
+        try:
+            path = self.core.checkpoint()
+        except Exception as error:
+            self._abort(context, error)
         if path is None:
             context.abort(
                 grpc.StatusCode.FAILED_PRECONDITION,
@@ -306,7 +312,10 @@ def serve_forever(
     parent_pid: Optional[int] = None,
 ) -> None:
     """Runs until SIGTERM/SIGINT (or, with `parent_pid`, until that parent has died), then:
-    health NOT_SERVING, final checkpoint, graceful stop."""
+    health NOT_SERVING, final checkpoint, graceful stop.
+
+    A failed checkpoint is logged and counted, and the next period tries again; the log
+    keeps every insert meanwhile."""
     running = build_server(core, options)
     address = f"{options.host}:{running.port}"
     extra = ""
@@ -325,8 +334,10 @@ def serve_forever(
     if parent_pid is not None:
         threading.Thread(target=_stop_when_orphaned, args=(parent_pid, stop), daemon=True).start()
     while not stop.wait(checkpoint_every_s or None):
-        core.checkpoint()  # periodic; sampling goes on while the file is written
+        with suppress(StorageError):  # logged and counted by the core
+            core.checkpoint()  # periodic; sampling goes on while the file is written
     running.health.enter_graceful_shutdown()
-    core.checkpoint()
+    with suppress(StorageError):
+        core.checkpoint()
     running.server.stop(grace_s).wait()
     core.close()
