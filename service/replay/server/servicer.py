@@ -255,7 +255,7 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
     if o.host not in LOOPBACK_HOSTS and not o.token and not o.insecure:
         raise InsecureBindError(
             f"refusing to bind {o.host}: a non-loopback replay server needs a shared token "
-            "(--token or GRAFT_TOKEN) or an explicit --insecure"
+            "(GRAFT_TOKEN or --token-file) or an explicit --insecure"
         )
     if (o.tls_cert is None) != (o.tls_key is None):
         raise ValueError("TLS needs both a certificate and a key")
@@ -273,7 +273,7 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
     )
     health_servicer = health.HealthServicer()
     health_pb2_grpc.add_HealthServicer_to_server(health_servicer, server)
-    address = f"{o.host}:{o.port}"
+    address = host_port(o.host, o.port)
     if o.tls_cert is not None and o.tls_key is not None:
         credentials = grpc.ssl_server_credentials(
             [(Path(o.tls_key).read_bytes(), Path(o.tls_cert).read_bytes())]
@@ -287,6 +287,12 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
     for name in ("", SERVICE_NAME):
         health_servicer.set(name, health_pb2.HealthCheckResponse.SERVING)
     return RunningServer(server, port, health_servicer, metrics)
+
+
+def host_port(host: str, port: int) -> str:
+    """`host:port`, with an IPv6 literal in brackets (`[::1]:9100`)."""
+    host = host.strip("[]")
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
 def _stop_when_orphaned(parent_pid: int, stop: threading.Event, poll_s: float = 1.0) -> None:
@@ -307,6 +313,7 @@ def serve_forever(
     *,
     ready_file: Optional[str] = None,
     metrics_port: Optional[int] = None,
+    metrics_host: str = "127.0.0.1",
     checkpoint_every_s: float = 0.0,
     grace_s: float = 5.0,
     parent_pid: Optional[int] = None,
@@ -314,14 +321,15 @@ def serve_forever(
     """Runs until SIGTERM/SIGINT (or, with `parent_pid`, until that parent has died), then:
     health NOT_SERVING, final checkpoint, graceful stop.
 
-    A failed checkpoint is logged and counted, and the next period tries again; the log
-    keeps every insert meanwhile."""
+    The metrics endpoint answers without a token, so it binds `metrics_host` (loopback
+    unless told otherwise), whatever `options.host` is. A failed checkpoint is logged and
+    counted, and the next period tries again; the log keeps every insert meanwhile."""
     running = build_server(core, options)
-    address = f"{options.host}:{running.port}"
+    address = host_port(options.host, running.port)
     extra = ""
     if metrics_port is not None:
-        bound = running.metrics.serve(metrics_port, options.host)
-        extra = f", metrics on http://{options.host}:{bound}/metrics"
+        bound = running.metrics.serve(metrics_port, metrics_host.strip("[]"))
+        extra = f", metrics on http://{host_port(metrics_host, bound)}/metrics"
     print(f"replay server listening on {address}{extra}", flush=True)
     log.info("tables: %s", sorted(core.tables))
     if ready_file:
