@@ -134,11 +134,12 @@ class Segment:
     `warmup_steps` of them with the behaviour's warm-up policy.
 
     `pending_inserts` insert batches may wait for the background writer while acting goes
-    on; with more, acting waits. 0 waits for each insert to be stored: a table whose
-    rate limiter holds a samples-per-insert ratio then paces acting batch by batch, as
-    it must (a queue would let the actor act ahead with ever older weights). Tables that
-    never hold inserts back (`min_size`) can take a queue, so a real-time actor never
-    waits on the network.
+    on; with more, acting waits (back-pressure: no batch is dropped). 0 waits for each
+    insert to be stored: a table whose rate limiter holds a samples-per-insert ratio then
+    paces acting batch by batch, as it must (with a queue the actor would act that many
+    batches ahead of what the limiter admitted, with older weights). Tables that never
+    hold inserts back (`min_size`) can take a queue, so a real-time actor never waits on
+    the network.
     """
 
     table: str
