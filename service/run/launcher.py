@@ -128,10 +128,21 @@ def _resumed_phases(phases: list[Phase], state: LoopState, config: TrainConfig) 
     ]
 
 
+PENDING_INSERTS = 8
+"""Insert batches an actor may queue for a table that never holds inserts back."""
+
+
 def _segments(phases: list[Phase], num_actors: int) -> list[Segment]:
-    """Each actor's share of every phase's env steps (rounded up)."""
+    """Each actor's share of every phase's env steps (rounded up). A phase whose table
+    holds a samples-per-insert ratio has each insert waited for, so the rate limiter
+    paces acting; a `min_size` table takes a queue of inserts."""
     return [
-        Segment(p.name, -(-p.env_steps // num_actors), -(-p.warmup_steps // num_actors))
+        Segment(
+            p.name,
+            -(-p.env_steps // num_actors),
+            -(-p.warmup_steps // num_actors),
+            pending_inserts=0 if p.samples_per_insert is not None else PENDING_INSERTS,
+        )
         for p in phases
         if p.env_steps > 0
     ]

@@ -258,7 +258,7 @@ class MinecraftTravelEnv(gym.Env):
         self.reward_fn.reset(route_to_go(self.mission.route, p.x, p.y, p.z))
         self._percept, self._ticks = None, 0
         obs = self._observe(p)
-        return obs, {"phi": self.reward_fn.phi}
+        return obs, {"phi": self.reward_fn.phi, "tick": p.tick}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         assert self.mission is not None and self._client is not None
@@ -289,6 +289,8 @@ class MinecraftTravelEnv(gym.Env):
             "died": died,
             "ticks": self._ticks,
         }
+        if reply.info:
+            info["tick"] = p.tick  # the world's clock: an actor meters the ticks skipped
         return obs, float(reward), bool(terminated), bool(truncated), info
 
     def _ended(self, p: Percept) -> bool:

@@ -11,9 +11,9 @@ from __future__ import annotations
 import time
 
 from actors.minecraft.malmo.client import MalmoClient
-from actors.minecraft.metrics import TickMeter
 from actors.minecraft.sim.server import WorldServer
 from actors.minecraft.sim.timing import IDEAL
+from actors.tick_meter import TickMeter
 from tests.actors.minecraft.conftest import flat_mission
 
 TOUCH_GRASS = (
@@ -138,15 +138,15 @@ def test_time_limit_ends_the_mission(sync_client) -> None:
 
 def test_tick_meter_counts_skips_of_a_slow_actor(server: WorldServer) -> None:
     c = _async_client(server, ms_per_tick=10)
-    fast, slow = TickMeter(), TickMeter()
+    fast, slow = TickMeter(1), TickMeter(1)
     for _ in range(10):
         t0 = time.perf_counter()
         r = c.step("")
         if r.info:  # frames come faster than ticks: some steps bring no observation
-            fast.observe(r.info["TotalTime"], time.perf_counter() - t0)
+            fast.step(0, r.info["TotalTime"], time.perf_counter() - t0)
     for _ in range(5):
         time.sleep(0.05)  # "training inside the acting loop"
-        slow.observe(c.step("").info["TotalTime"])
+        slow.step(0, c.step("").info["TotalTime"], 0.05)
     assert fast.skipped_fraction() < 0.5 < slow.skipped_fraction()
     assert fast.metrics()["perf/step_latency_ms_p50"] < 1000
     c.close()
