@@ -21,13 +21,14 @@ from actors.env_actor import EnvActor, Segment, VectorStepper
 from actors.minecraft.agent.mission_env import ACTION_SPACE, ENV_ID, observation_space
 from actors.minecraft.malmo.mission import parse_mission
 from actors.minecraft.sim.pool import ServerPool
+from actors.minecraft.sim.timing import IDEAL
 from actors.policies import gaussian_log_prob
 from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network
 from learner.td3.config import TD3Config
 from service.replay.client import ReplayClient
 from service.run.replay_process import ReplayProcess
-from service.weights import WeightBroadcaster
+from service.weights import WeightBroadcaster, WeightSubscriber
 from tests.actors.minecraft.conftest import flat_mission
 
 MISSION = flat_mission(grid_radius=1, ms_per_tick=20)
@@ -56,7 +57,8 @@ def wait_for(predicate: Callable[[], bool], timeout: float = 30.0, what: str = "
 
 @pytest.fixture
 def world() -> Iterator[ServerPool]:
-    with ServerPool(1, base_port=0, seed=5, ms_per_tick=20) as pool:
+    # Ideal timing: every step brings one tick, so the counts below are exact.
+    with ServerPool(1, base_port=0, seed=5, ms_per_tick=20, timing=IDEAL) as pool:
         yield pool
 
 
@@ -71,7 +73,7 @@ def replay() -> Iterator[ReplayClient]:
 
 def make_actor(port: int, replay: ReplayClient, broadcaster: Any, *, seed: int) -> Any:
     return EnvActor.remote(
-        env_id=ENV_ID, num_envs=1, seed=seed, replay=replay, broadcaster=broadcaster,
+        env_id=ENV_ID, num_envs=1, seed=seed, replay=replay, weights=WeightSubscriber(broadcaster),
         behaviour=behaviour(), steps_per_insert=8, env_kwargs=env_kwargs(port), nice=0,
     )  # fmt: skip
 

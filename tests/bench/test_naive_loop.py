@@ -9,6 +9,7 @@ from pathlib import Path
 
 from actors.minecraft.agent.mission_env import ENV_ID
 from actors.minecraft.sim.server import WorldServer
+from actors.minecraft.sim.timing import IDEAL
 from learner.td3.config import TD3Config
 from tests.actors.minecraft.conftest import flat_mission
 
@@ -20,7 +21,8 @@ _spec.loader.exec_module(naive_loop)
 
 
 def test_naive_loop_trains_between_steps() -> None:
-    with WorldServer(port=0, seed=7, ms_per_tick=20) as server:
+    # Ideal timing: one observation per step, so every step's tick is metered.
+    with WorldServer(port=0, seed=7, ms_per_tick=20, timing=IDEAL) as server:
         loop = naive_loop.NaiveLoop(
             env_id=ENV_ID,
             env_kwargs={

@@ -15,7 +15,7 @@ import pytest
 
 from service.replay.client import ReplayClient, Unauthenticated, Unavailable
 from service.run.replay_process import ReplayProcess
-from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch
+from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch, self_signed_cert
 
 TABLE = [{"name": "t", "max_size": 100, "signature": SCALAR_SIGNATURE}]
 TOKEN = "graft-test-secret-3f9c1d"
@@ -96,13 +96,7 @@ def test_wait_until_ready_honours_the_token():
 
 
 def test_wait_until_ready_honours_tls(tmp_path):
-    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
-    subprocess.run(
-        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
-         "-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1",
-         "-keyout", str(key), "-out", str(cert)],
-        check=True, capture_output=True,
-    )  # fmt: skip
+    cert, key = self_signed_cert(tmp_path)
     with ReplayProcess(TABLE, extra_args=["--tls-cert", str(cert), "--tls-key", str(key)]) as s:
         ReplayClient(s.address, tls_root_cert=str(cert)).wait_until_ready(timeout=10)
         with pytest.raises(Unavailable):
