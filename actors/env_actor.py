@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import ray
 import torch
 
 from actors.behaviours.base import Behaviour
+from actors.task import EnvSpec
 from service.replay.client import ReplayClient
 from service.weights import WeightSubscriber
 
@@ -28,11 +28,9 @@ class VectorStepper:
     `obs` (the final observation of an episode, never the first of the next one).
     """
 
-    def __init__(
-        self, env_id: str, n: int, seed: int, env_kwargs: Optional[dict[str, Any]] = None
-    ) -> None:
-        self.envs = [gym.make(env_id, **(env_kwargs or {})) for _ in range(n)]
-        self.obs = np.stack([env.reset(seed=seed + i)[0] for i, env in enumerate(self.envs)])
+    def __init__(self, env: EnvSpec, n: int, seed: int) -> None:
+        self.envs = [env.make() for _ in range(n)]
+        self.obs = np.stack([e.reset(seed=seed + i)[0] for i, e in enumerate(self.envs)])
         self.episode_returns = np.zeros(n)
         self.finished_returns: list[float] = []
 
@@ -77,17 +75,16 @@ class EnvActor:
     def __init__(
         self,
         *,
-        env_id: str,
+        env: EnvSpec,
         num_envs: int,
         seed: int,
         replay: ReplayClient,
         broadcaster: Any,
         behaviour: Behaviour,
         steps_per_insert: int,
-        env_kwargs: Optional[dict[str, Any]] = None,
     ) -> None:
         torch.set_num_threads(1)
-        self.stepper = VectorStepper(env_id, num_envs, seed, env_kwargs)
+        self.stepper = VectorStepper(env, num_envs, seed)
         self.rng = np.random.default_rng(seed)
         self.replay = replay
         self.weights = WeightSubscriber(broadcaster)

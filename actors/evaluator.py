@@ -9,7 +9,7 @@ return does not depend on how many environments run at once.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Optional
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -18,6 +18,7 @@ import torch
 
 from actors.behaviours.base import Behaviour
 from actors.policies import UniformRandomPolicy
+from actors.task import EnvSpec
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """A batched policy: observations [B, *obs_shape] -> actions [B, *action_shape]."""
@@ -26,11 +27,10 @@ Policy = Callable[[np.ndarray], np.ndarray]
 def run_episodes(
     policy: Policy,
     *,
-    env_id: str = "Pendulum-v1",
+    env: EnvSpec | str = "Pendulum-v1",
     episodes: int = 100,
     seed: int = 0,
     num_envs: int | None = None,
-    env_kwargs: dict[str, Any] | None = None,
 ) -> np.ndarray:
     """Runs full episodes and returns their undiscounted returns.
 
@@ -40,11 +40,10 @@ def run_episodes(
 
     Args:
         policy: Batched policy; called with [B, *obs_shape], must return [B, ...].
-        env_id: Gymnasium environment id.
+        env: The task's environment (a run config's ``env_spec()``), or a gymnasium id.
         episodes: Number of episodes to run.
         seed: Episode ``i`` is reset with ``seed + i``.
         num_envs: Environments stepped side by side; all ``episodes`` at once when None.
-        env_kwargs: Keyword arguments for ``gym.make`` (the run config's ``env_kwargs``).
 
     Returns:
         float64 returns of shape [episodes], in episode order.
@@ -60,7 +59,8 @@ def run_episodes(
         raise ValueError(f"num_envs={num_envs} must be >= 1")
     num_envs = min(num_envs, episodes)
 
-    envs = [gym.make(env_id, **(env_kwargs or {})) for _ in range(num_envs)]
+    spec = EnvSpec(env) if isinstance(env, str) else env
+    envs = [spec.make() for _ in range(num_envs)]
     returns = np.zeros(episodes, dtype=np.float64)
     episode_of = list(range(num_envs))  # episode each env is running; -1 when idle
     obs = [envs[k].reset(seed=seed + k)[0] for k in range(num_envs)]
@@ -86,31 +86,43 @@ def run_episodes(
                     else:
                         episode_of[k] = -1
     finally:
-        for env in envs:
-            env.close()
+        for made in envs:
+            made.close()
     return returns
 
 
-def random_policy_for(env_id: str, *, seed: int = 0) -> Policy:
-    """Returns a uniform random batched policy over an environment's Box action space.
+def random_policy_for(env: EnvSpec | str, *, seed: int = 0) -> Policy:
+    """Returns a uniform random batched policy over an environment's action space.
 
     Args:
-        env_id: Gymnasium environment id with a bounded ``Box`` action space.
+        env: The environment (or its gymnasium id), with a bounded ``Box`` or a
+            ``Discrete`` action space.
         seed: Seed of the policy's own random generator.
 
     Returns:
-        A policy mapping [B, *obs_shape] to float32 actions [B, *action_shape].
+        A policy mapping [B, *obs_shape] to actions [B, *action_shape] (float32 in a Box,
+        int64 in a Discrete space).
 
     Raises:
-        ValueError: If the action space is not a bounded Box.
+        ValueError: If the action space is neither a bounded Box nor Discrete.
     """
-    env = gym.make(env_id)
-    space = env.action_space
-    env.close()
-    if not isinstance(space, gym.spaces.Box):
-        raise ValueError(f"{env_id} has action space {space}; random_policy_for needs a Box")
-    uniform = UniformRandomPolicy(space.low.reshape(-1), space.high.reshape(-1))
+    spec = EnvSpec(env) if isinstance(env, str) else env
+    made = spec.make()
+    space = made.action_space
+    made.close()
     rng = np.random.default_rng(seed)
+    if isinstance(space, gym.spaces.Discrete):
+        n, start = int(space.n), int(space.start)
+
+        def discrete(obs: np.ndarray) -> np.ndarray:
+            return rng.integers(start, start + n, size=len(obs), dtype=np.int64)
+
+        return discrete
+    if not isinstance(space, gym.spaces.Box):
+        raise ValueError(
+            f"{spec.env_id} has action space {space}; random_policy_for needs a Box or Discrete"
+        )
+    uniform = UniformRandomPolicy(space.low.reshape(-1), space.high.reshape(-1))
 
     def policy(obs: np.ndarray) -> np.ndarray:
         action, _ = uniform.sample(len(obs), rng)
@@ -123,16 +135,9 @@ def random_policy_for(env_id: str, *, seed: int = 0) -> Policy:
 class Evaluator:
     """Runs `episodes` deterministic episodes of a behaviour's greedy policy (no exploration)."""
 
-    def __init__(
-        self,
-        *,
-        env_id: str,
-        behaviour: Behaviour,
-        seed: int,
-        env_kwargs: Optional[dict[str, Any]] = None,
-    ) -> None:
+    def __init__(self, *, env: EnvSpec, behaviour: Behaviour, seed: int) -> None:
         torch.set_num_threads(1)
-        self.env_id, self.seed, self.env_kwargs = env_id, seed, env_kwargs
+        self.env, self.seed = env, seed
         self.behaviour = behaviour
 
     def evaluate(
@@ -146,11 +151,7 @@ class Evaluator:
         self.behaviour.load(weights)
         self.behaviour.stats()  # drop anything counted before these weights
         returns = run_episodes(
-            self.behaviour.greedy,
-            env_id=self.env_id,
-            episodes=episodes,
-            seed=self.seed,
-            env_kwargs=self.env_kwargs,
+            self.behaviour.greedy, env=self.env, episodes=episodes, seed=self.seed
         )
         return {
             "tag": tag,

@@ -19,7 +19,7 @@ from torch import nn
 
 from actors.behaviours.base import Columns
 from actors.behaviours.gaussian import box_column
-from actors.behaviours.hardcoded import HardCodedPolicy
+from actors.hardcoded import HardCodedPolicy
 from actors.policies import gaussian_log_prob
 
 

@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 from actors.behaviours.base import Columns
-from actors.behaviours.hardcoded import HardCodedPolicy
+from actors.hardcoded import HardCodedPolicy
 from actors.policies import GaussianExploration, UniformRandomPolicy
 
 

@@ -19,7 +19,7 @@ from torch import nn
 from actors.behaviours.base import Columns
 from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
 from actors.behaviours.gaussian import box_column
-from actors.behaviours.hardcoded import HardCodedPolicy
+from actors.hardcoded import HardCodedPolicy
 from actors.policies import GaussianExploration, UniformRandomPolicy
 
 HARDCODED, RL = 0, 1

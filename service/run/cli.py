@@ -6,18 +6,22 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from service.run.figures import FIGURES
 from service.run.replay_cli import add_replay_commands
 
+if TYPE_CHECKING:
+    from service.run.config import TrainConfig
+
+DEFAULT_PRESET = "pendulum-td3"
+
 
 def _train(args: argparse.Namespace) -> None:
-    from service.run.config import load_preset
-    from service.run.launcher import train
+    from service.run.api import train
 
     try:
-        config = load_preset(args.preset, **_train_overrides(args))
+        config = _train_config(args)
     except ValueError as error:
         raise SystemExit(f"graft train: {error}") from None
     result = train(
@@ -40,6 +44,19 @@ def _train(args: argparse.Namespace) -> None:
     )
     print(f"actors adopted weight versions up to {s['actor_last_version']}")
     print(f"learning curve: {result.run_dir / 'learning_curve.png'}")
+
+
+def _train_config(args: argparse.Namespace) -> TrainConfig:
+    """The preset with the flags' overrides; resuming without --preset, the config the run
+    folder recorded (whatever preset or YAML file it came from)."""
+    from service.run.config import config_from_data, load_preset
+    from service.run.trained import run_config
+
+    overrides = _train_overrides(args)
+    recorded = args.run_dir is not None and (args.run_dir / "config.yaml").is_file()
+    if args.preset is None and args.resume and recorded:
+        return config_from_data(run_config(args.run_dir).to_dict(), **overrides)
+    return load_preset(args.preset or DEFAULT_PRESET, **overrides)
 
 
 def _train_overrides(args: argparse.Namespace) -> dict[str, object]:
@@ -72,54 +89,39 @@ def parse_settings(pairs: list[str]) -> dict[str, object]:
 
 
 def _eval(args: argparse.Namespace) -> None:
-    import numpy as np
-
-    from actors.evaluator import random_policy_for, run_episodes
-
-    env_id, env_kwargs = args.env_id or "Pendulum-v1", None
-    if args.policy == "hardcoded":
-        if env_id != "Pendulum-v1":
-            raise SystemExit("graft eval: the hard-coded policy is for Pendulum-v1")
-        from actors.trees.pendulum import HardCodedPendulumPolicy
-
-        policy = HardCodedPendulumPolicy()
-    elif args.policy == "random":
-        policy = random_policy_for(env_id, seed=args.seed)
-    else:
-        policy, config = _checkpoint_policy(Path(args.policy), args.env_id)
-        env_id, env_kwargs = config.env_id, config.env_kwargs
-    returns = run_episodes(
-        policy, env_id=env_id, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs
-    )
-    result = {
-        "policy": args.policy,
-        "env_id": env_id,
-        "episodes": args.episodes,
-        "mean": float(np.mean(returns)),
-        "std": float(np.std(returns)),
-    }
-    print(
-        json.dumps(result)
-        if args.json
-        else f"{args.policy} on {env_id}: mean return {result['mean']:.1f} ± "
-        f"{result['std']:.1f} over {args.episodes} episodes"
-    )
-
-
-def _checkpoint_policy(path: Path, env_id: Optional[str]):
-    """The greedy policy of a run folder or checkpoint file (any algorithm), and its config."""
-    from service.run.trained import load_behaviour
+    from service.run.api import evaluate, load_policy
+    from service.run.config import load_preset
 
     try:
-        behaviour, config = load_behaviour(path)
+        task = load_preset(args.preset or DEFAULT_PRESET)
+        if args.policy == "random" and args.env_id:
+            task = load_preset(args.preset or DEFAULT_PRESET, env_id=args.env_id)
+        policy = load_policy(args.policy, preset=task)
     except FileNotFoundError as error:
         raise SystemExit(
             f"graft eval: {error}; --policy takes 'hardcoded', 'random', a run folder or a "
             "checkpoint"
         ) from None
-    if env_id not in (None, config.env_id):
-        raise SystemExit(f"graft eval: {path} was trained on {config.env_id}, not {env_id}")
-    return behaviour.greedy, config
+    except ValueError as error:
+        raise SystemExit(f"graft eval: {error}") from None
+    env_id = policy.env.env_id
+    if args.env_id not in (None, env_id):
+        what = "was trained on" if args.policy not in ("hardcoded", "random") else "acts in"
+        raise SystemExit(f"graft eval: {args.policy} {what} {env_id}, not {args.env_id}")
+    result = evaluate(policy, episodes=args.episodes, seed=args.seed)
+    out = {
+        "policy": args.policy,
+        "env_id": env_id,
+        "episodes": args.episodes,
+        "mean": result.mean,
+        "std": result.std,
+    }
+    print(
+        json.dumps(out)
+        if args.json
+        else f"{args.policy} on {env_id}: mean return {out['mean']:.1f} ± "
+        f"{out['std']:.1f} over {args.episodes} episodes"
+    )
 
 
 def _experiment(args: argparse.Namespace) -> None:
@@ -158,7 +160,10 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
 
     train = commands.add_parser("train", help="train a preset on a Ray cluster")
-    train.add_argument("--preset", default="pendulum-td3")
+    train.add_argument(
+        "--preset",
+        help=f"a preset name or YAML path (default {DEFAULT_PRESET}; with --resume, the run's)",
+    )
     train.add_argument(
         "--actors",
         "--clients",
@@ -191,7 +196,11 @@ def build_parser() -> argparse.ArgumentParser:
         default="hardcoded",
         help="'hardcoded', 'random', or a run folder / checkpoint path",
     )
-    evaluate.add_argument("--env-id", help="default: the run's env, or Pendulum-v1")
+    evaluate.add_argument(
+        "--preset",
+        help="the task (name or YAML path) of 'hardcoded' and 'random' (default pendulum-td3)",
+    )
+    evaluate.add_argument("--env-id", help="default: the run's or the preset's environment")
     evaluate.add_argument("--episodes", type=int, default=100)
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--json", action="store_true")

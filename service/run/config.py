@@ -6,10 +6,11 @@ import dataclasses
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import yaml
 
+from actors.task import EnvSpec, split_import_string
 from learner.backbone.config import BackboneConfig
 from learner.dqn.config import DQNConfig
 from learner.options.config import OptionsConfig
@@ -33,10 +34,20 @@ class TrainConfig:
     preset: str
     """Name of the preset this run came from."""
     env_id: str = "Pendulum-v1"
-    """Gymnasium environment id the actors step."""
+    """The environment: a gymnasium id (``Pendulum-v1``, ``package.module:Env-v0``) or an
+    import string ``package.module:Factory`` naming a ``gym.Env`` class or a function."""
     env_kwargs: dict[str, Any] = field(default_factory=dict)
-    """Keyword arguments of ``gym.make(env_id, ...)`` (e.g. ``ticks_per_step`` of the
-    Minecraft travel task); set one with ``--set env_kwargs.NAME=VALUE``."""
+    """Keyword arguments of ``gym.make(env_id, ...)`` or of the factory (e.g.
+    ``ticks_per_step`` of the Minecraft travel task); ``--set env_kwargs.NAME=VALUE``."""
+    obs_wrapper: Optional[str] = None
+    """Import string of a gymnasium wrapper (or function env -> env) applied to every
+    environment: how Dict, tuple or image observations become a flat Box."""
+    hardcoded_policy: Optional[str] = None
+    """Import string ``package.module:factory`` of the hard-coded policy (a py_trees tree or
+    a callable) that backbone_td3, pretrain_td3 and options improve."""
+    import_path: list[str] = field(default_factory=list)
+    """Folders put first on ``sys.path`` in this process and every actor before the import
+    strings are resolved (default: the preset file's folder and the working directory)."""
     algorithm: str = "td3"
     """Learning algorithm: td3, ddqn, backbone_td3, pretrain_td3 or options."""
     env_steps: int = 20_000
@@ -111,6 +122,14 @@ class TrainConfig:
             raise ValueError(f"keep_checkpoints={self.keep_checkpoints} must be >= 0 (0: all)")
         if not isinstance(self.env_kwargs, dict):
             raise ValueError(f"env_kwargs={self.env_kwargs!r} must be a mapping of name: value")
+        for name in ("obs_wrapper", "hardcoded_policy"):
+            value = getattr(self, name)
+            if value is not None:
+                split_import_string(value, name)
+        if not isinstance(self.import_path, list) or not all(
+            isinstance(p, str) for p in self.import_path
+        ):
+            raise ValueError(f"import_path={self.import_path!r} must be a list of folders")
 
     @property
     def online_env_steps(self) -> int:
@@ -121,21 +140,23 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def env_spec(self) -> EnvSpec:
+        """The task's environment as strings, for actors and the evaluator to build."""
+        return EnvSpec(
+            self.env_id, dict(self.env_kwargs), self.obs_wrapper, tuple(self.import_path)
+        )
+
     def make_env(self) -> Any:
-        """``gym.make(env_id, **env_kwargs)``.
+        """One environment of the task (``env_id`` with ``env_kwargs``, then ``obs_wrapper``).
 
         Raises:
-            ValueError: the environment refused ``env_kwargs`` (names the keys).
+            ValueError: an id or import string that does not resolve, or ``env_kwargs`` the
+                environment refuses (names the keys).
         """
-        import gymnasium as gym
-
         try:
-            return gym.make(self.env_id, **self.env_kwargs)
-        except TypeError as e:
-            raise ValueError(
-                f"preset {self.preset}: env_kwargs {sorted(self.env_kwargs)} rejected by "
-                f"{self.env_id}: {e}"
-            ) from e
+            return self.env_spec().make()
+        except ValueError as error:
+            raise ValueError(f"preset {self.preset}: {error}") from None
 
 
 def _build(cls: type, data: dict[str, Any], where: str) -> Any:
@@ -153,11 +174,14 @@ def preset_names() -> list[str]:
     )
 
 
-def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
+def load_preset(name_or_path: str | Path, **overrides: Any) -> TrainConfig:
     """Reads a preset by name (service/run/presets/NAME.yaml) or path; `overrides` win.
 
     An override key "section.field" (e.g. "pretrain.demo_noise") sets one field of a
-    section; pass such keys with `**{"pretrain.demo_noise": 0.1}`.
+    section; pass such keys with `**{"pretrain.demo_noise": 0.1}`, or a mapping for the
+    section (`td3={"batch_size": 64}`) to set several. A preset given by path puts its
+    folder (and the working directory) on the import path, where its import strings'
+    modules are found; relative ``import_path`` entries count from the preset's folder.
 
     Raises:
         ValueError: unknown preset or keys, or values a run cannot use.
@@ -167,22 +191,44 @@ def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
         candidate = resources.files("service.run") / "presets" / f"{name_or_path}.yaml"
         if not candidate.is_file():
             raise ValueError(f"unknown preset {name_or_path!r}; presets: {preset_names()}")
-        text, name = candidate.read_text(), name_or_path
+        text, name, folder = candidate.read_text(), str(name_or_path), None
     else:
-        text, name = path.read_text(), path.stem
+        text, name, folder = path.read_text(), path.stem, path.resolve().parent
     data = yaml.safe_load(text) or {}
+    data.setdefault("preset", name)
+    base = folder if folder is not None else Path.cwd()
+    search = [str((base / p).resolve()) for p in data.get("import_path") or []]
+    defaults = [str(folder)] if folder is not None else []
+    data["import_path"] = _unique(search + defaults + [str(Path.cwd())])
+    return config_from_data(data, **overrides)
+
+
+def config_from_data(data: dict[str, Any], **overrides: Any) -> TrainConfig:
+    """A config from parsed preset data (e.g. a run folder's config.yaml); `overrides` as
+    in `load_preset`. A ``versions`` record in the data is ignored.
+
+    Raises:
+        ValueError: unknown keys, or values a run cannot use.
+    """
+    data = {k: v for k, v in data.items() if k != "versions"}
+    name = data.get("preset", "?")
     for key, value in overrides.items():
         if value is None:
             continue
         section, _, field_name = key.rpartition(".")  # "pretrain.demo_noise" -> section
         if section:
             data[section] = {**(data.get(section) or {}), field_name: value}
+        elif key in SECTIONS and isinstance(value, dict):
+            data[key] = {**(data.get(key) or {}), **value}
         else:
             data[key] = value
-    data.setdefault("preset", name)
     for key, cls in SECTIONS.items():
-        section = data.pop(key, {}) or {}
-        if not isinstance(section, cls):
-            section = _build(cls, section, f"preset {name}: {key}")
-        data[key] = section
+        values = data.pop(key, {}) or {}
+        data[key] = (
+            values if isinstance(values, cls) else _build(cls, values, f"preset {name}: {key}")
+        )
     return _build(TrainConfig, data, f"preset {name}")
+
+
+def _unique(items: list[str]) -> list[str]:
+    return list(dict.fromkeys(items))

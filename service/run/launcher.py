@@ -23,7 +23,6 @@ from typing import Any, Optional
 
 import ray
 import torch
-import yaml
 from tqdm import tqdm
 
 from actors.env_actor import EnvActor, Segment
@@ -35,6 +34,7 @@ from learner.loop import LearnerLoop, LoopSettings, LoopState
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
 from service.run.config import TrainConfig
+from service.run.provenance import config_record
 from service.run.registry import make_builder
 from service.run.replay_process import ReplayProcess
 from service.weights import WeightBroadcaster
@@ -164,11 +164,11 @@ def train(
 ) -> RunResult:
     """Runs one preset end to end and writes the run folder."""
     run_dir = Path(run_dir) if run_dir else default_run_dir(config)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
     start = time.perf_counter()
-    builder = make_builder(config)
+    builder = make_builder(config)  # imports the task, refusing what the method cannot use
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(config_record(config))
     behaviour = builder.make_behaviour(num_actors=config.num_actors)
     signature = _signature(config, behaviour)
     algorithm = builder.make_learner()
@@ -194,8 +194,7 @@ def train(
         client = ReplayClient(connect_to, token=token)
         broadcaster = WeightBroadcaster.remote()
         evaluator = Evaluator.remote(
-            env_id=config.env_id,
-            env_kwargs=config.env_kwargs,
+            env=config.env_spec(),
             behaviour=builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
         )
@@ -203,14 +202,13 @@ def train(
         segments = _segments(phases, config.num_actors)
         for i in range(config.num_actors):
             actor = EnvActor.remote(
-                env_id=config.env_id,
+                env=config.env_spec(),
                 num_envs=config.envs_per_actor,
                 seed=config.seed * 1000 + i * config.envs_per_actor,
                 replay=client,
                 broadcaster=broadcaster,
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
-                env_kwargs=config.env_kwargs,
             )
             actors.append(actor)
         runs = [a.run.remote(segments) for a in actors]

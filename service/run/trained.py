@@ -6,11 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from service.run.config import TrainConfig, load_preset
+from service.run.config import TrainConfig, config_from_data
 
 
 def run_config(run_dir: Path) -> TrainConfig:
-    """The config a run folder was trained with.
+    """The config a run folder was trained with, read from the folder alone (whatever
+    preset or YAML file it came from; its import path is recorded there).
 
     Raises:
         FileNotFoundError: ``run_dir`` has no config.yaml.
@@ -21,7 +22,7 @@ def run_config(run_dir: Path) -> TrainConfig:
     if not path.is_file():
         raise FileNotFoundError(f"{run_dir} is not a run folder: no config.yaml")
     data = yaml.safe_load(path.read_text()) or {}
-    return load_preset(data.pop("preset"), **data)
+    return config_from_data(data)
 
 
 def load_behaviour(path: Path) -> tuple[Any, TrainConfig]:
