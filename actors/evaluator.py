@@ -4,11 +4,16 @@ scores published weights with them.
 Episodes are stepped side by side in plain gymnasium environments with our own loop
 (no vector-env autoreset), so episode ``i`` is always seeded with ``seed + i`` and its
 return does not depend on how many environments run at once.
+
+An environment reports metrics of its own in the ``info`` of an episode's last step,
+``info["episode_metrics"] = {"success": 1.0, ...}``: each evaluation logs their means over
+its episodes as ``eval/<name>`` beside the return.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
@@ -23,6 +28,24 @@ from actors.task import EnvSpec
 Policy = Callable[[np.ndarray], np.ndarray]
 """A batched policy: observations [B, *obs_shape] -> actions [B, *action_shape]."""
 
+EPISODE_METRICS = "episode_metrics"
+"""``info`` key of the last step of an episode: the environment's own metrics, {name: float}."""
+
+
+@dataclass(frozen=True)
+class Episodes:
+    """What a batch of episodes gave: their returns and the environment's own metrics."""
+
+    returns: np.ndarray
+    """Undiscounted returns, float64 [episodes], in episode order."""
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)
+    """``info["episode_metrics"]`` of each episode's last step, by name: float64
+    [episodes] (NaN for an episode that did not report the metric)."""
+
+    def metric_means(self) -> dict[str, float]:
+        """Each metric's mean over the episodes that reported it."""
+        return {name: float(np.nanmean(values)) for name, values in self.metrics.items()}
+
 
 def run_episodes(
     policy: Policy,
@@ -32,7 +55,19 @@ def run_episodes(
     seed: int = 0,
     num_envs: int | None = None,
 ) -> np.ndarray:
-    """Runs full episodes and returns their undiscounted returns.
+    """Runs full episodes and returns their undiscounted returns (`play_episodes`' returns)."""
+    return play_episodes(policy, env=env, episodes=episodes, seed=seed, num_envs=num_envs).returns
+
+
+def play_episodes(
+    policy: Policy,
+    *,
+    env: EnvSpec | str = "Pendulum-v1",
+    episodes: int = 100,
+    seed: int = 0,
+    num_envs: int | None = None,
+) -> Episodes:
+    """Runs full episodes; returns their undiscounted returns and the env's own metrics.
 
     Each step calls ``policy`` once on the observations of all running environments.
     An episode ends on termination or truncation (time limit); a finished environment
@@ -46,11 +81,12 @@ def run_episodes(
         num_envs: Environments stepped side by side; all ``episodes`` at once when None.
 
     Returns:
-        float64 returns of shape [episodes], in episode order.
+        The returns, float64 [episodes] in episode order, and the metrics the environment
+        put in ``info["episode_metrics"]`` at the end of each episode.
 
     Raises:
-        ValueError: If ``episodes`` or ``num_envs`` is not positive, or the policy
-            returns the wrong batch size.
+        ValueError: If ``episodes`` or ``num_envs`` is not positive, the policy returns
+            the wrong batch size, or an episode's metrics are not a mapping of numbers.
     """
     if episodes < 1:
         raise ValueError(f"episodes={episodes} must be >= 1")
@@ -62,6 +98,7 @@ def run_episodes(
     spec = EnvSpec(env) if isinstance(env, str) else env
     envs = [spec.make() for _ in range(num_envs)]
     returns = np.zeros(episodes, dtype=np.float64)
+    metrics: dict[str, np.ndarray] = {}
     episode_of = list(range(num_envs))  # episode each env is running; -1 when idle
     obs = [envs[k].reset(seed=seed + k)[0] for k in range(num_envs)]
     next_episode = num_envs
@@ -76,9 +113,10 @@ def run_episodes(
                     f"policy returned {actions.shape[0]} actions for {len(running)} observations"
                 )
             for action, k in zip(actions, running, strict=True):
-                obs[k], reward, terminated, truncated, _ = envs[k].step(action)
+                obs[k], reward, terminated, truncated, info = envs[k].step(action)
                 returns[episode_of[k]] += float(reward)
                 if terminated or truncated:
+                    _record(metrics, info.get(EPISODE_METRICS), episode_of[k], episodes)
                     if next_episode < episodes:
                         episode_of[k] = next_episode
                         obs[k] = envs[k].reset(seed=seed + next_episode)[0]
@@ -88,7 +126,19 @@ def run_episodes(
     finally:
         for made in envs:
             made.close()
-    return returns
+    return Episodes(returns, metrics)
+
+
+def _record(metrics: dict[str, np.ndarray], reported: Any, episode: int, episodes: int) -> None:
+    """Files one episode's ``info["episode_metrics"]`` under each metric's name."""
+    if reported is None:
+        return
+    if not isinstance(reported, dict):
+        raise ValueError(
+            f"info[{EPISODE_METRICS!r}] is {reported!r}; it must map metric names to numbers"
+        )
+    for name, value in reported.items():
+        metrics.setdefault(str(name), np.full(episodes, np.nan))[episode] = float(value)
 
 
 def random_policy_for(env: EnvSpec | str, *, seed: int = 0) -> Policy:
@@ -146,16 +196,16 @@ class Evaluator:
         """Returns mean and std of the episode returns, echoing `tag` back.
 
         `stats` carries what the behaviour counted while acting greedily (e.g. how often
-        each option ran).
+        each option ran) and the means of the environment's own episode metrics.
         """
         self.behaviour.load(weights)
         self.behaviour.stats()  # drop anything counted before these weights
-        returns = run_episodes(
+        played = play_episodes(
             self.behaviour.greedy, env=self.env, episodes=episodes, seed=self.seed
         )
         return {
             "tag": tag,
-            "mean": float(returns.mean()),
-            "std": float(returns.std()),
-            "stats": self.behaviour.stats(),
+            "mean": float(played.returns.mean()),
+            "std": float(played.returns.std()),
+            "stats": {**played.metric_means(), **self.behaviour.stats()},
         }

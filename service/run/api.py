@@ -11,7 +11,7 @@ The ``graft`` command line calls these same functions.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union
 
@@ -78,8 +78,12 @@ class Evaluation:
     """Undiscounted returns of deterministic episodes (episode i reset with seed + i)."""
 
     returns: np.ndarray
+    """float64 [episodes], in episode order."""
     env_id: str
     seed: int
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)
+    """The environment's own metrics (``info["episode_metrics"]`` at each episode's end),
+    by name, float64 [episodes] (NaN where an episode did not report one)."""
 
     @property
     def mean(self) -> float:
@@ -215,7 +219,7 @@ def evaluate(
     Raises:
         ValueError: ``episodes`` < 1, or a bare callable without ``env``.
     """
-    from actors.evaluator import run_episodes
+    from actors.evaluator import play_episodes
 
     policy: Any = policy_or_run
     if isinstance(policy, Run | str | Path):
@@ -226,5 +230,5 @@ def evaluate(
         env = policy.env
     act = policy.act if isinstance(policy, Policy) else policy
     spec = EnvSpec(env) if isinstance(env, str) else env
-    returns = run_episodes(act, env=spec, episodes=episodes, seed=seed)
-    return Evaluation(returns, spec.env_id, seed)
+    played = play_episodes(act, env=spec, episodes=episodes, seed=seed)
+    return Evaluation(played.returns, spec.env_id, seed, played.metrics)

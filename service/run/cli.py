@@ -88,7 +88,12 @@ def parse_settings(pairs: list[str]) -> dict[str, object]:
     return out
 
 
+_EVAL_FIELDS = ("policy", "env_id", "episodes", "mean", "std")
+
+
 def _eval(args: argparse.Namespace) -> None:
+    import numpy as np
+
     from service.run.api import evaluate, load_policy
     from service.run.config import load_preset
 
@@ -115,12 +120,14 @@ def _eval(args: argparse.Namespace) -> None:
         "episodes": args.episodes,
         "mean": result.mean,
         "std": result.std,
+        **{name: float(np.nanmean(v)) for name, v in result.metrics.items()},
     }
     print(
         json.dumps(out)
         if args.json
         else f"{args.policy} on {env_id}: mean return {out['mean']:.1f} ± "
         f"{out['std']:.1f} over {args.episodes} episodes"
+        + "".join(f"; {k} {v:.3g}" for k, v in out.items() if k not in _EVAL_FIELDS)
     )
 
 

@@ -8,6 +8,7 @@ name (the user's task), so a run can be traced to the code that produced it.
 
 from __future__ import annotations
 
+import functools
 import importlib.metadata as metadata
 import platform
 import sys
@@ -29,10 +30,17 @@ def _version(distribution: str) -> str:
         return "not installed"
 
 
+@functools.cache
+def _distributions() -> dict[str, list[str]]:
+    """Top-level module -> installed distributions providing it (read once: a scan of
+    every installed package's metadata)."""
+    return dict(metadata.packages_distributions())
+
+
 def _module_version(module_name: str) -> str:
     """The version of the distribution that provides a top-level module, else the
     module's ``__version__``, else where it was loaded from."""
-    distributions = metadata.packages_distributions().get(module_name, [])
+    distributions = _distributions().get(module_name, [])
     if distributions:
         return ", ".join(f"{d} {_version(d)}" for d in sorted(set(distributions)))
     module = sys.modules.get(module_name)

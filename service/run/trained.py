@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from service.run.config import TrainConfig, config_from_data
+from service.run.config import TrainConfig, config_from_data, load_preset, preset_names
 
 
 def run_config(run_dir: Path) -> TrainConfig:
@@ -22,6 +22,9 @@ def run_config(run_dir: Path) -> TrainConfig:
     if not path.is_file():
         raise FileNotFoundError(f"{run_dir} is not a run folder: no config.yaml")
     data = yaml.safe_load(path.read_text()) or {}
+    if "hardcoded_policy" not in data and data.get("preset") in preset_names():
+        # Written before presets named their hard-coded policy: the built-in preset's.
+        data["hardcoded_policy"] = load_preset(data["preset"]).hardcoded_policy
     return config_from_data(data)
 
 

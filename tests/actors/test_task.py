@@ -40,6 +40,23 @@ def not_an_env():
     return 42
 
 
+class Countdown(gym.Env):
+    # Episode i (reset with seed i) lasts 1 + i steps; from 2 steps on it reports them.
+
+    observation_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        self.left = self.length = 1 + seed
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        self.left -= 1
+        done = self.left == 0
+        info = {"episode_metrics": {"steps": self.length}} if done and self.length > 1 else {}
+        return np.zeros(1, np.float32), 1.0, done, False, info
+
+
 gym.register(id="Walk-v0", entry_point=f"{__name__}:Walk", max_episode_steps=5)
 """
 
@@ -82,6 +99,20 @@ def test_obs_wrapper_flattens_a_dict(folder) -> None:
     assert obs.shape == (4,)
     # Only strings travel: the spec pickles small, and builds the same env elsewhere.
     assert pickle.loads(pickle.dumps(spec)) == spec
+
+
+def test_episodes_report_the_environments_own_metrics(folder) -> None:
+    from actors.evaluator import play_episodes
+
+    played = play_episodes(
+        lambda obs: np.zeros(len(obs), np.int64),
+        env=EnvSpec("my_envs:Countdown", import_path=(folder,)),
+        episodes=3,
+        seed=0,
+    )
+    np.testing.assert_array_equal(played.returns, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(played.metrics["steps"], [np.nan, 2.0, 3.0])
+    assert played.metric_means() == {"steps": 2.5}  # over the episodes that reported it
 
 
 @pytest.mark.parametrize(
