@@ -81,6 +81,9 @@ class _Adapter:
                 f"observation has shape {obs.shape}; {self.name} expects "
                 f"{list(self.obs_shape)} or [B, {', '.join(map(str, self.obs_shape))}]"
             )
+        if len(obs) == 0:
+            shape = (0, *(self.action_space.shape or ()))
+            return np.zeros(shape, _action_dtype(self.action_space))
         return self._batch(obs)
 
     def _batch(self, obs: np.ndarray) -> np.ndarray:

@@ -98,10 +98,13 @@ def _eval(args: argparse.Namespace) -> None:
     from service.run.config import load_preset
 
     try:
-        task = load_preset(args.preset or DEFAULT_PRESET)
-        if args.policy == "random" and args.env_id:
-            task = load_preset(args.preset or DEFAULT_PRESET, env_id=args.env_id)
-        policy = load_policy(args.policy, preset=task)
+        if args.policy in ("hardcoded", "random"):
+            # The preset names the task; random actions may go to any environment.
+            env = {"env_id": args.env_id} if args.policy == "random" else {}
+            task = load_preset(args.preset or DEFAULT_PRESET, seed=args.seed, **env)
+            policy = load_policy(args.policy, preset=task)
+        else:
+            policy = load_policy(args.policy)
     except FileNotFoundError as error:
         raise SystemExit(
             f"graft eval: {error}; --policy takes 'hardcoded', 'random', a run folder or a "

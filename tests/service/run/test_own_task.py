@@ -38,6 +38,9 @@ METHODS = {
     ),
     "ddqn": ("reach-discrete.yaml", {}),  # discrete actions
 }
+# 200 online env steps past learning_starts=100, one update each; pretrain_td3: 20
+# pre-training updates on its 100 demonstrations, 100 online and a burn-in of 10.
+UPDATES = {"td3": 200, "backbone_td3": 200, "pretrain_td3": 130, "options": 200, "ddqn": 200}
 ENV_IDS = {
     "reach.yaml": "usertask.envs:Reach1D-v0",
     "reach-dict.yaml": "usertask.envs:DictReach",
@@ -49,7 +52,8 @@ def _check_run(run_dir: Path, method: str) -> dict:
     """The run folder holds what a user needs: summary, checkpoint, the resolved config."""
     summary = json.loads((run_dir / "summary.json").read_text())
     assert 300 - 16 <= summary["env_steps"] <= 300, summary  # the budget, within slack
-    assert summary["updates"] > 0 and np.isfinite(summary["final_eval_return_mean"])
+    assert summary["updates"] == UPDATES[method], summary
+    assert np.isfinite(summary["final_eval_return_mean"])
     assert list((run_dir / "checkpoints").glob("ckpt-*.pt"))
     recorded = yaml.safe_load((run_dir / "config.yaml").read_text())
     preset, _ = METHODS[method]
