@@ -15,7 +15,7 @@ test: setup $(VENV)/.usertask
 	$(BIN)/python -m pytest -q
 
 $(VENV)/.usertask: tests/fixtures/usertask/pyproject.toml $(VENV)/.installed
-	$(BIN)/pip install --no-deps --no-build-isolation -e tests/fixtures/usertask
+	$(BIN)/pip install --no-deps -e tests/fixtures/usertask
 	touch $@
 
 setup: $(VENV)/.installed

@@ -27,10 +27,9 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     if spec is not None and spec.origin and Path(spec.origin).is_relative_to(USERTASK):
         return
     subprocess.run(
-        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-         "-e", str(USERTASK)],
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "-e", str(USERTASK)],
         check=True,
-    )  # fmt: skip
+    )
     # This process read site-packages' .pth files before the install: read the new one.
     for folder in site.getsitepackages():
         for pth in Path(folder).glob("__editable__.usertask-*.pth"):

@@ -23,7 +23,7 @@ def run_config(run_dir: Path) -> TrainConfig:
         raise FileNotFoundError(f"{run_dir} is not a run folder: no config.yaml")
     data = yaml.safe_load(path.read_text()) or {}
     if "hardcoded_policy" not in data and data.get("preset") in preset_names():
-        # Written before presets named their hard-coded policy: the built-in preset's.
+        # A config.yaml that names no hard-coded policy takes its built-in preset's.
         data["hardcoded_policy"] = load_preset(data["preset"]).hardcoded_policy
     return config_from_data(data)
 

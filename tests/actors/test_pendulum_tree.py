@@ -109,8 +109,8 @@ def test_policy_pickles_as_its_import_string_and_rebuilds_the_tree() -> None:
     assert pickle.loads(shipped)(_obs(ABOVE, 1.0))[0] == -1.0
 
 
-# The old hard-coded Pendulum policy's figures (a class wrapping this same tree), recorded
-# before the presets named the tree by import string: same seeds, same returns, same actions.
+# Recorded from the Pendulum presets' tree (seed 0 episodes; warm-up acts on fixed
+# observations): the same seeds must keep giving the same returns and the same actions.
 RECORDED_RETURNS = [-522.5450591084027, -265.1920441850731, -393.71600588109175]
 RECORDED_WARMUP = {
     "pendulum-backbone": (

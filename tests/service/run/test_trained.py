@@ -17,7 +17,7 @@ def test_config_of_a_run_from_a_yaml_preset_loads_without_the_yaml(tmp_path) -> 
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.yaml").write_text(config_record(config))
-    preset.unlink()  # `graft eval` used to look the preset 'my' up again, and fail
+    preset.unlink()  # the run folder alone must do: no preset named 'my' exists
     loaded = run_config(run)
     assert loaded == config
     assert loaded.preset == "my" and loaded.seed == 3 and loaded.td3.gamma == 0.9
