@@ -35,6 +35,7 @@ $(VENV)/.installed: pyproject.toml
 lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/mypy service actors learner graft
 	$(BIN)/lint-imports
 
 # Generated gRPC code is checked in; CI regenerates it and fails on drift.

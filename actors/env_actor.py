@@ -2,7 +2,7 @@
 
 It streams transitions (with the behaviour log-likelihood and policy version) to the
 replay server and adopts newer weights whenever the learner publishes them. What it
-acts with is a `Behaviour` (actors/behaviours/); the actor itself knows no algorithm.
+acts with is a `Behaviour` (service/core.py); the actor itself knows no algorithm.
 """
 
 from __future__ import annotations
@@ -15,10 +15,8 @@ import numpy as np
 import ray
 import torch
 
-from actors.behaviours.base import Behaviour
 from actors.task import EnvSpec
-from service.replay.client import ReplayClient
-from service.weights import WeightSubscriber
+from service.core import Behaviour, ReplayWriter, WeightSource
 
 
 class VectorStepper:
@@ -78,8 +76,8 @@ class EnvActor:
         env: EnvSpec,
         num_envs: int,
         seed: int,
-        replay: ReplayClient,
-        broadcaster: Any,
+        replay: ReplayWriter,
+        weights: WeightSource,
         behaviour: Behaviour,
         steps_per_insert: int,
     ) -> None:
@@ -87,7 +85,7 @@ class EnvActor:
         self.stepper = VectorStepper(env, num_envs, seed)
         self.rng = np.random.default_rng(seed)
         self.replay = replay
-        self.weights = WeightSubscriber(broadcaster)
+        self.weights = weights
         self.behaviour = behaviour
         self.steps_per_insert = steps_per_insert
         self.versions_seen: list[int] = []
@@ -108,8 +106,6 @@ class EnvActor:
         """Steps through `segments` in order (or until the learner says stop)."""
         n = len(self.stepper.envs)
         done_steps, insert_wait_s, start = 0, 0.0, time.perf_counter()
-        # Optional behaviour hook: columns computed on s' (e.g. the backbone's μ(s')).
-        next_columns = getattr(self.behaviour, "next_columns", None)
         for segment in segments:
             buffer: list[dict[str, np.ndarray]] = []
             seg_steps = 0
@@ -120,8 +116,8 @@ class EnvActor:
                 self._adopt_new_weights()
                 env_action, record = self.behaviour.act(self.stepper.obs, self.rng, warmup=warmup)
                 record.update(self.stepper.step(env_action))
-                if next_columns:
-                    record.update(next_columns(record["next_obs"]))
+                # Columns computed on s' (e.g. the backbone's μ(s')); most add none.
+                record.update(self.behaviour.next_columns(record["next_obs"]))
                 self.behaviour.end_episodes(record["terminated"] | record["truncated"])
                 version = -1 if warmup else self.weights.version  # -1: the warm-up policy
                 record["policy_version"] = np.full(n, version, np.int64)

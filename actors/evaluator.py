@@ -13,6 +13,7 @@ its episodes as ``eval/<name>`` beside the return.
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,10 +21,11 @@ import gymnasium as gym
 import numpy as np
 import ray
 import torch
+from ray import ObjectRef
 
-from actors.behaviours.base import Behaviour
 from actors.policies import UniformRandomPolicy
 from actors.task import EnvSpec
+from service.core import Behaviour, EvalTag, Evaluation, Weights
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """A batched policy: observations [B, *obs_shape] -> actions [B, *action_shape]."""
@@ -190,9 +192,7 @@ class Evaluator:
         self.env, self.seed = env, seed
         self.behaviour = behaviour
 
-    def evaluate(
-        self, weights: dict[str, Any], *, episodes: int, tag: Any = None
-    ) -> dict[str, Any]:
+    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Evaluation:
         """Returns mean and std of the episode returns, echoing `tag` back.
 
         `stats` carries what the behaviour counted while acting greedily (e.g. how often
@@ -209,3 +209,20 @@ class Evaluator:
             "std": float(played.returns.std()),
             "stats": {**played.metric_means(), **self.behaviour.stats()},
         }
+
+
+class RemoteEvaluator:
+    """The learner's `Evaluator` (service/core.py): an `Evaluator` Ray actor runs the episodes."""
+
+    def __init__(self, *, env: EnvSpec, behaviour: Behaviour, seed: int) -> None:
+        # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
+        self._actor = Evaluator.remote(  # type: ignore[attr-defined]
+            env=env, behaviour=behaviour, seed=seed
+        )
+
+    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
+        """Starts the episodes in the actor and returns at once."""
+        ref: ObjectRef[Evaluation] = self._actor.evaluate.remote(
+            weights, episodes=episodes, tag=tag
+        )
+        return ref.future()

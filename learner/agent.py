@@ -1,35 +1,27 @@
 """What an algorithm provides to a run: its phases, its learner and its actors' behaviour.
 
-The launcher wires a preset into a run like this::
+`train` (service/run/launcher.py) wires a preset into a run like this::
 
-    builder = make_builder(config, env)              # service/run/registry.py
-    for phase in builder.phases():                   # one replay table per phase
-        tables.append(table_spec(phase, builder.signature(...)))
-    learner = builder.make_learner()                 # lives in the learner process
-    behaviour = builder.make_behaviour(num_actors=N) # pickled to every actor and the evaluator
-    actors insert phase by phase; the learner loop runs `getattr(learner, phase.step)`
-    on `phase.updates` batches drawn from that phase's table.
+    builder = make_builder(config)                     # service/run/registry.py
+    behaviour = builder.make_behaviour(num_actors=n)   # pickled to every actor
+    phases = builder.phases()
+    tables = preset_tables(config, phases=phases, signature=...)  # one table per phase
+    algorithm = builder.make_learner()                 # lives in the learner process
+    EnvActor.remote(behaviour=behaviour, ...).run.remote(_segments(phases, n))
+    LearnerLoop(algorithm, phases=phases, ...).run()   # phase.step(algorithm, batch)
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Optional, Protocol
+from typing import Optional, Protocol
 
-import torch
-
-from actors.behaviours.base import Behaviour
+from service.core import Algorithm, Behaviour, Metrics, TensorBatch, UpdateStep
 
 
-class Algorithm(Protocol):
-    """What the learner loop needs from a learning algorithm (TD3Learner satisfies it)."""
-
-    num_updates: int
-
-    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]: ...
-    def policy_state(self) -> dict[str, torch.Tensor]: ...
-    def state_dict(self) -> dict[str, Any]: ...
-    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+def update_step(algorithm: Algorithm, batch: TensorBatch) -> Metrics:
+    """The step of most phases: the algorithm's own `update`."""
+    return algorithm.update(batch)
 
 
 @dataclass(frozen=True)
@@ -38,7 +30,7 @@ class Phase:
 
     Actors insert `env_steps` transitions into table `name`, the first `warmup_steps`
     with the behaviour's warm-up policy; the learner draws `updates` batches (windows
-    of `sequence_length` steps when > 1) and hands each to `learner.<step>(batch)`.
+    of `sequence_length` steps when > 1) and hands each to `step(algorithm, batch)`.
     """
 
     name: str
@@ -53,8 +45,8 @@ class Phase:
     """Held sample/insert ratio (None: sample freely once `min_size` is reached)."""
     warmup_steps: int = 0
     """Leading env steps acted by the warm-up policy (uniform, μ(s) + ε, ε = 1)."""
-    step: str = "update"
-    """Learner method each batch goes to."""
+    step: UpdateStep = update_step
+    """The learning step each batch goes to."""
     acts_with_weights: bool = True
     """Actors need learner weights in this phase (the learner publishes at its start)."""
     sequence_length: int = 1

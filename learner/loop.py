@@ -1,37 +1,49 @@
 """The learner loop: sample from replay, update, publish weights, evaluate, checkpoint.
 
-for phase in phases:                          # e.g. pre-training on demos, then online
-    stream = replay.sample_stream(phase.name, batch_size)  # prefetched in the background
-    for batch in stream (phase.updates of them):
-        metrics = getattr(algorithm, phase.step)(batch)
-        every publish_every updates: broadcaster.publish(version + 1, weights)
-        every eval_every env steps:  evaluator.evaluate(weights)   (asynchronous)
-        every checkpoint_every:      save model + optimiser + counters
-    evaluate at the end of every phase
+`LearnerLoop.run`, in outline::
+
+    for phase in phases:                       # e.g. pre-training on demos, then online
+        stream = open_stream(phase)            # ReplayClient.sample_stream, prefetching
+        for each of the phase's `updates` batches:
+            metrics = phase.step(algorithm, to_tensors(stream.next_within(STALL_CHECK_S)))
+            every publish_every updates: publisher.publish(version, algorithm.policy_state())
+            every eval_every env steps:  evaluator.evaluate(weights, ...)  (a future)
+            every checkpoint_every:      self.checkpoint()  (model, optimiser, counters)
+        evaluate at the end of every phase
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Optional
 
-import numpy as np
-import ray
 import torch
 
-from learner.agent import Algorithm, Phase
+from learner.agent import Phase
 from learner.checkpoint import save_checkpoint
+from service.core import (
+    Algorithm,
+    Columns,
+    EvalTag,
+    Evaluation,
+    Evaluator,
+    SampleStream,
+    TensorBatch,
+    WeightPublisher,
+    Weights,
+)
 from service.metrics import MetricsLogger
-from service.replay.client import SampleStream
 
 STALL_CHECK_S = 10.0
 """Seconds without a sampled batch before the loop asks its watchdog what is wrong."""
 
 
-def to_tensors(batch: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+def to_tensors(batch: Columns) -> TensorBatch:
     """Service columns (`_key`, ...) stay behind; data columns become tensors.
 
     Decoded columns are read-only views of the received bytes, which torch cannot
@@ -52,7 +64,7 @@ class LoopState:
     update_s: float = 0.0
     warmup_s: float = 0.0
     """Seconds until the first batch: the table filling to its minimum size."""
-    evaluations: list[dict[str, Any]] = field(default_factory=list)
+    evaluations: list[Evaluation] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -76,8 +88,8 @@ class LearnerLoop:
         *,
         phases: list[Phase],
         open_stream: Callable[[Phase], SampleStream],
-        broadcaster: Any,
-        evaluator: Any,
+        publisher: WeightPublisher,
+        evaluator: Evaluator,
         logger: MetricsLogger,
         checkpoint_dir: Path,
         settings: LoopSettings,
@@ -88,7 +100,7 @@ class LearnerLoop:
         self.algorithm = algorithm
         self.phases = phases
         self.open_stream = open_stream
-        self.broadcaster = broadcaster
+        self.publisher = publisher
         self.evaluator = evaluator
         self.logger = logger
         self.checkpoint_dir = checkpoint_dir
@@ -97,40 +109,41 @@ class LearnerLoop:
         self.on_progress = on_progress
         self.watchdog = watchdog
         """Called while no batch arrives; raises if the data can never come."""
-        self._pending_evals: list[Any] = []
+        self._pending_evals: list[Future[Evaluation]] = []
         # A resumed run starts a fresh table: its insert counter restarts at zero.
         self._env_steps_offset = self.state.env_steps
         self._started = time.perf_counter()
         self._published = False
         self._next_eval = (self.state.env_steps // settings.eval_every + 1) * settings.eval_every
 
-    def publish(self) -> dict[str, torch.Tensor]:
-        """Broadcasts the current policy under the next version number."""
+    def publish(self) -> Weights:
+        """Publishes the current policy under the next version number."""
         weights = self.algorithm.policy_state()
         self.state.version += 1 if self.state.updates else 0
         self._published = True
-        ray.get(self.broadcaster.publish.remote(self.state.version, [ray.put(weights)]))
+        self.publisher.publish(self.state.version, weights)
         return weights
 
-    def _evaluate(self, weights: dict[str, torch.Tensor]) -> None:
-        tag = {
+    def _evaluate(self, weights: Weights) -> None:
+        tag: EvalTag = {
             "env_steps": self.state.env_steps,
             "updates": self.state.updates,
             "wall_s": time.perf_counter() - self._started,
         }
         self._pending_evals.append(
-            self.evaluator.evaluate.remote(weights, episodes=self.settings.eval_episodes, tag=tag)
+            self.evaluator.evaluate(weights, episodes=self.settings.eval_episodes, tag=tag)
         )
 
     def _collect_evaluations(self, wait: bool = False) -> None:
-        if not self._pending_evals:
-            return
-        ready, self._pending_evals = ray.wait(
-            self._pending_evals,
-            num_returns=len(self._pending_evals) if wait else 1,
-            timeout=None if wait else 0,
-        )
-        for result in ray.get(ready):
+        """Logs the evaluations that have finished (with `wait`, all of them), in order."""
+        if wait:
+            concurrent.futures.wait(self._pending_evals)
+        pending, self._pending_evals = self._pending_evals, []
+        for future in pending:
+            if not future.done():
+                self._pending_evals.append(future)
+                continue
+            result = future.result()
             self.state.evaluations.append(result)
             tag = result["tag"]
             scalars = {"eval/return_mean": result["mean"], "eval/return_std": result["std"]}
@@ -170,7 +183,7 @@ class LearnerLoop:
         self.checkpoint()
         return s
 
-    def _next_batch(self, stream: SampleStream) -> dict[str, np.ndarray]:
+    def _next_batch(self, stream: SampleStream) -> Columns:
         """Waits for a batch, asking the watchdog every few seconds whether the actors
         that should produce it are still alive (a dead actor raises instead of a hang)."""
         while True:
@@ -180,9 +193,7 @@ class LearnerLoop:
                 if self.watchdog is not None:
                     self.watchdog()
 
-    def _run_phase(
-        self, phase: Phase, end: int, weights: Optional[dict[str, torch.Tensor]]
-    ) -> Optional[dict[str, torch.Tensor]]:
+    def _run_phase(self, phase: Phase, end: int, weights: Optional[Weights]) -> Optional[Weights]:
         s, cfg = self.state, self.settings
         stream = self.open_stream(phase)
         offset = self._env_steps_offset
@@ -200,13 +211,13 @@ class LearnerLoop:
                     s.wait_s += waited
                 s.env_steps = offset + stream.table_inserts
                 t = time.perf_counter()
-                metrics = getattr(self.algorithm, phase.step)(to_tensors(batch))
+                metrics = phase.step(self.algorithm, to_tensors(batch))
                 s.update_s += time.perf_counter() - t
                 s.updates += 1
                 window_updates += 1
                 if self._published and s.updates % cfg.publish_every == 0:
                     weights = self.publish()
-                if self._published and s.env_steps >= self._next_eval:
+                if self._published and weights is not None and s.env_steps >= self._next_eval:
                     self._evaluate(weights)
                     self._next_eval = (s.env_steps // cfg.eval_every + 1) * cfg.eval_every
                 self._collect_evaluations()

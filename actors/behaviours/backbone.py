@@ -11,16 +11,16 @@ the critics also see μ(s) (`backbone_input`), and replay stores μ(s') too
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 import torch
 from torch import nn
 
-from actors.behaviours.base import Columns
 from actors.behaviours.gaussian import box_column
 from actors.hardcoded import HardCodedPolicy
 from actors.policies import gaussian_log_prob
+from service.core import Columns, ColumnSpec, Weights
 
 
 def compose_action(
@@ -96,9 +96,9 @@ class BackboneBehaviour:
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name}={getattr(self, name)} must be > 0 (log_prob needs it)")
 
-    def columns(self) -> dict[str, dict[str, Any]]:
+    def columns(self) -> dict[str, ColumnSpec]:
         shape = tuple(self.low.shape)
-        columns = {
+        columns: dict[str, ColumnSpec] = {
             "action": box_column(shape),
             "backbone_action": box_column(shape),
             "log_prob": {"dtype": "float32", "shape": []},
@@ -107,7 +107,7 @@ class BackboneBehaviour:
             columns["next_backbone_action"] = box_column(shape)
         return columns
 
-    def load(self, weights: dict[str, Any]) -> None:
+    def load(self, weights: Weights) -> None:
         self.correction.load_state_dict(weights)
 
     def _mu(self, obs: np.ndarray) -> np.ndarray:

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import torch
 from torch import nn
 
-from actors.behaviours.base import Columns
+from service.core import Columns, ColumnSpec, Weights
 
 
 def linear_epsilon(step: int, *, start: float, end: float, decay_steps: int) -> float:
@@ -77,13 +75,13 @@ class EpsilonGreedyBehaviour:
             self.steps * self.num_actors, start=self.start, end=self.end, decay_steps=self.decay
         )
 
-    def columns(self) -> dict[str, dict[str, Any]]:
+    def columns(self) -> dict[str, ColumnSpec]:
         return {
             "action": {"dtype": "int64", "shape": []},
             "log_prob": {"dtype": "float32", "shape": []},
         }
 
-    def load(self, weights: dict[str, Any]) -> None:
+    def load(self, weights: Weights) -> None:
         self.q_network.load_state_dict(weights)
 
     def _q(self, obs: np.ndarray) -> np.ndarray:
@@ -101,6 +99,9 @@ class EpsilonGreedyBehaviour:
         self.steps += len(obs)
         action, log_prob = epsilon_greedy(self._q(obs), epsilon, rng)
         return action, {"action": action, "log_prob": log_prob}
+
+    def next_columns(self, next_obs: np.ndarray) -> Columns:
+        return {}  # nothing about s'
 
     def end_episodes(self, ended: np.ndarray) -> None:
         pass  # memoryless

@@ -7,18 +7,18 @@ Warm-up is uniform random over the action box, or, when a hard-coded policy μ i
 
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 import torch
 from torch import nn
 
-from actors.behaviours.base import Columns
 from actors.hardcoded import HardCodedPolicy
 from actors.policies import GaussianExploration, UniformRandomPolicy
+from service.core import Columns, ColumnSpec, Weights
 
 
-def box_column(shape: tuple[int, ...]) -> dict[str, Any]:
+def box_column(shape: tuple[int, ...]) -> ColumnSpec:
     """Signature entry of a float32 action-shaped column."""
     return {"dtype": "float32", "shape": list(shape)}
 
@@ -62,13 +62,13 @@ class GaussianBehaviour:
         self.demo = GaussianExploration(warmup_std, low, high) if hardcoded else None
         self.action_shape = tuple(np.shape(low))
 
-    def columns(self) -> dict[str, dict[str, Any]]:
+    def columns(self) -> dict[str, ColumnSpec]:
         cols = {"action": box_column(self.action_shape)}
         if self.hardcoded is not None:
             cols["backbone_action"] = box_column(self.action_shape)
         return {**cols, "log_prob": {"dtype": "float32", "shape": []}}
 
-    def load(self, weights: dict[str, Any]) -> None:
+    def load(self, weights: Weights) -> None:
         self.network.load_state_dict(weights)
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
@@ -90,6 +90,9 @@ class GaussianBehaviour:
             action, log_prob = self.exploration.sample(self.greedy(obs), rng)
         columns = {"action": action, **extra, "log_prob": log_prob.astype(np.float32)}
         return self.exploration.clip(action), columns
+
+    def next_columns(self, next_obs: np.ndarray) -> Columns:
+        return {}  # nothing about s'
 
     def end_episodes(self, ended: np.ndarray) -> None:
         pass  # memoryless

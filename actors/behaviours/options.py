@@ -10,23 +10,23 @@ restarted when its episode ends.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Optional
 
 import numpy as np
 import torch
 from torch import nn
 
-from actors.behaviours.base import Columns
 from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
 from actors.behaviours.gaussian import box_column
 from actors.hardcoded import HardCodedPolicy
 from actors.policies import GaussianExploration, UniformRandomPolicy
+from service.core import Columns, ColumnSpec, Weights
 
 HARDCODED, RL = 0, 1
 """Option indices: the column `option` and the outputs of Q_Ω."""
 
 
-def split_weights(weights: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+def split_weights(weights: Weights) -> tuple[Weights, Weights]:
     """Splits broadcast weights into (Q_Ω, RL actor) state dicts by their prefixes."""
     options = {
         k.removeprefix("options."): v for k, v in weights.items() if k.startswith("options.")
@@ -68,7 +68,7 @@ class OptionsBehaviour:
         self._greedy_clock = np.zeros(0, np.int64)
         self._used: list[np.ndarray] = []
 
-    def columns(self) -> dict[str, dict[str, Any]]:
+    def columns(self) -> dict[str, ColumnSpec]:
         return {
             "action": box_column(self.action_shape),
             "log_prob": {"dtype": "float32", "shape": []},
@@ -76,7 +76,7 @@ class OptionsBehaviour:
             "option_step": {"dtype": "int64", "shape": []},
         }
 
-    def load(self, weights: dict[str, Any]) -> None:
+    def load(self, weights: Weights) -> None:
         options, actor = split_weights(weights)
         self.option_q.load_state_dict(options)
         self.actor.load_state_dict(actor)
@@ -94,7 +94,12 @@ class OptionsBehaviour:
             return net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
 
     def _choose(
-        self, obs: np.ndarray, option: np.ndarray, clock: np.ndarray, epsilon: float, rng: Any
+        self,
+        obs: np.ndarray,
+        option: np.ndarray,
+        clock: np.ndarray,
+        epsilon: float,
+        rng: Optional[np.random.Generator],
     ) -> tuple[np.ndarray, np.ndarray]:
         """Re-chooses the option where the clock is at 0 (fresh option or new episode)."""
         if len(option) != len(obs) or len(clock) != len(obs):
@@ -122,7 +127,7 @@ class OptionsBehaviour:
         use_rl = self._option == RL
         action = np.where(use_rl[:, None], rl_action, mu).astype(np.float32)
         log_prob = np.where(use_rl, rl_log_prob, 0.0).astype(np.float32)
-        columns = {
+        columns: Columns = {
             "action": action,
             "log_prob": log_prob,
             "option": self._option.copy(),
@@ -132,6 +137,9 @@ class OptionsBehaviour:
             self._used.append(use_rl)
         self._clock = (self._clock + 1) % self.k
         return self.exploration.clip(action), columns
+
+    def next_columns(self, next_obs: np.ndarray) -> Columns:
+        return {}  # nothing about s'
 
     def end_episodes(self, ended: np.ndarray) -> None:
         self._clock[ended] = 0  # a new episode starts a new option

@@ -216,7 +216,7 @@ class MinecraftAgent:
         sleep with exponential backoff and return (the loop tries again)."""
         try:
             self.client.reset()
-            first = self.client.step("")
+            first = self.client.observe()  # real Malmo may answer a step without info
             if first.done or not first.info:
                 raise P.ProtocolError("the new mission ended before its first observation")
         except _LOST as e:

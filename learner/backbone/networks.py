@@ -20,6 +20,7 @@ def zero_output_(actor: Actor) -> Actor:
     the last layer (through the hidden activations) and, after one step, the rest.
     """
     last = actor.net[-1]
+    assert isinstance(last, torch.nn.Linear), f"the actor ends in {last}, not a linear layer"
     with torch.no_grad():
         last.weight.zero_()
         last.bias.zero_()

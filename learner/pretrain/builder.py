@@ -9,7 +9,7 @@ from actors.behaviours.gaussian import GaussianBehaviour
 from actors.hardcoded import required_policy
 from learner.agent import Phase, online_phase
 from learner.pretrain.config import PretrainConfig
-from learner.pretrain.learning import PretrainLearner
+from learner.pretrain.learning import PretrainLearner, pretrain_step
 from learner.td3.builder import TD3Builder, make_actor_network
 
 
@@ -46,7 +46,7 @@ class PretrainBuilder:
             updates=c.pretrain_updates,
             min_size=c.demo_steps,  # pre-training starts on the full data set
             warmup_steps=c.demo_steps,
-            step="pretrain_update",
+            step=pretrain_step,
             acts_with_weights=False,
         )
         if budget.env_steps == 0:

@@ -22,6 +22,7 @@ import torch.nn.functional as F
 
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner, actor_loss
+from service.core import Algorithm, Metrics, TensorBatch
 
 
 def imitation_loss(policy_action: torch.Tensor, hardcoded_action: torch.Tensor) -> torch.Tensor:
@@ -86,3 +87,10 @@ class PretrainLearner(TD3Learner):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
         self.num_pretrain_updates = int(state.get("num_pretrain_updates", 0))
+
+
+def pretrain_step(algorithm: Algorithm, batch: TensorBatch) -> Metrics:
+    """The demonstration phase's step: `PretrainLearner.pretrain_update`."""
+    if not isinstance(algorithm, PretrainLearner):
+        raise TypeError(f"pre-training needs a PretrainLearner, got {type(algorithm).__name__}")
+    return algorithm.pretrain_update(batch)

@@ -11,9 +11,9 @@ import queue
 import threading
 import time
 import uuid
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Optional
+from typing import Any, Optional, Protocol, Union
 
 import grpc
 import numpy as np
@@ -78,7 +78,7 @@ class TableStatus:
     sampler: str
     remover: str
     rate_limiter: str
-    signature: dict
+    signature: dict[str, Any]
     bytes_in_memory: int
     rate_limiter_blocked_s: float
 
@@ -113,7 +113,7 @@ class ReplayClient:
         self._channel: Optional[grpc.Channel] = None
         self._stub: Optional[replay_pb2_grpc.ReplayServiceStub] = None
 
-    def __reduce__(self):
+    def __reduce__(self) -> tuple[Callable[..., ReplayClient], tuple[Any, ...]]:
         return (
             _rebuild_client,
             # Not the writer id: every unpickled copy is a writer of its own.
@@ -169,7 +169,9 @@ class ReplayClient:
         )
         for attempt in range(self.max_retries + 1):
             try:
-                response = self.stub.Insert(iter((request,)), metadata=self._metadata)
+                response: replay_pb2.InsertResponse = self.stub.Insert(
+                    iter((request,)), metadata=self._metadata
+                )
                 return response.items_inserted
             except grpc.RpcError as error:
                 if error.code() != grpc.StatusCode.UNAVAILABLE or attempt == self.max_retries:
@@ -220,16 +222,20 @@ class ReplayClient:
             priorities=np.asarray(priorities, dtype=np.float64).reshape(-1).tolist(),
         )
         try:
-            return self.stub.UpdatePriorities(request, metadata=self._metadata).updated
+            response: replay_pb2.UpdatePrioritiesResponse = self.stub.UpdatePriorities(
+                request, metadata=self._metadata
+            )
+            return response.updated
         except grpc.RpcError as error:
             raise _typed(error) from None
 
     def checkpoint(self) -> str:
         """Asks the server to write a checkpoint now; returns its path."""
         try:
-            return self.stub.Checkpoint(
+            response: replay_pb2.CheckpointResponse = self.stub.Checkpoint(
                 replay_pb2.CheckpointRequest(), metadata=self._metadata
-            ).path
+            )
+            return response.path
         except grpc.RpcError as error:
             raise _typed(error) from None
 
@@ -272,7 +278,13 @@ class ReplayClient:
             channel.close()
 
 
-def _rebuild_client(address, token, max_retries, max_message_bytes, tls_root_cert) -> ReplayClient:
+def _rebuild_client(
+    address: str,
+    token: Optional[str],
+    max_retries: int,
+    max_message_bytes: int,
+    tls_root_cert: Optional[str],
+) -> ReplayClient:
     return ReplayClient(
         address,
         token=token,
@@ -280,6 +292,18 @@ def _rebuild_client(address, token, max_retries, max_message_bytes, tls_root_cer
         max_message_bytes=max_message_bytes,
         tls_root_cert=tls_root_cert,
     )
+
+
+class _SampleCall(Protocol):
+    """A streaming Sample call: its responses, and a way to end it."""
+
+    def __iter__(self) -> Iterator[replay_pb2.SampleResponse]: ...
+    def cancel(self) -> bool: ...
+
+
+_Sampled = Union[tuple[Batch, int, int], ReplayError, None]
+"""What the prefetch thread hands over: (batch, table_inserts, table_size), an error, or
+None once the stream has ended."""
 
 
 class SampleStream:
@@ -306,19 +330,19 @@ class SampleStream:
         self.wait_s = 0.0
         self._client = client
         self._prefetch = max(prefetch, 1)
-        self._batches: queue.Queue = queue.Queue()
+        self._batches: queue.Queue[_Sampled] = queue.Queue()
         self._request = replay_pb2.SampleRequest(
             table=table, batch_size=batch_size, num_batches=1, sequence_length=sequence_length
         )
         self._closed = threading.Event()
-        self._credits: queue.Queue = queue.Queue()
+        self._credits: queue.Queue[Optional[replay_pb2.SampleRequest]] = queue.Queue()
         self._call = self._open()
         self._thread = threading.Thread(target=self._pump, daemon=True, name="replay-prefetch")
         self._thread.start()
 
-    def _open(self):
+    def _open(self) -> _SampleCall:
         """A new call, granted a full prefetch window (batches in flight were lost with the old)."""
-        credits: queue.Queue = queue.Queue()
+        credits: queue.Queue[Optional[replay_pb2.SampleRequest]] = queue.Queue()
         first = replay_pb2.SampleRequest()
         first.CopyFrom(self._request)
         first.num_batches = self._prefetch
@@ -329,7 +353,8 @@ class SampleStream:
             while (request := credits.get()) is not None:
                 yield request
 
-        return self._client.stub.Sample(requests(), metadata=self._client._metadata)
+        call: _SampleCall = self._client.stub.Sample(requests(), metadata=self._client._metadata)
+        return call
 
     def _pump(self) -> None:
         attempt = 0

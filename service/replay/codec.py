@@ -46,7 +46,8 @@ def encode_batch(columns: Mapping[str, np.ndarray]) -> bytes:
             "shape": list(array.shape),
             "data": array.data if array.size else b"",
         }
-    return msgpack.packb({"columns": packed}, use_bin_type=True)
+    payload: bytes = msgpack.packb({"columns": packed}, use_bin_type=True)
+    return payload
 
 
 def _refuse_ext(code: int, data: bytes) -> None:

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import uuid
 import zlib
-from collections.abc import Iterator, Mapping, Sequence
-from typing import Optional
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any, Optional
 
 import numpy as np
 
@@ -45,7 +45,7 @@ class ShardedReplayClient:
         self.home = zlib.crc32(self.writer_id.encode()) % len(self.shards)
         self._rng = np.random.default_rng(seed)
 
-    def __reduce__(self):
+    def __reduce__(self) -> tuple[Callable[..., ShardedReplayClient], tuple[Any, ...]]:
         return (_rebuild, (self.addresses, self.token))
 
     def insert(

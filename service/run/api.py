@@ -18,6 +18,7 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from actors.task import EnvSpec
+from service.core import Evaluation as LearnerEvaluation
 from service.run.config import TrainConfig, config_from_data, load_preset
 
 PresetSource = Union[TrainConfig, str, Path]
@@ -34,8 +35,11 @@ class Run:
     """The resolved config it trained with (also in ``run_dir/config.yaml``)."""
     summary: dict[str, Any]
     """``summary.json``: env steps, updates, final evaluation return, throughput."""
-    evaluations: list[dict[str, Any]]
+    evaluations: list[LearnerEvaluation]
     """Every evaluation the learner ran (mean and std of the returns, with its step)."""
+    interrupted: bool = False
+    """Ctrl-C stopped the run; its last checkpoint holds the state at
+    ``summary['env_steps']``."""
 
     def policy(self) -> Policy:
         """The run's greedy policy (its latest checkpoint)."""
@@ -111,6 +115,9 @@ def train(
 ) -> Run:
     """Trains a preset end to end (Ray actors, replay server, learner) and returns the run.
 
+    Ctrl-C stops the run cleanly (a final checkpoint, summary.json); the returned run says
+    ``interrupted``.
+
     Args:
         config_or_preset: A `TrainConfig`, a preset name or a preset YAML path. None with
             ``resume``: the config recorded in ``run_dir`` (whatever preset it came from).
@@ -141,7 +148,13 @@ def train(
         resume=resume,
         progress=progress,
     )
-    return Run(result.run_dir, config, result.summary, result.evaluations)
+    return Run(
+        result.run_dir,
+        config,
+        result.summary,
+        result.evaluations,
+        interrupted=result.interrupted,
+    )
 
 
 def load_policy(source: Union[str, Path, Run], *, preset: Optional[PresetSource] = None) -> Policy:

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import typing
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -16,6 +19,7 @@ from learner.dqn.config import DQNConfig
 from learner.options.config import OptionsConfig
 from learner.pretrain.config import PretrainConfig
 from learner.td3.config import TD3Config
+from service.run.validation import ConfigError, coerce, unknown_fields, yaml_error
 
 ALGORITHMS = ("td3", "ddqn", "backbone_td3", "pretrain_td3", "options")
 SECTIONS = {
@@ -118,6 +122,8 @@ class TrainConfig:
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
+        if not 0 <= self.seed < 2**32:
+            raise ValueError(f"seed={self.seed} must lie in [0, 2**32) (numpy's seed range)")
         if self.keep_checkpoints < 0:
             raise ValueError(f"keep_checkpoints={self.keep_checkpoints} must be >= 0 (0: all)")
         if not isinstance(self.env_kwargs, dict):
@@ -159,19 +165,109 @@ class TrainConfig:
             raise ValueError(f"preset {self.preset}: {error}") from None
 
 
-def _build(cls: type, data: dict[str, Any], where: str) -> Any:
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
+def _build(cls: type, data: dict[str, Any], section: str = "") -> Any:
+    """``cls(**data)`` once every key is a field and every value has its field's type.
+
+    Raises:
+        ConfigError: one line naming the field (``td3.batch_size``), the value and what is
+            allowed, for unknown keys, wrong types and values the dataclass refuses.
+    """
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = set(data) - set(names)
     if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(names)}")
-    return cls(**data)
+        raise ConfigError(unknown_fields(unknown, names, section=section))
+    prefix = f"{section}." if section else ""
+    values = {k: coerce(prefix + k, v, hints[k]) for k, v in data.items()}
+    try:
+        return cls(**values)
+    except (ValueError, TypeError) as e:
+        message = str(e).splitlines()[0] if str(e) else type(e).__name__
+        if section and any(message.startswith(f"{name}=") for name in names):
+            message = prefix + message  # "batch_size=0 ..." -> "td3.batch_size=0 ..."
+        raise ConfigError(message) from None
+
+
+PRESETS = resources.files("service.run") / "presets"
 
 
 def preset_names() -> list[str]:
-    folder = resources.files("service.run") / "presets"
     return sorted(
-        p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml")
+        p.name.removesuffix(".yaml") for p in PRESETS.iterdir() if p.name.endswith(".yaml")
     )
+
+
+def preset_description(text: str) -> str:
+    """A preset's one-line description: its first line, a comment."""
+    first = text.split("\n", 1)[0].strip()
+    return first.lstrip("#").strip() if first.startswith("#") else ""
+
+
+def preset_descriptions() -> dict[str, str]:
+    """Every shipped preset's name and one-line description (`graft presets`)."""
+    return {
+        name: preset_description((PRESETS / f"{name}.yaml").read_text()) for name in preset_names()
+    }
+
+
+def is_preset_path(name_or_path: str) -> bool:
+    """A YAML path (ends .yaml/.yml or names a folder) rather than a shipped preset's name."""
+    return Path(name_or_path).suffix in (".yaml", ".yml") or "/" in name_or_path
+
+
+def _read_preset(name_or_path: str) -> tuple[dict[str, Any], str, Optional[Path]]:
+    """A preset's fields, its name (a path's stem) and the folder of a preset file (None
+    for a shipped preset); refuses unknown names, missing files and malformed YAML in one
+    line."""
+    if is_preset_path(name_or_path):
+        path = Path(name_or_path)
+        if not path.is_file():
+            raise ConfigError(f"preset file {name_or_path} does not exist")
+        text, name, folder = path.read_text(), path.stem, path.resolve().parent
+    else:
+        candidate = PRESETS / f"{name_or_path}.yaml"
+        if not candidate.is_file():
+            close = difflib.get_close_matches(name_or_path, preset_names(), n=3, cutoff=0.8)
+            hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+            raise ConfigError(
+                f"unknown preset {name_or_path!r}{hint}; presets: {', '.join(preset_names())} "
+                "(`graft presets`), or a path to a YAML file"
+            )
+        text, name, folder = candidate.read_text(), name_or_path, None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise yaml_error(f"preset {name_or_path}", e) from None
+    if data is None:
+        return {}, name, folder
+    if not isinstance(data, dict):
+        raise ConfigError(
+            f"preset {name_or_path}: expected a mapping of field: value, got a "
+            f"{type(data).__name__}"
+        )
+    return data, name, folder
+
+
+def _check_keys(keys: Iterable[str]) -> None:
+    """Refuses a key naming no field ("td3.batchsize"), with the close matches."""
+    top = {f.name for f in dataclasses.fields(TrainConfig)}
+    for key in keys:
+        section, _, name = key.partition(".")
+        if section not in top:
+            raise ConfigError(unknown_fields([section], top))
+        if name and section in SECTIONS:
+            fields = {f.name for f in dataclasses.fields(SECTIONS[section])}
+            if name not in fields:
+                raise ConfigError(unknown_fields([name], fields, section=section))
+
+
+def _keys(data: dict[str, Any]) -> list[str]:
+    """A preset's keys, a section's fields as "section.field"."""
+    return [
+        f"{key}.{name}" if key in SECTIONS and isinstance(value, dict) else key
+        for key, value in data.items()
+        for name in (value if key in SECTIONS and isinstance(value, dict) else [None])
+    ]
 
 
 def load_preset(name_or_path: str | Path, **overrides: Any) -> TrainConfig:
@@ -184,20 +280,20 @@ def load_preset(name_or_path: str | Path, **overrides: Any) -> TrainConfig:
     modules are found; relative ``import_path`` entries count from the preset's folder.
 
     Raises:
-        ValueError: unknown preset or keys, or values a run cannot use.
+        ConfigError: unknown preset or keys, malformed YAML, or values a run cannot use,
+            in one line naming the field, the value and what is allowed.
     """
-    path = Path(name_or_path)
-    if path.suffix not in (".yaml", ".yml"):
-        candidate = resources.files("service.run") / "presets" / f"{name_or_path}.yaml"
-        if not candidate.is_file():
-            raise ValueError(f"unknown preset {name_or_path!r}; presets: {preset_names()}")
-        text, name, folder = candidate.read_text(), str(name_or_path), None
-    else:
-        text, name, folder = path.read_text(), path.stem, path.resolve().parent
-    data = yaml.safe_load(text) or {}
+    data, name, folder = _read_preset(str(name_or_path))
+    try:
+        _check_keys(_keys(data))
+    except ConfigError as e:
+        raise ConfigError(f"preset {name_or_path}: {e}") from None
     data.setdefault("preset", name)
+    listed = data.get("import_path") or []
+    if not isinstance(listed, list) or not all(isinstance(p, str) for p in listed):
+        raise ConfigError(f"import_path={listed!r} must be a list of folders")
     base = folder if folder is not None else Path.cwd()
-    search = [str((base / p).resolve()) for p in data.get("import_path") or []]
+    search = [str((base / p).resolve()) for p in listed]
     defaults = [str(folder)] if folder is not None else []
     data["import_path"] = _unique(search + defaults + [str(Path.cwd())])
     return config_from_data(data, **overrides)
@@ -208,26 +304,38 @@ def config_from_data(data: dict[str, Any], **overrides: Any) -> TrainConfig:
     in `load_preset`. A ``versions`` record in the data is ignored.
 
     Raises:
-        ValueError: unknown keys, or values a run cannot use.
+        ConfigError: unknown keys, or values a run cannot use, in one line.
     """
     data = {k: v for k, v in data.items() if k != "versions"}
-    name = data.get("preset", "?")
+    _check_keys(_keys(data))
+    _check_keys(key for key, value in overrides.items() if value is not None)
     for key, value in overrides.items():
         if value is None:
             continue
-        section, _, field_name = key.rpartition(".")  # "pretrain.demo_noise" -> section
-        if section:
-            data[section] = {**(data.get(section) or {}), field_name: value}
-        elif key in SECTIONS and isinstance(value, dict):
-            data[key] = {**(data.get(key) or {}), **value}
-        else:
-            data[key] = value
+        *path, last = key.split(".")  # "pretrain.demo_noise" -> data["pretrain"]["demo_noise"]
+        node = data
+        for depth, part in enumerate(path):
+            child = node.get(part) or {}
+            if not isinstance(child, dict):
+                where = ".".join(path[: depth + 1])
+                raise ConfigError(f"{where}={child!r} must be a mapping of name: value")
+            node[part] = node = dict(child)
+        if not path and last in SECTIONS and isinstance(value, dict):
+            current = node.get(last) or {}
+            if isinstance(current, dict):  # td3={"batch_size": 64} sets those fields only
+                value = {**current, **value}
+        node[last] = value
     for key, cls in SECTIONS.items():
-        values = data.pop(key, {}) or {}
-        data[key] = (
-            values if isinstance(values, cls) else _build(cls, values, f"preset {name}: {key}")
-        )
-    return _build(TrainConfig, data, f"preset {name}")
+        section = data.pop(key, None) or {}
+        if isinstance(section, dict):
+            section = _build(cls, section, key)
+        elif not isinstance(section, cls):
+            raise ConfigError(
+                f"{key}={section!r} must be a mapping of {key}'s fields, e.g. {key}: "
+                f"{{{dataclasses.fields(cls)[0].name}: ...}}"
+            )
+        data[key] = section
+    return _build(TrainConfig, data)
 
 
 def _unique(items: list[str]) -> list[str]:

@@ -25,15 +25,23 @@ def make_builder(config: TrainConfig) -> AgentBuilder:
         updates_per_env_step=config.updates_per_env_step,
         slack_env_steps=config.slack_env_steps,
     )
-    common = {"budget": budget, "seed": config.seed}
     if config.algorithm == "ddqn":
         from learner.dqn.builder import DQNBuilder
 
-        return DQNBuilder(obs_space, action_space, config=config.dqn, **common)
+        return DQNBuilder(
+            obs_space, action_space, config=config.dqn, budget=budget, seed=config.seed
+        )
     # Every other algorithm is TD3 plus something: the TD3 builder checks the spaces.
     from learner.td3.builder import TD3Builder
 
-    td3 = TD3Builder(obs_space, action_space, config=config.td3, method=config.algorithm, **common)
+    td3 = TD3Builder(
+        obs_space,
+        action_space,
+        config=config.td3,
+        method=config.algorithm,
+        budget=budget,
+        seed=config.seed,
+    )
     # The methods that improve a hard-coded policy get its import string, and build it.
     policy, path = config.hardcoded_policy, config.import_path
     if config.algorithm == "td3":

@@ -12,8 +12,8 @@ from typing import Optional
 
 import yaml
 
-from service.replay.server.core import ReplayCore
 from service.replay.server.servicer import ServerOptions, serve_forever
+from service.replay.server.store import ReplayCore
 from service.replay.server.table_config import make_table
 
 

@@ -53,7 +53,15 @@ class ReplayProcess:
         command += list(extra_args)
         self._log = open(log_path, "ab") if log_path else subprocess.DEVNULL
         self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT)
-        deadline = time.monotonic() + startup_timeout_s
+        try:
+            self._wait_until_ready(ready, startup_timeout_s, log_path)
+        except BaseException:  # failed, timed out or Ctrl-C: no server outlives its start
+            self.stop()
+            raise
+        self.address: str = json.loads(ready.read_text())["address"]
+
+    def _wait_until_ready(self, ready: Path, timeout_s: float, log_path: Optional[Path]) -> None:
+        deadline = time.monotonic() + timeout_s
         while not ready.exists():
             if self.process.poll() is not None:
                 raise RuntimeError(
@@ -61,10 +69,8 @@ class ReplayProcess:
                     + (f"; see {log_path}" if log_path else "")
                 )
             if time.monotonic() > deadline:
-                self.stop()
-                raise TimeoutError(f"replay server did not start within {startup_timeout_s}s")
+                raise TimeoutError(f"replay server did not start within {timeout_s}s")
             time.sleep(0.05)
-        self.address: str = json.loads(ready.read_text())["address"]
 
     def stop(self, timeout_s: float = 15.0) -> None:
         """SIGTERM (graceful: final checkpoint, drain), then SIGKILL if it hangs."""
@@ -75,7 +81,7 @@ class ReplayProcess:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
-        if self._log is not subprocess.DEVNULL:
+        if not isinstance(self._log, int):  # an open log file, not subprocess.DEVNULL
             self._log.close()
         self._dir.cleanup()
 

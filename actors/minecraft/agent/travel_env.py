@@ -254,7 +254,7 @@ class MinecraftTravelEnv(gym.Env):
         self.mission = self._next_mission()
         client.init(travel_mission_xml(self.mission, time_limit_ticks=self.max_ticks + 20))
         client.reset()
-        reply = client.step("")
+        reply = client.observe()  # real Malmo may answer a step without info
         if not reply.info:
             raise RuntimeError("the travel mission ended before its first observation")
         p = parse(reply.info)

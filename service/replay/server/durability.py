@@ -98,7 +98,8 @@ def write_checkpoint(
     tmp = folder / f".{path.name}.tmp"
     with open(tmp, "wb") as f:
         buffer = io.BufferedWriter(f, buffer_size=1 << 20)
-        np.savez(buffer, **arrays)
+        # numpy's stub reads `**arrays` as possibly filling its `allow_pickle: bool`.
+        np.savez(buffer, **arrays)  # type: ignore[arg-type]
         buffer.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)

@@ -3,11 +3,14 @@ a process in tests) and served over HTTP."""
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from typing import Optional
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, start_http_server
 
-from service.replay.server.core import ReplayCore
+from service.replay.server.store import ReplayCore
+from service.replay.server.table import Table
 
 
 class ReplayMetrics:
@@ -25,7 +28,7 @@ class ReplayMetrics:
         self.errors = Counter(
             "graft_replay_errors", "RPCs refused, by status", ["code"], registry=r
         )
-        per_table = {
+        per_table: dict[str, tuple[str, Callable[[Table], float]]] = {
             "graft_replay_table_size": ("Items stored", lambda t: t.size),
             "graft_replay_table_inserts": ("Items ever inserted", lambda t: t.stats.inserts),
             "graft_replay_table_samples": ("Items ever sampled", lambda t: t.stats.samples),
@@ -38,7 +41,7 @@ class ReplayMetrics:
         for name, (help_text, read) in per_table.items():
             gauge = Gauge(name, help_text, ["table"], registry=r)
             for table in core.tables.values():
-                gauge.labels(table.name).set_function(lambda t=table, read=read: read(t))
+                gauge.labels(table.name).set_function(functools.partial(read, table))
 
     def serve(self, port: int, host: str = "127.0.0.1") -> Optional[int]:
         """Starts the /metrics HTTP endpoint; returns the bound port."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -110,10 +111,11 @@ class Prioritized:
 
     def priorities(self, rows: np.ndarray) -> np.ndarray:
         """Raw priorities p_i of rows (inverts the exponent)."""
-        mass = self._tree[rows + self._leaves]
+        mass: np.ndarray = self._tree[rows + self._leaves]
         if self.priority_exponent == 0:
             return np.where(mass > 0, 1.0, 0.0)
-        return np.power(mass, 1.0 / self.priority_exponent)
+        raw: np.ndarray = np.power(mass, 1.0 / self.priority_exponent)
+        return raw
 
     def sample(
         self, slots: Slots, rng: np.random.Generator, n: int
@@ -129,18 +131,20 @@ class Prioritized:
             target = np.where(go_right, target - left, target)
             nodes = 2 * nodes + go_right
         rows = nodes - self._leaves
-        mass = self._tree[nodes]
+        mass: np.ndarray = self._tree[nodes]
         # Float round-off can land on a zero-mass leaf at the very end: redraw those uniformly.
         if not np.all(mass > 0):
             bad = mass <= 0
             rows[bad] = slots.uniform(rng, int(bad.sum()))
             mass = self._tree[rows + self._leaves]
-        return rows, mass / total
+        probabilities: np.ndarray = mass / total
+        return rows, probabilities
 
     def importance_weights(self, probabilities: np.ndarray, size: int) -> np.ndarray:
         """w_i = (N·P(i))^-β, normalised by the batch maximum (Schaul et al. 2016)."""
-        weights = np.power(size * probabilities, -self.importance_exponent)
-        return (weights / weights.max()).astype(np.float32)
+        weights: np.ndarray = np.power(size * probabilities, -self.importance_exponent)
+        normalised: np.ndarray = (weights / weights.max()).astype(np.float32)
+        return normalised
 
     def describe(self) -> str:
         return (
@@ -152,11 +156,15 @@ class Prioritized:
 Sampler = Uniform | Fifo | Lifo | Prioritized
 
 
-def make_sampler(spec: dict | str | None) -> Sampler:
+def make_sampler(spec: dict[str, Any] | str | None) -> Sampler:
     """``"uniform"``, ``"fifo"``, ``"lifo"`` or ``{"kind": "prioritized", ...}``."""
     spec = {"kind": spec} if isinstance(spec, str) else dict(spec or {"kind": "uniform"})
     kind = spec.pop("kind", "uniform")
-    simple = {"uniform": Uniform, "fifo": Fifo, "lifo": Lifo}
+    simple: dict[str, type[Uniform | Fifo | Lifo]] = {
+        "uniform": Uniform,
+        "fifo": Fifo,
+        "lifo": Lifo,
+    }
     if kind in simple:
         if spec:
             raise ValueError(f"sampler '{kind}' takes no options, got {sorted(spec)}")

@@ -9,10 +9,11 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Callable, Iterator
 from concurrent import futures
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Any, NoReturn, Optional
 
 import grpc
 import numpy as np
@@ -27,9 +28,9 @@ from service.replay.codec import (
     decode_batch,
     encode_batch,
 )
-from service.replay.server.core import ReplayCore, UnknownTable
 from service.replay.server.prom import ReplayMetrics
 from service.replay.server.signature import SignatureError
+from service.replay.server.store import ReplayCore, UnknownTable
 from service.replay.server.table import RateLimitTimeout
 
 log = logging.getLogger(__name__)
@@ -64,7 +65,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         self.metrics = metrics
         self.max_message_bytes = max_message_bytes
 
-    def _abort(self, context: grpc.ServicerContext, error: Exception) -> None:
+    def _abort(self, context: grpc.ServicerContext, error: Exception) -> NoReturn:
         """Maps a core exception to the status a client can act on; re-raises the unknown."""
         for kinds, code in _STATUS_OF:
             if isinstance(error, kinds):
@@ -78,7 +79,9 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         limits = [t for t in (request_timeout or None, context.time_remaining()) if t is not None]
         return min(limits) if limits else None
 
-    def Insert(self, request_iterator, context):  # noqa: N802 (gRPC method name)
+    def Insert(  # noqa: N802 (gRPC method name)
+        self, request_iterator: Iterator[replay_pb2.InsertRequest], context: grpc.ServicerContext
+    ) -> replay_pb2.InsertResponse:
         stored = dropped = 0
         acked: dict[str, int] = {}
         for request in request_iterator:
@@ -106,7 +109,9 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
             items_inserted=stored, batches_dropped_as_duplicates=dropped, acked_sequence=acked
         )
 
-    def Sample(self, request_iterator, context):  # noqa: N802
+    def Sample(  # noqa: N802
+        self, request_iterator: Iterator[replay_pb2.SampleRequest], context: grpc.ServicerContext
+    ) -> Iterator[replay_pb2.SampleResponse]:
         for request in request_iterator:
             try:
                 table = self.core.table(request.table)
@@ -129,7 +134,9 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                     batch=payload, table_inserts=table.stats.inserts, table_size=table.size
                 )
 
-    def UpdatePriorities(self, request, context):  # noqa: N802
+    def UpdatePriorities(  # noqa: N802
+        self, request: replay_pb2.UpdatePrioritiesRequest, context: grpc.ServicerContext
+    ) -> replay_pb2.UpdatePrioritiesResponse:
         try:
             updated = self.core.table(request.table).update_priorities(
                 np.asarray(request.keys, dtype=np.int64),
@@ -139,7 +146,9 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
             self._abort(context, error)
         return replay_pb2.UpdatePrioritiesResponse(updated=updated)
 
-    def Checkpoint(self, request, context):  # noqa: N802
+    def Checkpoint(  # noqa: N802
+        self, request: replay_pb2.CheckpointRequest, context: grpc.ServicerContext
+    ) -> replay_pb2.CheckpointResponse:
         path = self.core.checkpoint()
         if path is None:
             context.abort(
@@ -148,7 +157,9 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
             )
         return replay_pb2.CheckpointResponse(path=str(path))
 
-    def Info(self, request, context):  # noqa: N802
+    def Info(  # noqa: N802
+        self, request: replay_pb2.InfoRequest, context: grpc.ServicerContext
+    ) -> replay_pb2.InfoResponse:
         tables = []
         for t in self.core.tables.values():
             described = t.describe()
@@ -176,12 +187,18 @@ class _TokenInterceptor(grpc.ServerInterceptor):
     def __init__(self, token: str) -> None:
         self._token = token.encode()
 
-        def refuse(request, context):
+        def refuse(request: object, context: grpc.ServicerContext) -> NoReturn:
             context.abort(grpc.StatusCode.UNAUTHENTICATED, "missing or wrong graft-token metadata")
 
-        self._refuse = grpc.unary_unary_rpc_method_handler(refuse)
+        self._refuse: grpc.RpcMethodHandler[Any, Any] = grpc.unary_unary_rpc_method_handler(refuse)
 
-    def intercept_service(self, continuation, handler_call_details):
+    def intercept_service(
+        self,
+        continuation: Callable[
+            [grpc.HandlerCallDetails], Optional[grpc.RpcMethodHandler[Any, Any]]
+        ],
+        handler_call_details: grpc.HandlerCallDetails,
+    ) -> Optional[grpc.RpcMethodHandler[Any, Any]]:
         if handler_call_details.method.startswith("/grpc.health"):
             return continuation(handler_call_details)
         sent = dict(handler_call_details.invocation_metadata or ()).get(TOKEN_METADATA_KEY, "")

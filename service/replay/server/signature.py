@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -46,7 +47,7 @@ class Signature:
 
     @classmethod
     def from_dict(
-        cls, columns: Mapping[str, Mapping], *, allow_nonfinite: bool = False
+        cls, columns: Mapping[str, Mapping[str, Any]], *, allow_nonfinite: bool = False
     ) -> Signature:
         """Builds a signature from ``{name: {"dtype": "float32", "shape": [3]}}``."""
         return cls(
@@ -82,7 +83,7 @@ class Signature:
         missing = sorted(set(self.columns) - set(batch))
         if missing:
             raise SignatureError(f"missing column(s) {missing}")
-        sizes = {name: array.shape[0] for name, array in batch.items()}
+        sizes = {name: int(array.shape[0]) for name, array in batch.items()}
         if len(set(sizes.values())) != 1:
             raise SignatureError(f"columns disagree on the number of items: {sizes}")
         n = next(iter(sizes.values()))

@@ -122,7 +122,8 @@ class FreeListSlots:
         return np.array([get(k, -1) for k in keys.tolist()], dtype=np.int64)
 
     def keys_of(self, rows: np.ndarray) -> np.ndarray:
-        return self.keys[rows]
+        keys: np.ndarray = self.keys[rows]
+        return keys
 
     def live(self, keys: np.ndarray) -> np.ndarray:
         return np.array([k in self._row_of for k in keys.tolist()], dtype=bool)

@@ -93,7 +93,9 @@ def test_actor_streams_transitions_and_reports_ticks(ray_local, world, replay) -
     assert report["actor/steps"] == 60
     assert report["replay/inserted"] == 60 and report["replay/dropped"] == 0
     assert 0.0 <= report["perf/ticks_skipped_fraction"] <= 1.0
-    assert report["perf/ticks_seen"] >= 60
+    # Every observation counted once (real Malmo: a step may bring none, frames come at
+    # 60/s and ticks at 50/s here).
+    assert 0 < report["perf/ticks_seen"] <= 61
     assert 0.0 < report["perf/step_latency_ms_p50"] < 20.0  # the actor's own time per step
     (status,) = replay.info()
     assert status.size == 60

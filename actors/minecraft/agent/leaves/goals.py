@@ -154,6 +154,7 @@ class Explore(Leaf):
             state = {"heading": heading, "goals": frozenset(goals), "since": p.tick}
             mem[key] = state
             mem["last_plan_failed"] = False
+        assert state is not None  # renewed above when there was none
         ctx.goals = state["goals"]
         return Status.SUCCESS
 

@@ -1,0 +1,199 @@
+"""The contracts between graft's parts, each shown with the loop that calls it.
+
+A seam between packages is typed with one of these protocols. This is the bottom layer:
+it imports no other graft module, so every package may import it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future
+from typing import Any, Optional, Protocol, TypedDict
+
+import numpy as np
+import torch
+
+Columns = dict[str, np.ndarray]
+"""Replay columns of B steps, each [B, ...]; a sampled batch too."""
+TensorBatch = dict[str, torch.Tensor]
+"""A sampled batch's data columns as tensors, as a learning step takes them."""
+Metrics = dict[str, float]
+"""Namespaced scalars a learning step reports (`losses/critic`, ...)."""
+Weights = dict[str, torch.Tensor]
+"""The acting policy's parameters, as the learner publishes them."""
+
+
+class ColumnSpec(TypedDict):
+    """One column of a replay signature."""
+
+    dtype: str
+    shape: list[int]
+
+
+class Behaviour(Protocol):
+    """The policy an actor acts with: exploration, warm-up and the columns replay keeps.
+
+    `EnvActor.run` (actors/env_actor.py) drives it, B environments at a time::
+
+        behaviour.load(new_weights)  # when weights.poll() returns some
+        action, record = behaviour.act(obs, rng, warmup=steps < segment.warmup_steps)
+        record.update(stepper.step(action))      # obs, reward, ..., next_obs
+        record.update(behaviour.next_columns(record["next_obs"]))
+        behaviour.end_episodes(record["terminated"] | record["truncated"])
+        replay.insert(segment.table, batch)      # every few steps, then behaviour.stats()
+
+    `Evaluator.evaluate` (actors/evaluator.py) calls `load(weights)`, then `greedy(obs)`.
+    """
+
+    def columns(self) -> dict[str, ColumnSpec]:
+        """Every column `act` and `next_columns` return, as a replay signature fragment."""
+
+    def load(self, weights: Weights) -> None:
+        """Adopts published learner weights."""
+
+    def act(
+        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+    ) -> tuple[np.ndarray, Columns]:
+        """Actions to apply for obs [B, ...] (`warmup`: the warm-up policy's), and columns
+        holding at least `action`, the sampled action UNCLIPPED (importance ratios are
+        taken on it; the environment clips), and `log_prob`, its log-likelihood."""
+
+    def next_columns(self, next_obs: np.ndarray) -> Columns:
+        """Columns computed on s' (e.g. the backbone's μ(s')); {} for most behaviours."""
+
+    def end_episodes(self, ended: np.ndarray) -> None:
+        """Told after each step which environments' episodes ended ([B] bool)."""
+
+    def greedy(self, obs: np.ndarray) -> np.ndarray:
+        """Deterministic actions for evaluation, [B, ...]."""
+
+    def stats(self) -> dict[str, float]:
+        """Scalars about the behaviour since the last call (e.g. option usage), then reset."""
+
+
+class ReplayWriter(Protocol):
+    """Where an actor's steps go (`ReplayClient`, service/replay/client.py).
+
+    `EnvActor.run` calls ``replay.insert(segment.table, batch)`` every `steps_per_insert`
+    steps; it blocks while the table's rate limiter says wait, pacing actors to the learner.
+    """
+
+    def insert(
+        self, table: str, columns: Mapping[str, np.ndarray], *, timeout: Optional[float] = None
+    ) -> int:
+        """Stores one batch of columns; returns the items stored (0 for a resent batch)."""
+
+
+class WeightSource(Protocol):
+    """The newest published weights, seen from an actor (`WeightSubscriber`, service/weights).
+
+    `EnvActor.run` polls before each step (blocking only until the first weights, if
+    acting needs them) and stops once `weights.stopped`::
+
+        if (new := weights.poll()) is not None:
+            behaviour.load(new)
+    """
+
+    version: int
+    """Version of the weights last returned by `poll` (-1: none yet)."""
+    stopped: bool
+    """The learner has finished: actors stop acting."""
+
+    def poll(self, *, block_s: float = 0.0) -> Optional[Weights]:
+        """Weights newer than `version` if they arrived (waiting up to `block_s`), else None."""
+
+
+UpdateStep = Callable[["Algorithm", TensorBatch], Metrics]
+"""One learning step on a batch. Each phase carries the step its batches go to:
+`learner.agent.update_step` (the algorithm's `update`) unless it names another."""
+
+
+class Algorithm(Protocol):
+    """A learning algorithm, as `LearnerLoop.run` (learner/loop.py) drives it (and
+    `train` in service/run/launcher.py resumes a run with `load_state_dict`)::
+
+        for phase in phases:
+            stream = open_stream(phase)
+            while updates < end of phase:
+                metrics = phase.step(algorithm, to_tensors(stream.next_within(timeout)))
+                every publish_every:    publisher.publish(version, algorithm.policy_state())
+                every checkpoint_every: save_checkpoint(dir, {"algorithm": algorithm.state_dict()})
+    """
+
+    def update(self, batch: TensorBatch) -> Metrics:
+        """One learning step on a sampled batch; returns its metrics."""
+
+    def policy_state(self) -> Weights:
+        """Detached copies of the acting policy's weights, for the actors."""
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs (networks, optimisers, counters); opaque to the loop."""
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restores what `state_dict` returned."""
+
+
+class SampleStream(Protocol):
+    """Batches sampled from one table, fetched ahead (`SampleStream`, service/replay/client.py).
+
+    `LearnerLoop.run` reads one per phase::
+
+        stream = open_stream(phase)  # ReplayClient.sample_stream(phase.name, ...)
+        batch = stream.next_within(STALL_CHECK_S)  # TimeoutError: ask the watchdog, retry
+        env_steps, learner_wait_s = offset + stream.table_inserts, stream.wait_s
+        stream.close()  # at the end of the phase
+    """
+
+    wait_s: float
+    """Seconds the consumer has waited for batches so far."""
+    table_inserts: int
+    """Items inserted into the table, as of the last batch."""
+
+    def next_within(self, timeout: Optional[float]) -> Columns:
+        """The next batch; raises TimeoutError if none arrives within `timeout` seconds."""
+
+    def close(self) -> None:
+        """Stops fetching."""
+
+
+class WeightPublisher(Protocol):
+    """Where the learner publishes its policy (`BroadcastPublisher`, service/weights.py).
+
+    `LearnerLoop.publish` calls ``publisher.publish(version, algorithm.policy_state())``
+    before the first phase that acts with weights, every `publish_every` updates and at
+    the end; versions only grow.
+    """
+
+    def publish(self, version: int, weights: Weights) -> None:
+        """Makes `weights` the newest version every `WeightSource` will return."""
+
+
+class EvalTag(TypedDict):
+    """Where in the run evaluated weights come from."""
+
+    env_steps: int
+    updates: int
+    wall_s: float
+
+
+class Evaluation(TypedDict):
+    """Greedy episode returns of one set of weights."""
+
+    tag: EvalTag
+    mean: float
+    std: float
+    stats: dict[str, float]  # what the behaviour counted while acting greedily
+
+
+class Evaluator(Protocol):
+    """Scores weights with greedy episodes, off the learner's thread (actors/evaluator.py).
+
+    `LearnerLoop.run` submits weights and logs the results as they finish::
+
+        pending.append(evaluator.evaluate(weights, episodes=eval_episodes, tag=tag))
+        for future in [f for f in pending if f.done()]:
+            state.evaluations.append(future.result())  # and logged: eval/return_mean
+    """
+
+    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
+        """Starts `episodes` greedy episodes with `weights`; the future holds their returns."""
