@@ -266,16 +266,25 @@ class ReplayClient:
         ]
 
     def wait_until_ready(self, timeout: float = 30.0) -> None:
-        """Blocks until the server answers, or raises Unavailable."""
-        channel = grpc.insecure_channel(self.address)
+        """Blocks until the server answers a call of this client (its TLS, its token).
+
+        Raises:
+            Unavailable: no answer within `timeout` seconds.
+            Unauthenticated: the server answers, but refuses this client's token.
+        """
         try:
-            grpc.channel_ready_future(channel).result(timeout=timeout)
-        except grpc.FutureTimeoutError:
-            raise Unavailable(
-                f"replay server at {self.address} did not answer in {timeout}s"
-            ) from None
-        finally:
-            channel.close()
+            self.stub.Info(
+                replay_pb2.InfoRequest(),
+                metadata=self._metadata,
+                timeout=timeout,
+                wait_for_ready=True,
+            )
+        except grpc.RpcError as error:
+            if error.code() == grpc.StatusCode.DEADLINE_EXCEEDED:
+                raise Unavailable(
+                    f"replay server at {self.address} did not answer in {timeout}s"
+                ) from None
+            raise _typed(error) from None
 
 
 def _rebuild_client(

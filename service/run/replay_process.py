@@ -15,7 +15,11 @@ from typing import Any, Optional
 
 
 class ReplayProcess:
-    """A `graft replay serve` child process; `address` is known once it listens."""
+    """A `graft replay serve` child process; `address` is known once it listens.
+
+    `token` (None: the server takes none, whatever this process's GRAFT_TOKEN) reaches
+    the child in its environment, never on its command line.
+    """
 
     def __init__(
         self,
@@ -48,11 +52,15 @@ class ReplayProcess:
             "--exit-with-parent",
             str(os.getpid()),
         ]
-        if token:
-            command += ["--token", token]
         command += list(extra_args)
+        # The token goes by environment: a command line is readable by every local user.
+        env = {k: v for k, v in os.environ.items() if k != "GRAFT_TOKEN"}
+        if token:
+            env["GRAFT_TOKEN"] = token
         self._log = open(log_path, "ab") if log_path else subprocess.DEVNULL
-        self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT)
+        self.process = subprocess.Popen(
+            command, stdout=self._log, stderr=subprocess.STDOUT, env=env
+        )
         try:
             self._wait_until_ready(ready, startup_timeout_s, log_path)
         except BaseException:  # failed, timed out or Ctrl-C: no server outlives its start

@@ -27,6 +27,7 @@ from actors.minecraft.malmo import protocol as P
 from actors.minecraft.malmo.mission import Mission, MissionError, parse_mission
 from actors.minecraft.malmo.roles import RoleMission, role_mission
 from actors.minecraft.sim import session as S
+from actors.minecraft.sim import support
 from actors.minecraft.sim.instance import LOADING, RUNNING, Instance
 from actors.minecraft.sim.timing import REAL, Timing
 from actors.minecraft.sim.world import World
@@ -257,7 +258,10 @@ class WorldServer:
             return
         try:
             role = role_mission(xml, token.role)
+            parse_mission(xml, role=token.role)  # Malmo's schema rules on the whole MissionInit
             mission = parse_mission(role.xml)
+            for warning in support.check(mission):  # refuses what the simulator lacks
+                log.warning("mission approximated: %s", warning)
             if token.minerl and not token.synchronous:
                 raise MissionError("MineRL's asynchronous mode answers no steps; use synchronous")
             if token.agent_count != role.agent_count:

@@ -172,13 +172,14 @@ class Table:
         *,
         timeout: Optional[float] = None,
         writer: str = "",
-        on_stored: Optional[Callable[[], None]] = None,
+        before_store: Optional[Callable[[], None]] = None,
         rate_limited: bool = True,
     ) -> int:
         """Validates and stores a batch (evicting per the remover); returns items stored.
 
-        `on_stored` runs under the table lock right after the data is in place, so a
-        write-ahead log sees inserts in exactly the order the table applied them.
+        `before_store` runs under the table lock once the batch is admitted, right before
+        its rows go in, so a write-ahead log sees inserts in exactly the order the table
+        applies them; if it raises, nothing is stored.
         `rate_limited=False` is for replaying a log on restart.
         """
         n = self.signature.validate(batch, extra=RESERVED_INSERT_COLUMNS)
@@ -193,10 +194,10 @@ class Table:
                     timeout,
                     "insert",
                 )
+            if before_store is not None:
+                before_store()
             self._store(batch, n, priority, stream, writer)
             s.inserts += n
-            if on_stored is not None:
-                on_stored()
             self._cond.notify_all()
         return n
 
