@@ -23,11 +23,11 @@ import time
 from dataclasses import dataclass
 from typing import Any, Optional
 
-import gymnasium as gym
 import numpy as np
 import ray
 import torch
 
+from actors.task import EnvSpec
 from actors.tick_meter import TickMeter
 from actors.writer import BackgroundWriter
 from service.core import Behaviour, ReplayWriter, WeightSource
@@ -56,10 +56,8 @@ class VectorStepper:
     in a new stream: the steps before and after the loss are never linked.
     """
 
-    def __init__(
-        self, env_id: str, n: int, seed: int, env_kwargs: Optional[dict[str, Any]] = None
-    ) -> None:
-        self.envs = [gym.make(env_id, **(env_kwargs or {})) for _ in range(n)]
+    def __init__(self, env: EnvSpec, n: int, seed: int) -> None:
+        self.envs = [env.make() for _ in range(n)]
         self.meter = TickMeter(n)
         self.lost = np.zeros(n, bool)
         self.streams = np.arange(n, dtype=np.int64)
@@ -161,18 +159,17 @@ class EnvActor:
     def __init__(
         self,
         *,
-        env_id: str,
+        env: EnvSpec,
         num_envs: int,
         seed: int,
         replay: ReplayWriter,
         weights: WeightSource,
         behaviour: Behaviour,
         steps_per_insert: int,
-        env_kwargs: Optional[dict[str, Any]] = None,
         nice: Optional[int] = None,
     ) -> None:
         torch.set_num_threads(1)
-        self.stepper = VectorStepper(env_id, num_envs, seed, env_kwargs)
+        self.stepper = VectorStepper(env, num_envs, seed)
         self.rng = np.random.default_rng(seed)
         self.writer = BackgroundWriter(replay)
         self.weights = weights

@@ -38,12 +38,13 @@ from actors.minecraft.malmo.mission import parse_mission
 from actors.minecraft.malmo.mission_xml import mission_xml
 from actors.minecraft.sim.pool import ServerPool
 from actors.minecraft.sim.timing import IDEAL
+from actors.task import EnvSpec
 from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network, make_td3_learner
 from learner.td3.config import TD3Config
 from service.replay.client import ReplayClient
 from service.run.replay_process import ReplayProcess
-from service.weights import WeightBroadcaster
+from service.weights import WeightBroadcaster, WeightSubscriber
 
 
 def ticks_per_second(
@@ -216,14 +217,13 @@ def decoupled(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
             )  # fmt: skip
             actors = [
                 EnvActor.remote(
-                    env_id=ENV_ID,
+                    env=EnvSpec(ENV_ID, env_kwargs(port, args.seed + i, args.episode_steps)),
                     num_envs=1,
                     seed=args.seed + i,
                     replay=replay,
-                    broadcaster=broadcaster,
+                    weights=WeightSubscriber(broadcaster),
                     behaviour=behaviour,
                     steps_per_insert=INSERT_EVERY,
-                    env_kwargs=env_kwargs(port, args.seed + i, args.episode_steps),
                     nice=0,
                 )  # fmt: skip
                 for i, port in enumerate(pool.ports)

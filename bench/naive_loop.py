@@ -27,6 +27,7 @@ import torch
 from actors.behaviours.gaussian import GaussianBehaviour
 from actors.env_actor import VectorStepper
 from actors.minecraft.agent.mission_env import ACTION_SPACE
+from actors.task import EnvSpec
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
 
@@ -122,7 +123,7 @@ class NaiveLoop:
         nice: Optional[int] = 0,
     ) -> None:
         torch.set_num_threads(1)
-        self.stepper = VectorStepper(env_id, 1, seed, env_kwargs)
+        self.stepper = VectorStepper(EnvSpec(env_id, env_kwargs), 1, seed)
         obs_dim = self.stepper.obs.shape[1]
         self.trainer = InlineTrainer(
             obs_dim,

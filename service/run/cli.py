@@ -6,13 +6,19 @@ exit status 2; Ctrl-C during `graft train` exits with status 130 after a final c
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import NoReturn, Optional
+from typing import TYPE_CHECKING, NoReturn, Optional
 
 from service.run.figures import FIGURES
 from service.run.replay_cli import add_replay_commands
+
+if TYPE_CHECKING:
+    from service.run.config import TrainConfig
+
+DEFAULT_PRESET = "pendulum-td3"
 
 INTERRUPTED = 130
 """Exit status after Ctrl-C (128 + SIGINT), as shells report it."""
@@ -65,15 +71,14 @@ def _address(command: str, given: Optional[str]) -> str:
 
 def _train(args: argparse.Namespace) -> None:
     from learner.checkpoint import latest_checkpoint
-    from service.run.config import load_preset
-    from service.run.launcher import train
+    from service.run.api import train
     from service.run.validation import ConfigError
 
     _at_least("train", "--actors", args.actors, 1)
     _at_least("train", "--env-steps", args.env_steps, 1)
     _at_least("train", "--seed", args.seed, 0)
     try:
-        config = load_preset(args.preset, **_train_overrides(args))
+        config = _train_config(args)
     except ConfigError as error:
         raise UsageError("train", str(error)) from None
     address = _address("train", args.address)
@@ -114,6 +119,25 @@ def _train(args: argparse.Namespace) -> None:
     )
     print(f"actors adopted weight versions up to {s['actor_last_version']}")
     print(f"learning curve: {result.run_dir / 'learning_curve.png'}")
+
+
+def _train_config(args: argparse.Namespace) -> TrainConfig:
+    """The preset with the flags' overrides; resuming without --preset, the config the run
+    folder recorded (whatever preset or YAML file it came from)."""
+    import yaml
+
+    from service.run.config import config_from_data, load_preset
+    from service.run.trained import run_config
+    from service.run.validation import yaml_error
+
+    overrides = _train_overrides(args)
+    recorded = args.run_dir is not None and (args.run_dir / "config.yaml").is_file()
+    if args.preset is None and args.resume and recorded:
+        try:
+            return config_from_data(run_config(args.run_dir).to_dict(), **overrides)
+        except yaml.YAMLError as error:
+            raise yaml_error(str(args.run_dir / "config.yaml"), error) from None
+    return load_preset(args.preset or DEFAULT_PRESET, **overrides)
 
 
 def _train_overrides(args: argparse.Namespace) -> dict[str, object]:
@@ -166,64 +190,63 @@ def parse_settings(pairs: list[str]) -> dict[str, object]:
     return out
 
 
+_EVAL_FIELDS = ("policy", "env_id", "episodes", "mean", "std")
+
+
 def _eval(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from actors.evaluator import Policy, random_policy_for, run_episodes
+    from actors.task import add_import_path
+    from service.run.api import evaluate, load_policy
+    from service.run.config import load_preset
+    from service.run.preflight import check_task
     from service.run.validation import ConfigError, check_env_id
 
     _at_least("eval", "--episodes", args.episodes, 1)
     _at_least("eval", "--seed", args.seed, 0)
-    if args.env_id is not None:
-        try:
-            check_env_id(args.env_id)
-        except ConfigError as error:
-            raise UsageError("eval", f"--env-id: {error}") from None
-    env_id, env_kwargs = args.env_id or "Pendulum-v1", None
-    policy: Policy
-    if args.policy == "hardcoded":
-        if env_id != "Pendulum-v1":
-            raise UsageError("eval", "the hard-coded policy is for Pendulum-v1")
-        from actors.trees.pendulum import HardCodedPendulumPolicy
-
-        policy = HardCodedPendulumPolicy()
-    elif args.policy == "random":
-        policy = random_policy_for(env_id, seed=args.seed)
-    else:
-        policy, config = _checkpoint_policy(Path(args.policy), args.env_id)
-        env_id, env_kwargs = config.env_id, config.env_kwargs
-    returns = run_episodes(
-        policy, env_id=env_id, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs
-    )
-    result = {
-        "policy": args.policy,
-        "env_id": env_id,
-        "episodes": args.episodes,
-        "mean": float(np.mean(returns)),
-        "std": float(np.std(returns)),
-    }
-    print(
-        json.dumps(result)
-        if args.json
-        else f"{args.policy} on {env_id}: mean return {result['mean']:.1f} ± "
-        f"{result['std']:.1f} over {args.episodes} episodes"
-    )
-
-
-def _checkpoint_policy(path: Path, env_id: Optional[str]):
-    """The greedy policy of a run folder or checkpoint file (any algorithm), and its config."""
-    from service.run.trained import load_behaviour
 
     try:
-        behaviour, config = load_behaviour(path)
+        if args.policy in ("hardcoded", "random"):
+            task = load_preset(args.preset or DEFAULT_PRESET, seed=args.seed)
+            if args.env_id is not None:
+                add_import_path(task.import_path)
+                try:
+                    check_env_id(args.env_id)
+                except ConfigError as error:
+                    raise UsageError("eval", f"--env-id: {error}") from None
+                if args.policy == "random":  # random actions may go to any environment
+                    task = dataclasses.replace(task, env_id=args.env_id)
+            check_task(task, policy=args.policy == "hardcoded")
+            policy = load_policy(args.policy, preset=task)
+        else:
+            policy = load_policy(args.policy)
     except FileNotFoundError as error:
         raise UsageError(
             "eval",
             f"{error}; --policy takes 'hardcoded', 'random', a run folder or a checkpoint",
         ) from None
-    if env_id not in (None, config.env_id):
-        raise UsageError("eval", f"{path} was trained on {config.env_id}, not {env_id}")
-    return behaviour.greedy, config
+    except ValueError as error:  # a ConfigError, or the task's refusal (one line)
+        raise UsageError("eval", str(error).splitlines()[0]) from None
+    env_id = policy.env.env_id
+    if args.env_id not in (None, env_id):
+        what = "was trained on" if args.policy not in ("hardcoded", "random") else "acts in"
+        raise UsageError("eval", f"{args.policy} {what} {env_id}, not {args.env_id}")
+    result = evaluate(policy, episodes=args.episodes, seed=args.seed)
+    out = {
+        "policy": args.policy,
+        "env_id": env_id,
+        "episodes": args.episodes,
+        "mean": result.mean,
+        "std": result.std,
+        **{name: float(np.nanmean(v)) for name, v in result.metrics.items()},
+    }
+    print(
+        json.dumps(out)
+        if args.json
+        else f"{args.policy} on {env_id}: mean return {out['mean']:.1f} ± "
+        f"{out['std']:.1f} over {args.episodes} episodes"
+        + "".join(f"; {k} {v:.3g}" for k, v in out.items() if k not in _EVAL_FIELDS)
+    )
 
 
 def _experiment(args: argparse.Namespace) -> None:
@@ -288,8 +311,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument(
         "--preset",
-        default="pendulum-td3",
-        help="a preset's name (listed below, `graft presets`) or a path to a YAML file",
+        help=f"a preset's name (listed below, `graft presets`) or a path to a YAML file "
+        f"(default {DEFAULT_PRESET}; with --resume, the run's own)",
     )
     train.add_argument(
         "--actors",
@@ -327,7 +350,11 @@ def build_parser() -> argparse.ArgumentParser:
         default="hardcoded",
         help="'hardcoded', 'random', or a run folder / checkpoint path",
     )
-    evaluate.add_argument("--env-id", help="default: the run's env, or Pendulum-v1")
+    evaluate.add_argument(
+        "--preset",
+        help="the task (name or YAML path) of 'hardcoded' and 'random' (default pendulum-td3)",
+    )
+    evaluate.add_argument("--env-id", help="default: the run's or the preset's environment")
     evaluate.add_argument("--episodes", type=int, default=100)
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--json", action="store_true")

@@ -9,10 +9,11 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import yaml
 
+from actors.task import EnvSpec, split_import_string
 from learner.backbone.config import BackboneConfig
 from learner.dqn.config import DQNConfig
 from learner.options.config import OptionsConfig
@@ -37,10 +38,20 @@ class TrainConfig:
     preset: str
     """Name of the preset this run came from."""
     env_id: str = "Pendulum-v1"
-    """Gymnasium environment id the actors step."""
+    """The environment: a gymnasium id (``Pendulum-v1``, ``package.module:Env-v0``) or an
+    import string ``package.module:Factory`` naming a ``gym.Env`` class or a function."""
     env_kwargs: dict[str, Any] = field(default_factory=dict)
-    """Keyword arguments of ``gym.make(env_id, ...)`` (e.g. ``ticks_per_step`` of the
-    Minecraft travel task); set one with ``--set env_kwargs.NAME=VALUE``."""
+    """Keyword arguments of ``gym.make(env_id, ...)`` or of the factory (e.g.
+    ``ticks_per_step`` of the Minecraft travel task); ``--set env_kwargs.NAME=VALUE``."""
+    obs_wrapper: Optional[str] = None
+    """Import string of a gymnasium wrapper (or function env -> env) applied to every
+    environment: how Dict, tuple or image observations become a flat Box."""
+    hardcoded_policy: Optional[str] = None
+    """Import string ``package.module:factory`` of the hard-coded policy (a py_trees tree or
+    a callable) that backbone_td3, pretrain_td3 and options improve."""
+    import_path: list[str] = field(default_factory=list)
+    """Folders put first on ``sys.path`` in this process and every actor before the import
+    strings are resolved (default: the preset file's folder and the working directory)."""
     algorithm: str = "td3"
     """Learning algorithm: td3, ddqn, backbone_td3, pretrain_td3 or options."""
     env_steps: int = 20_000
@@ -117,6 +128,14 @@ class TrainConfig:
             raise ValueError(f"keep_checkpoints={self.keep_checkpoints} must be >= 0 (0: all)")
         if not isinstance(self.env_kwargs, dict):
             raise ValueError(f"env_kwargs={self.env_kwargs!r} must be a mapping of name: value")
+        for name in ("obs_wrapper", "hardcoded_policy"):
+            value = getattr(self, name)
+            if value is not None:
+                split_import_string(value, name)
+        if not isinstance(self.import_path, list) or not all(
+            isinstance(p, str) for p in self.import_path
+        ):
+            raise ValueError(f"import_path={self.import_path!r} must be a list of folders")
 
     @property
     def online_env_steps(self) -> int:
@@ -127,21 +146,23 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def env_spec(self) -> EnvSpec:
+        """The task's environment as strings, for actors and the evaluator to build."""
+        return EnvSpec(
+            self.env_id, dict(self.env_kwargs), self.obs_wrapper, tuple(self.import_path)
+        )
+
     def make_env(self) -> Any:
-        """``gym.make(env_id, **env_kwargs)``.
+        """One environment of the task (``env_id`` with ``env_kwargs``, then ``obs_wrapper``).
 
         Raises:
-            ValueError: the environment refused ``env_kwargs`` (names the keys).
+            ValueError: an id or import string that does not resolve, or ``env_kwargs`` the
+                environment refuses (names the keys).
         """
-        import gymnasium as gym
-
         try:
-            return gym.make(self.env_id, **self.env_kwargs)
-        except TypeError as e:
-            raise ValueError(
-                f"preset {self.preset}: env_kwargs {sorted(self.env_kwargs)} rejected by "
-                f"{self.env_id}: {e}"
-            ) from e
+            return self.env_spec().make()
+        except ValueError as error:
+            raise ValueError(f"preset {self.preset}: {error}") from None
 
 
 def _build(cls: type, data: dict[str, Any], section: str = "") -> Any:
@@ -194,14 +215,15 @@ def is_preset_path(name_or_path: str) -> bool:
     return Path(name_or_path).suffix in (".yaml", ".yml") or "/" in name_or_path
 
 
-def _read_preset(name_or_path: str) -> tuple[dict[str, Any], str]:
-    """A preset's fields and its name (a path's stem); refuses unknown names, missing files
-    and malformed YAML in one line."""
+def _read_preset(name_or_path: str) -> tuple[dict[str, Any], str, Optional[Path]]:
+    """A preset's fields, its name (a path's stem) and the folder of a preset file (None
+    for a shipped preset); refuses unknown names, missing files and malformed YAML in one
+    line."""
     if is_preset_path(name_or_path):
         path = Path(name_or_path)
         if not path.is_file():
             raise ConfigError(f"preset file {name_or_path} does not exist")
-        text, name = path.read_text(), path.stem
+        text, name, folder = path.read_text(), path.stem, path.resolve().parent
     else:
         candidate = PRESETS / f"{name_or_path}.yaml"
         if not candidate.is_file():
@@ -211,19 +233,19 @@ def _read_preset(name_or_path: str) -> tuple[dict[str, Any], str]:
                 f"unknown preset {name_or_path!r}{hint}; presets: {', '.join(preset_names())} "
                 "(`graft presets`), or a path to a YAML file"
             )
-        text, name = candidate.read_text(), name_or_path
+        text, name, folder = candidate.read_text(), name_or_path, None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise yaml_error(f"preset {name_or_path}", e) from None
     if data is None:
-        return {}, name
+        return {}, name, folder
     if not isinstance(data, dict):
         raise ConfigError(
             f"preset {name_or_path}: expected a mapping of field: value, got a "
             f"{type(data).__name__}"
         )
-    return data, name
+    return data, name, folder
 
 
 def _check_keys(keys: Iterable[str]) -> None:
@@ -248,21 +270,44 @@ def _keys(data: dict[str, Any]) -> list[str]:
     ]
 
 
-def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
+def load_preset(name_or_path: str | Path, **overrides: Any) -> TrainConfig:
     """Reads a preset by name (service/run/presets/NAME.yaml) or path; `overrides` win.
 
     An override key "section.field" (e.g. "pretrain.demo_noise") sets one field of a
-    section; pass such keys with `**{"pretrain.demo_noise": 0.1}`.
+    section; pass such keys with `**{"pretrain.demo_noise": 0.1}`, or a mapping for the
+    section (`td3={"batch_size": 64}`) to set several. A preset given by path puts its
+    folder (and the working directory) on the import path, where its import strings'
+    modules are found; relative ``import_path`` entries count from the preset's folder.
 
     Raises:
         ConfigError: unknown preset or keys, malformed YAML, or values a run cannot use,
             in one line naming the field, the value and what is allowed.
     """
-    data, name = _read_preset(name_or_path)
+    data, name, folder = _read_preset(str(name_or_path))
     try:
         _check_keys(_keys(data))
     except ConfigError as e:
         raise ConfigError(f"preset {name_or_path}: {e}") from None
+    data.setdefault("preset", name)
+    listed = data.get("import_path") or []
+    if not isinstance(listed, list) or not all(isinstance(p, str) for p in listed):
+        raise ConfigError(f"import_path={listed!r} must be a list of folders")
+    base = folder if folder is not None else Path.cwd()
+    search = [str((base / p).resolve()) for p in listed]
+    defaults = [str(folder)] if folder is not None else []
+    data["import_path"] = _unique(search + defaults + [str(Path.cwd())])
+    return config_from_data(data, **overrides)
+
+
+def config_from_data(data: dict[str, Any], **overrides: Any) -> TrainConfig:
+    """A config from parsed preset data (e.g. a run folder's config.yaml); `overrides` as
+    in `load_preset`. A ``versions`` record in the data is ignored.
+
+    Raises:
+        ConfigError: unknown keys, or values a run cannot use, in one line.
+    """
+    data = {k: v for k, v in data.items() if k != "versions"}
+    _check_keys(_keys(data))
     _check_keys(key for key, value in overrides.items() if value is not None)
     for key, value in overrides.items():
         if value is None:
@@ -275,8 +320,11 @@ def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
                 where = ".".join(path[: depth + 1])
                 raise ConfigError(f"{where}={child!r} must be a mapping of name: value")
             node[part] = node = dict(child)
+        if not path and last in SECTIONS and isinstance(value, dict):
+            current = node.get(last) or {}
+            if isinstance(current, dict):  # td3={"batch_size": 64} sets those fields only
+                value = {**current, **value}
         node[last] = value
-    data.setdefault("preset", name)
     for key, cls in SECTIONS.items():
         section = data.pop(key, None) or {}
         if isinstance(section, dict):
@@ -288,3 +336,7 @@ def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
             )
         data[key] = section
     return _build(TrainConfig, data)
+
+
+def _unique(items: list[str]) -> list[str]:
+    return list(dict.fromkeys(items))

@@ -27,7 +27,6 @@ from typing import Any, Optional
 
 import ray
 import torch
-import yaml
 from tqdm import tqdm
 
 from actors.env_actor import EnvActor, Segment
@@ -40,10 +39,11 @@ from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
 from service.run.config import TrainConfig
-from service.run.preflight import check_fits_locally, check_run_dir
+from service.run.preflight import check_fits_locally, check_run_dir, check_task
+from service.run.provenance import config_record
 from service.run.registry import make_builder
 from service.run.replay_process import ReplayProcess
-from service.run.validation import ConfigError, check_env_id
+from service.run.validation import ConfigError
 from service.weights import BroadcastPublisher
 
 # Reference levels drawn on learning curves (measured with `graft eval`, 100 episodes).
@@ -185,9 +185,9 @@ def _probe(config: TrainConfig) -> tuple[Any, Any, dict[str, Any]]:
     """
     import gymnasium as gym
 
-    check_env_id(config.env_id)
+    check_task(config)
     try:
-        builder = make_builder(config)
+        builder = make_builder(config)  # imports the task, refusing what the method cannot use
         behaviour = builder.make_behaviour(num_actors=config.num_actors)
         return builder, behaviour, _signature(config, behaviour)
     except (ValueError, FileNotFoundError, gym.error.Error) as e:
@@ -257,7 +257,7 @@ def train(
         state, phases = _restore(algorithm, checkpoint, phases, config)
     tables = preset_tables(config, phases=phases, signature=signature)
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+    (run_dir / "config.yaml").write_text(config_record(config))
     if checkpoint is not None:
         print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
     started_ray = connect_ray(address)
@@ -275,8 +275,7 @@ def train(
         client = ReplayClient(connect_to, token=token)
         publisher = BroadcastPublisher()
         evaluator = RemoteEvaluator(
-            env_id=config.env_id,
-            env_kwargs=config.env_kwargs,
+            env=config.env_spec(),
             behaviour=builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
         )
@@ -285,14 +284,13 @@ def train(
         for i in range(config.num_actors):
             # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
             actor = EnvActor.remote(  # type: ignore[attr-defined]
-                env_id=config.env_id,
+                env=config.env_spec(),
                 num_envs=config.envs_per_actor,
                 seed=config.seed * 1000 + i * config.envs_per_actor,
                 replay=client,
                 weights=publisher.subscriber(),
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
-                env_kwargs=config.env_kwargs,
             )
             actors.append(actor)
         runs = [a.run.remote(segments) for a in actors]

@@ -1,5 +1,6 @@
-"""Checks a run passes before anything is written or started: its run folder (new, or a
-resume that can continue it) and whether its actors fit a local Ray instance."""
+"""Checks a run passes before anything is written or started: its task's import strings,
+its run folder (new, or a resume that can continue it) and whether its actors fit a local
+Ray instance."""
 
 from __future__ import annotations
 
@@ -13,9 +14,33 @@ import yaml
 
 from actors.env_actor import EnvActor
 from actors.evaluator import Evaluator
+from actors.task import add_import_path
 from learner.checkpoint import latest_checkpoint
 from service.run.config import TrainConfig
-from service.run.validation import ConfigError
+from service.run.validation import ConfigError, check_env_id, resolve_import_string
+
+USES_HARDCODED_POLICY = ("backbone_td3", "pretrain_td3", "options")
+"""The methods that build the preset's hard-coded policy (backbone_td3 unless it has a teacher)."""
+
+
+def check_task(config: TrainConfig, *, policy: Optional[bool] = None) -> None:
+    """Resolves the task's import strings in this process, the run's import path first:
+    ``env_id``, ``obs_wrapper`` and, when `policy` (default: the method builds it),
+    ``hardcoded_policy``.
+
+    Raises:
+        ConfigError: e.g. ``obs_wrapper='mypkg.wrap:Flat' does not resolve: no module named
+            'mypkg' (...)``.
+    """
+    add_import_path(config.import_path)
+    check_env_id(config.env_id)
+    if config.obs_wrapper is not None:
+        resolve_import_string("obs_wrapper", config.obs_wrapper)
+    if policy is None:
+        teacher = config.algorithm == "backbone_td3" and config.backbone.teacher
+        policy = config.algorithm in USES_HARDCODED_POLICY and not teacher
+    if policy and config.hardcoded_policy is not None:
+        resolve_import_string("hardcoded_policy", config.hardcoded_policy)
 
 
 def default_run_dir(config: TrainConfig) -> Path:

@@ -23,6 +23,7 @@ from actors.minecraft.malmo.mission import parse_mission
 from actors.minecraft.sim.pool import ServerPool
 from actors.minecraft.sim.timing import IDEAL
 from actors.policies import gaussian_log_prob
+from actors.task import EnvSpec
 from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network
 from learner.td3.config import TD3Config
@@ -73,8 +74,8 @@ def replay() -> Iterator[ReplayClient]:
 
 def make_actor(port: int, replay: ReplayClient, broadcaster: Any, *, seed: int) -> Any:
     return EnvActor.remote(
-        env_id=ENV_ID, num_envs=1, seed=seed, replay=replay, weights=WeightSubscriber(broadcaster),
-        behaviour=behaviour(), steps_per_insert=8, env_kwargs=env_kwargs(port), nice=0,
+        env=EnvSpec(ENV_ID, env_kwargs(port)), num_envs=1, seed=seed, replay=replay,
+        weights=WeightSubscriber(broadcaster), behaviour=behaviour(), steps_per_insert=8, nice=0,
     )  # fmt: skip
 
 
@@ -159,7 +160,7 @@ def test_actor_reconnects_after_world_server_restart(ray_local, replay) -> None:
 
 
 def test_a_slow_actor_meters_the_ticks_it_skipped(world) -> None:
-    stepper = VectorStepper(ENV_ID, 1, 0, env_kwargs(world.ports[0]))
+    stepper = VectorStepper(EnvSpec(ENV_ID, env_kwargs(world.ports[0])), 1, 0)
     for _ in range(15):
         time.sleep(0.1)  # 5 ticks of 20 ms: "training inside the acting loop"
         stepper.step(np.zeros((1, 6), np.float32))

@@ -95,7 +95,11 @@ def load(spec: str) -> Any:
 
 class TravelBackbone:
     """μ(s) for the backbone and options methods: the tree's steering, which the
-    environment computed and put in the observation (``travel_control.MU``)."""
+    environment computed and put in the observation (``travel_control.MU``). The presets
+    name it ``hardcoded_policy: actors.minecraft.agent.travel_env:TravelBackbone``."""
+
+    batched = True
+    """It reads μ(s) off every row of a batch at once."""
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         return np.array(np.asarray(obs)[..., MU], dtype=np.float32)

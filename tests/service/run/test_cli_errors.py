@@ -83,6 +83,38 @@ BAD_INPUTS = {
         "graft train: env_id='no_such_package.envs:Reach-v0' does not resolve: no module "
         "named 'no_such_package' (is its package installed, or its folder on import_path?)",
     ),
+    "obs_wrapper that is not an import string": (
+        [*TRAIN, "--set", "obs_wrapper=FlattenObservation"],
+        "graft train: obs_wrapper='FlattenObservation' is not an import string "
+        "'package.module:name'",
+    ),
+    "obs_wrapper whose module does not import": (
+        [*TRAIN, "--set", "obs_wrapper=no_such_package.wrappers:Flat"],
+        "graft train: obs_wrapper='no_such_package.wrappers:Flat' does not resolve: no module "
+        "named 'no_such_package' (is its package installed, or its folder on import_path?)",
+    ),
+    "obs_wrapper naming nothing in its module": (
+        [*TRAIN, "--set", "obs_wrapper=gymnasium.wrappers:NoSuchWrapper"],
+        "graft train: obs_wrapper='gymnasium.wrappers:NoSuchWrapper' does not resolve: "
+        "gymnasium.wrappers has no NoSuchWrapper",
+    ),
+    "hard-coded policy whose module does not import": (
+        [
+            "train",
+            "--preset",
+            "pendulum-backbone",
+            "--set",
+            "hardcoded_policy=no_such_package.trees:make",
+        ],
+        "graft train: hardcoded_policy='no_such_package.trees:make' does not resolve: no "
+        "module named 'no_such_package' (is its package installed, or its folder on "
+        "import_path?)",
+    ),
+    "a space the method refuses": (
+        [*TRAIN, "--set", "env_id=CartPole-v1"],
+        "graft train: td3 needs continuous actions (a 1-D Box), the environment's action "
+        "space is Discrete(2): use algorithm ddqn for discrete actions",
+    ),
     "unknown preset name": (
         ["train", "--preset", "pendulum-td4"],
         "graft train: unknown preset 'pendulum-td4' (did you mean pendulum-td3 or "
@@ -221,7 +253,10 @@ def test_preset_by_path_matches_preset_by_name(tmp_path) -> None:
     mine.write_text((PRESETS / "pendulum-td3.yaml").read_text())
     by_path, by_name = load_preset(str(mine), seed=3), load_preset("pendulum-td3", seed=3)
     assert by_path.preset == "mine"
-    assert {**by_path.to_dict(), "preset": "pendulum-td3"} == by_name.to_dict()
+    # A preset file's folder comes first on the import path, before the working directory.
+    assert by_path.import_path == [str(mine.parent.resolve()), *by_name.import_path]
+    same = {"preset": "pendulum-td3", "import_path": by_name.import_path}
+    assert {**by_path.to_dict(), **same} == by_name.to_dict()
 
 
 def test_numbers_written_as_yaml_strings_are_read_as_numbers() -> None:

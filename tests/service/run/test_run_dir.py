@@ -132,3 +132,31 @@ def test_resume_with_nothing_left_to_train_is_refused(tmp_path, capsys) -> None:
         "the budget is 1500 and refilling replay takes 1000; raise --env-steps"
     )
     assert _snapshot(run) == before
+
+
+def test_resume_without_preset_takes_the_recorded_config_and_its_preset(tmp_path, capsys):
+    # A run trained from a YAML file that is gone since: its folder's config.yaml is enough.
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("env_id: Pendulum-v1\ntd3:\n  hidden_sizes: [16, 16]\n")
+    config = load_preset(str(mine))
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+    learner = make_builder(config).make_learner()
+    loop = {"updates": 500, "env_steps": 600, "version": 25}
+    state = {"algorithm": learner.state_dict(), "loop": loop}
+    save_checkpoint(run / "checkpoints", state, updates=500)
+    mine.unlink()
+    before = _snapshot(run)
+    # The recorded config passes the preset check and fits the checkpoint; only the budget
+    # is refused.
+    assert _refused(_train(run, "--resume", "--env-steps", "1500"), capsys) == (
+        "graft train: --resume: nothing left to train: the checkpoint is at 600 env steps, "
+        "the budget is 1500 and refilling replay takes 1000; raise --env-steps"
+    )
+    argv = _train(run, "--resume", "--preset", "pendulum-td3", "--env-steps", "2000")
+    assert _refused(argv, capsys) == (
+        f"graft train: --resume: {run} was trained with preset 'mine', not 'pendulum-td3'; "
+        "resume it with its own preset"
+    )
+    assert _snapshot(run) == before
