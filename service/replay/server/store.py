@@ -8,14 +8,17 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import IO, Optional
 
-from service.replay.codec import Batch, decode_batch
+from service.replay.codec import decode_batch
 from service.replay.server import durability
-from service.replay.server.table import Table
+from service.replay.server.folder_lock import lock_folder
+from service.replay.server.table import PreparedInsert, Table
+from service.replay.server.writers import DEFAULT_MAX_WRITERS, Writers
 
 log = logging.getLogger(__name__)
 
@@ -27,11 +30,28 @@ class UnknownTable(KeyError):
         return str(self.args[0])
 
 
+class CallEnded(TimeoutError):
+    """The call was cancelled or passed its deadline before its batches could be stored."""
+
+
+@dataclass(frozen=True)
+class StagedInsert:
+    """One batch of an Insert stream, validated and waiting for the stream to end."""
+
+    table: str
+    prepared: PreparedInsert
+    writer: str = ""
+    sequence: int = 0
+    payload: bytes = b""
+    """The encoded batch, as the write-ahead log records it."""
+
+
 class ReplayCore:
     """Holds the tables and, per writer, the highest batch sequence number stored.
 
-    With a `checkpoint_dir`, every acknowledged insert is logged before it is
-    acknowledged and the state is restored from that folder on construction.
+    With a `checkpoint_dir` (locked: one server per folder), every insert is logged
+    before it is stored and acknowledged, and the state is restored from that folder
+    on construction.
     """
 
     def __init__(
@@ -40,6 +60,7 @@ class ReplayCore:
         *,
         checkpoint_dir: Optional[Path] = None,
         fsync: bool = False,
+        max_writers: int = DEFAULT_MAX_WRITERS,
     ) -> None:
         self.tables: dict[str, Table] = {}
         for table in tables:
@@ -48,14 +69,16 @@ class ReplayCore:
             self.tables[table.name] = table
         if not self.tables:
             raise ValueError("a replay server needs at least one table")
-        self.acked: dict[str, int] = {}
-        self._acked_lock = threading.Lock()  # also orders log appends
+        self.writers = Writers(max_writers)
+        self._acked_lock = threading.Lock()  # orders log appends, stores and acks
         self._checkpoint_lock = threading.Lock()
         self.started = time.monotonic()
         self.checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir else None
         self._wal: Optional[durability.WriteAheadLog] = None
+        self._folder_lock: Optional[IO[str]] = None
         if self.checkpoint_dir is not None:
             self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+            self._folder_lock = lock_folder(self.checkpoint_dir)
             segment = self._restore()
             self._wal = durability.WriteAheadLog(self.checkpoint_dir, segment, fsync=fsync)
 
@@ -67,37 +90,59 @@ class ReplayCore:
                 f"no table named '{name}'; tables are {sorted(self.tables)}"
             ) from None
 
-    def insert(
+    def commit(
         self,
-        table: str,
-        batch: Batch,
+        staged: Sequence[StagedInsert],
         *,
-        writer_id: str = "",
-        sequence: int = 0,
-        timeout: Optional[float] = None,
-        payload: bytes = b"",
-    ) -> Optional[int]:
-        """Stores a batch; returns items stored, or None if it is a duplicate resend.
+        alive: Callable[[], bool] = lambda: True,
+        blocked_s: float = 0.0,
+    ) -> Optional[tuple[int, int]]:
+        """Stores the batches of one Insert stream all together, or none of them.
 
-        A writer numbers its batches 1, 2, 3, ...; the server remembers the highest
-        number stored per writer, so a batch resent after a lost acknowledgement is
-        dropped instead of stored twice. `payload` (the encoded batch) is what the
-        write-ahead log records.
+        Batches already stored (resends: a sequence at or below its writer's high-water
+        mark) are dropped first, under the same locks as the store, so a batch raced by
+        two calls is stored once. The rest are stored only if every table's rate limiter
+        admits an insert now and the call is still `alive()`; each is logged before it
+        is stored. `blocked_s` (time already waited) goes into the tables' stats.
+
+        Returns:
+            (items stored, batches dropped as resends), or None while a rate limiter
+            says wait (nothing was stored; try again after a change).
+
+        Raises:
+            CallEnded: `alive()` was false when the batches could have been stored.
         """
-        target = self.table(table)
-        if writer_id:
+        targets = {s.table: self.table(s.table) for s in staged}
+        with ExitStack() as stack:
+            for name in sorted(targets):
+                stack.enter_context(targets[name].lock)
             with self._acked_lock:
-                if sequence <= self.acked.get(writer_id, 0):
+                fresh: list[StagedInsert] = []
+                high: dict[str, int] = {}
+                for s in staged:
+                    if s.writer:
+                        if s.sequence <= max(self.writers.acked(s.writer), high.get(s.writer, 0)):
+                            continue
+                        high[s.writer] = s.sequence
+                    fresh.append(s)
+                dropped = len(staged) - len(fresh)
+                used = {s.table for s in fresh}
+                if not all(targets[name].insert_admitted() for name in used):
                     return None
-
-        def on_stored() -> None:  # runs under the table lock, in the table's insert order
-            with self._acked_lock:
+                if fresh and not alive():
+                    raise CallEnded(
+                        "the call was cancelled or passed its deadline before the rate "
+                        "limiter admitted it; nothing was stored"
+                    )
                 if self._wal is not None:
-                    self._wal.append(table, writer_id, sequence, payload)
-                if writer_id:
-                    self.acked[writer_id] = max(sequence, self.acked.get(writer_id, 0))
-
-        return target.insert(batch, timeout=timeout, writer=writer_id, on_stored=on_stored)
+                    for s in fresh:
+                        self._wal.append(s.table, s.writer, s.sequence, s.payload)
+                stored = sum(targets[s.table].store(s.prepared, writer=s.writer) for s in fresh)
+                for writer, sequence in high.items():
+                    self.writers.ack(writer, sequence)
+                for name in used:
+                    targets[name].stats.insert_blocked_s += blocked_s
+        return stored, dropped
 
     def checkpoint(self) -> Optional[Path]:
         """Snapshots all tables consistently, then writes them without blocking samples."""
@@ -109,7 +154,7 @@ class ReplayCore:
                     stack.enter_context(self.tables[name].lock)
                 stack.enter_context(self._acked_lock)
                 snapshots = {name: t.snapshot() for name, t in self.tables.items()}
-                acked = dict(self.acked)
+                acked = self.writers.snapshot()
                 segment = self._wal.rotate()
             # Locks released: inserts and samples go on while the file is written.
             path = durability.write_checkpoint(self.checkpoint_dir, snapshots, acked, segment)
@@ -129,7 +174,7 @@ class ReplayCore:
                     self.tables[name].restore(state)
                 else:
                     log.warning("checkpoint has table '%s', which is not configured", name)
-            self.acked = acked
+            self.writers.restore(acked)
         replayed = 0
         last_segment = first_segment
         for path in durability.segments(self.checkpoint_dir, first_segment):
@@ -138,11 +183,11 @@ class ReplayCore:
                 if table not in self.tables:
                     continue
                 target = self.tables[table]
-                if writer and sequence <= self.acked.get(writer, 0):
+                if writer and sequence <= self.writers.acked(writer):
                     continue
                 target.insert(decode_batch(payload), writer=writer, rate_limited=False)
                 if writer:
-                    self.acked[writer] = sequence
+                    self.writers.ack(writer, sequence)
                 replayed += 1
         if found is not None or replayed:
             log.info("restored from %s (+%d logged batches)", self.checkpoint_dir, replayed)
@@ -151,3 +196,5 @@ class ReplayCore:
     def close(self) -> None:
         if self._wal is not None:
             self._wal.close()
+        if self._folder_lock is not None:
+            self._folder_lock.close()  # releases the folder
