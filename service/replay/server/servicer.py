@@ -43,7 +43,7 @@ from service.replay.codec import (
 from service.replay.server.prom import ReplayMetrics
 from service.replay.server.signature import SignatureError
 from service.replay.server.store import CallEnded, ReplayCore, StagedInsert, UnknownTable
-from service.replay.server.table import RateLimitTimeout, Table
+from service.replay.server.table import LockBusy, RateLimitTimeout, Table
 from service.replay.server.thread_pool import HotThreadPool
 from service.replay.server.waiting import CallState, Wakeups, wait_for_change
 from service.replay.server.writers import MAX_WRITER_ID_BYTES, Claim
@@ -59,6 +59,10 @@ MAX_SAMPLE_CREDITS = 1 << 16
 """Most batches one SampleRequest may ask for (`num_batches`)."""
 RESPONSE_OVERHEAD_BYTES = 64 * 1024
 """Room kept in a sample response for column headers and the message's other fields."""
+INLINE_BYTES = 256 * 1024
+"""Table work on at most this many bytes runs on the event loop if its locks are free:
+a hop to the pool and back costs more than the work. Larger work, work that meets a
+held lock, and inserts that fsync run on the pool."""
 
 T = TypeVar("T")
 
@@ -139,23 +143,37 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         """Runs table work on the pool: briefly, never waiting on a limiter."""
         return await self._loop.run_in_executor(self._pool, functools.partial(function, *args))
 
+    async def _attempt(self, inline: bool, function: Callable[..., T], *args: Any) -> T:
+        """Runs `function(*args, blocking=...)` on the loop if `inline` and its locks are
+        free, else on the pool."""
+        if inline:
+            try:
+                return function(*args, blocking=False)
+            except LockBusy:
+                pass
+        return await self._run(function, *args)
+
     async def _until(
         self,
         keys: tuple[str, ...],
-        attempt: Callable[[float], Optional[T]],
+        attempt: Callable[..., Optional[T]],
         deadline: Optional[float],
         *,
+        inline: bool,
         table: Table,
         what: str,
     ) -> T:
-        """Retries `attempt(seconds waited so far)` on the pool after each change of `keys`
-        until it returns something; past `deadline`, raises `table`'s error for a `what`
-        ("insert", "sample") not admitted."""
+        """Retries `attempt(seconds waited so far, blocking=...)` after each change of
+        `keys` until it returns something (see `_attempt` for `inline`); past `deadline`,
+        raises `table`'s error for a `what` ("insert", "sample") not admitted."""
         start = time.monotonic()
+        result = await self._attempt(inline, attempt, 0.0)
+        if result is not None:
+            return result  # the common case: no need to listen for changes
         with self._wakeups.waiting(*keys) as changed:
             while True:
                 changed.clear()
-                result = await self._run(attempt, time.monotonic() - start)
+                result = await self._attempt(inline, attempt, time.monotonic() - start)
                 if result is not None:
                     return result
                 if not await wait_for_change(changed, deadline):
@@ -206,9 +224,11 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         call: CallState,
         deadline: Optional[float],
         waited: float,
+        *,
+        blocking: bool = True,
     ) -> Optional[tuple[int, int]]:
-        """One attempt on the pool to store the whole stream (None: the limiter says wait).
-        The first attempt decodes and validates the batches into `staged`."""
+        """One attempt to store the whole stream (None: the limiter says wait). The first
+        attempt decodes and validates the batches into `staged`."""
         if not staged:
             staged.extend(
                 StagedInsert(
@@ -220,7 +240,9 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                 )
                 for table, r in received
             )
-        return self.core.commit(staged, alive=lambda: call.alive(deadline), blocked_s=waited)
+        return self.core.commit(
+            staged, alive=lambda: call.alive(deadline), blocked_s=waited, blocking=blocking
+        )
 
     async def Insert(  # noqa: N802 (gRPC method name)
         self,
@@ -254,6 +276,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                     tuple(sorted({table.name for table, _ in received})),
                     functools.partial(self._commit, received, staged, call, deadline),
                     deadline,
+                    inline=stream_bytes <= INLINE_BYTES and not self.core.fsync,
                     table=received[0][0],
                     what="insert",
                 )
@@ -299,13 +322,21 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
 
     @staticmethod
     def _sample_once(
-        table: Table, request: replay_pb2.SampleRequest, call: CallState, waited: float
+        table: Table,
+        request: replay_pb2.SampleRequest,
+        call: CallState,
+        waited: float,
+        *,
+        blocking: bool = True,
     ) -> Optional[bytes]:
-        """One attempt on the pool: an encoded batch, or None while the limiter says wait."""
+        """One attempt: an encoded batch, or None while the limiter says wait."""
         if not call.alive():
             raise CallEnded("the call was cancelled or passed its deadline")
         batch = table.try_sample(
-            request.batch_size, sequence_length=max(request.sequence_length, 1), blocked_s=waited
+            request.batch_size,
+            sequence_length=max(request.sequence_length, 1),
+            blocked_s=waited,
+            blocking=blocking,
         )
         return None if batch is None else encode_batch(batch)
 
@@ -318,6 +349,8 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         try:
             async for request in request_iterator:  # each request grants num_batches credits
                 table = self._check_sample(request)
+                k = max(request.sequence_length, 1)
+                inline = table.sampled_bytes(request.batch_size, k) <= INLINE_BYTES
                 for _ in range(max(request.num_batches, 1)):
                     start = time.perf_counter()
                     deadline = call.deadline_with(request.timeout_s)
@@ -325,6 +358,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                         (table.name,),
                         functools.partial(self._sample_once, table, request, call),
                         deadline,
+                        inline=inline,
                         table=table,
                         what="sample",
                     )

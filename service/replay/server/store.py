@@ -17,7 +17,7 @@ from typing import IO, Optional
 from service.replay.codec import decode_batch
 from service.replay.server import durability
 from service.replay.server.folder_lock import lock_folder
-from service.replay.server.table import PreparedInsert, Table
+from service.replay.server.table import LockBusy, PreparedInsert, Table
 from service.replay.server.writers import DEFAULT_MAX_WRITERS, Writers
 
 log = logging.getLogger(__name__)
@@ -70,6 +70,7 @@ class ReplayCore:
         if not self.tables:
             raise ValueError("a replay server needs at least one table")
         self.writers = Writers(max_writers)
+        self.fsync = fsync
         self._acked_lock = threading.Lock()  # orders log appends, stores and acks
         self._checkpoint_lock = threading.Lock()
         self.started = time.monotonic()
@@ -96,6 +97,7 @@ class ReplayCore:
         *,
         alive: Callable[[], bool] = lambda: True,
         blocked_s: float = 0.0,
+        blocking: bool = True,
     ) -> Optional[tuple[int, int]]:
         """Stores the batches of one Insert stream all together, or none of them.
 
@@ -111,37 +113,43 @@ class ReplayCore:
 
         Raises:
             CallEnded: `alive()` was false when the batches could have been stored.
+            LockBusy: `blocking` is False and a lock is held (nothing was stored).
         """
         targets = {s.table: self.table(s.table) for s in staged}
         with ExitStack() as stack:
-            for name in sorted(targets):
-                stack.enter_context(targets[name].lock)
-            with self._acked_lock:
-                fresh: list[StagedInsert] = []
-                high: dict[str, int] = {}
-                for s in staged:
-                    if s.writer:
-                        if s.sequence <= max(self.writers.acked(s.writer), high.get(s.writer, 0)):
-                            continue
-                        high[s.writer] = s.sequence
-                    fresh.append(s)
-                dropped = len(staged) - len(fresh)
-                used = {s.table for s in fresh}
-                if not all(targets[name].insert_admitted() for name in used):
-                    return None
-                if fresh and not alive():
-                    raise CallEnded(
-                        "the call was cancelled or passed its deadline before the rate "
-                        "limiter admitted it; nothing was stored"
-                    )
-                if self._wal is not None:
-                    for s in fresh:
-                        self._wal.append(s.table, s.writer, s.sequence, s.payload)
-                stored = sum(targets[s.table].store(s.prepared, writer=s.writer) for s in fresh)
-                for writer, sequence in high.items():
-                    self.writers.ack(writer, sequence)
-                for name in used:
-                    targets[name].stats.insert_blocked_s += blocked_s
+            locks: list[threading.Condition | threading.Lock] = [
+                *(targets[name].lock for name in sorted(targets)),
+                self._acked_lock,
+            ]
+            for lock in locks:
+                if not lock.acquire(blocking=blocking):
+                    raise LockBusy("a table or the writer map")
+                stack.callback(lock.release)
+            fresh: list[StagedInsert] = []
+            high: dict[str, int] = {}
+            for s in staged:
+                if s.writer:
+                    if s.sequence <= max(self.writers.acked(s.writer), high.get(s.writer, 0)):
+                        continue
+                    high[s.writer] = s.sequence
+                fresh.append(s)
+            dropped = len(staged) - len(fresh)
+            used = {s.table for s in fresh}
+            if not all(targets[name].insert_admitted() for name in used):
+                return None
+            if fresh and not alive():
+                raise CallEnded(
+                    "the call was cancelled or passed its deadline before the rate "
+                    "limiter admitted it; nothing was stored"
+                )
+            if self._wal is not None:
+                for s in fresh:
+                    self._wal.append(s.table, s.writer, s.sequence, s.payload)
+            stored = sum(targets[s.table].store(s.prepared, writer=s.writer) for s in fresh)
+            for writer, sequence in high.items():
+                self.writers.ack(writer, sequence)
+            for name in used:
+                targets[name].stats.insert_blocked_s += blocked_s
         return stored, dropped
 
     def checkpoint(self) -> Optional[Path]:

@@ -30,6 +30,10 @@ class RateLimitTimeout(TimeoutError):
     """The rate limiter (or the wait for a complete window) outlasted the call's timeout."""
 
 
+class LockBusy(Exception):
+    """A non-blocking attempt found a lock held; retry where blocking is fine."""
+
+
 @dataclass(frozen=True)
 class PreparedInsert:
     """A batch checked against the table's signature, ready to `store`."""
@@ -355,17 +359,31 @@ class Table:
         return out
 
     def try_sample(
-        self, batch_size: int, *, sequence_length: int = 1, blocked_s: float = 0.0
+        self,
+        batch_size: int,
+        *,
+        sequence_length: int = 1,
+        blocked_s: float = 0.0,
+        blocking: bool = True,
     ) -> Optional[Batch]:
         """One attempt at `sample`: the batch if the rate limiter admits it now, else None
-        (never blocks). `blocked_s` is the time the caller already waited, for the stats."""
+        (never waits on the limiter). `blocked_s` is the time the caller already waited,
+        for the stats.
+
+        Raises:
+            LockBusy: `blocking` is False and the table lock is held.
+        """
         self.check_sample(batch_size, sequence_length)
-        with self._cond:
+        if not self._cond.acquire(blocking=blocking):
+            raise LockBusy(f"table '{self.name}'")
+        try:
             drawn = self._try_draw(batch_size, sequence_length)
             if drawn is None:
                 return None
             self.stats.sample_blocked_s += blocked_s
             out, size = self._take(drawn, batch_size, sequence_length)
+        finally:
+            self._cond.release()
         return self._weigh(out, drawn[1], size)
 
     def sample(
