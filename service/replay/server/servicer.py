@@ -3,7 +3,8 @@ entry point.
 
 The server runs on grpc.aio: a call that waits (on a rate limiter, on its client's next
 credit, on a slow reader) is a parked coroutine, so idle streams cost no thread and
-health checks and Info always answer. Table work runs briefly on a bounded thread pool.
+health checks and Info always answer. Table work runs briefly: inline when small and its
+locks are free, else on a bounded thread pool.
 """
 
 from __future__ import annotations

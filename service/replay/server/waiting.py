@@ -2,9 +2,10 @@
 
 A call that waits (on a rate limiter, on another call's claim, on its client's next
 request) is a coroutine parked on an asyncio event, not a thread, so any number of idle
-or slow streams cost no worker. Work that touches a table runs briefly on a worker
-thread; each attempt either succeeds or returns None, and the call waits for the next
-change of what it waits on (tables report changes through `Table.watch`).
+or slow streams cost no worker. Work that touches a table runs briefly (on the loop when
+small and its locks are free, else on a worker thread); each attempt either succeeds or
+returns None, and the call waits for the next change of what it waits on (tables report
+changes through `Table.watch`).
 """
 
 from __future__ import annotations
