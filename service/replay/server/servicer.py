@@ -591,6 +591,10 @@ async def _start(
             ("grpc.max_receive_message_length", o.max_message_bytes),
             ("grpc.max_send_message_length", o.max_message_bytes),
             ("grpc.so_reuseport", 0),  # gRPC shares ports by default: two servers, one port
+            # Ping idle connections: a peer gone without a word (half-open TCP) is found
+            # within ~40 s and its calls cancelled, so their claims do not hold up resends.
+            ("grpc.keepalive_time_ms", 30_000),
+            ("grpc.keepalive_timeout_ms", 10_000),
         ],
     )
     servicer = ReplayServicer(
