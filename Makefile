@@ -10,8 +10,13 @@ TORCH  := 2.13.0
 demo: setup
 	$(BIN)/graft train --preset pendulum-td3
 
-test: setup
+# The user-task fixture is a package of its own, installed the way a user installs theirs.
+test: setup $(VENV)/.usertask
 	$(BIN)/python -m pytest -q
+
+$(VENV)/.usertask: tests/fixtures/usertask/pyproject.toml $(VENV)/.installed
+	$(BIN)/pip install --no-deps -e tests/fixtures/usertask
+	touch $@
 
 setup: $(VENV)/.installed
 
@@ -30,7 +35,7 @@ $(VENV)/.installed: pyproject.toml
 lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy service actors learner
+	$(BIN)/mypy service actors learner graft
 	$(BIN)/lint-imports
 
 # Generated gRPC code is checked in; CI regenerates it and fails on drift.

@@ -3,20 +3,41 @@
 It streams transitions (with the behaviour log-likelihood and policy version) to the
 replay server and adopts newer weights whenever the learner publishes them. What it
 acts with is a `Behaviour` (service/core.py); the actor itself knows no algorithm.
+
+Any environment, including a real-time one (a Minecraft client whose world ticks on its
+own), runs the same loop:
+
+* inserts go out from a background thread (`BackgroundWriter`); a segment says how many
+  insert batches may wait while acting goes on (0: wait for each, so a table's rate
+  limiter paces acting exactly);
+* an environment reporting its world clock as ``info["tick"]`` gets its skipped ticks
+  metered, and every environment the actor's own time per step (`TickMeter`);
+* an environment whose world goes away raises `ConnectionError`; the unfinished step is
+  dropped and the environment reset with backoff until its world is back.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from typing import Any, Optional
 
-import gymnasium as gym
 import numpy as np
 import ray
 import torch
 
+from actors.task import EnvSpec
+from actors.tick_meter import TickMeter
+from actors.writer import BackgroundWriter
 from service.core import Behaviour, ReplayWriter, WeightSource
+
+RECONNECT_TIMEOUT_S = 60.0
+"""How long a lost environment's resets are retried before the actor gives up."""
+MAX_BACKOFF_S = 5.0
+"""The longest pause between two reset attempts (starting at 50 ms, doubling)."""
+FLUSH_TIMEOUT_S = 60.0
+"""How long the end of a run waits for queued inserts."""
 
 
 class VectorStepper:
@@ -24,15 +45,42 @@ class VectorStepper:
 
     Unlike gymnasium's vector autoreset, `next_obs` is always the true successor of
     `obs` (the final observation of an episode, never the first of the next one).
+
+    An environment whose world went away raises `ConnectionError` from `step` or
+    `reset`. The unfinished step has no successor, so it is no transition: `lost[i]`
+    marks its row (filled with `obs`, truncated), and the environment is reset, retried
+    with exponential backoff for up to `RECONNECT_TIMEOUT_S`.
+
+    `streams[i]` names environment i's replay stream: the table links a stream's steps
+    into episodes. A lost step ends no episode in the table, so the environment goes on
+    in a new stream: the steps before and after the loss are never linked.
     """
 
-    def __init__(
-        self, env_id: str, n: int, seed: int, env_kwargs: Optional[dict[str, Any]] = None
-    ) -> None:
-        self.envs = [gym.make(env_id, **(env_kwargs or {})) for _ in range(n)]
-        self.obs = np.stack([env.reset(seed=seed + i)[0] for i, env in enumerate(self.envs)])
+    def __init__(self, env: EnvSpec, n: int, seed: int) -> None:
+        self.envs = [env.make() for _ in range(n)]
+        self.meter = TickMeter(n)
+        self.lost = np.zeros(n, bool)
+        self.streams = np.arange(n, dtype=np.int64)
+        self.connection_losses = self.reconnects = 0
+        self._ready = np.zeros(n)  # when each environment's latest observation arrived
+        self.obs = np.stack([self._reset(i, seed=seed + i) for i in range(n)])
         self.episode_returns = np.zeros(n)
         self.finished_returns: list[float] = []
+
+    def _reset(self, i: int, seed: Optional[int] = None) -> np.ndarray:
+        delay, deadline = 0.05, time.monotonic() + RECONNECT_TIMEOUT_S
+        while True:
+            try:
+                obs, info = self.envs[i].reset(seed=seed)
+                break
+            except ConnectionError:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(delay)
+                delay = min(2 * delay, MAX_BACKOFF_S)
+        self.meter.begin(i, info.get("tick"))
+        self._ready[i] = time.perf_counter()
+        return obs
 
     def step(self, actions: np.ndarray) -> dict[str, np.ndarray]:
         obs = self.obs.copy()
@@ -40,13 +88,27 @@ class VectorStepper:
         rewards = np.empty(len(self.envs), np.float32)
         terminated = np.empty(len(self.envs), bool)
         truncated = np.empty(len(self.envs), bool)
+        self.lost[:] = False
         for i, env in enumerate(self.envs):
-            next_obs[i], rewards[i], terminated[i], truncated[i], _ = env.step(actions[i])
+            own_s = time.perf_counter() - self._ready[i]  # from observation to action
+            try:
+                next_obs[i], rewards[i], terminated[i], truncated[i], info = env.step(actions[i])
+            except ConnectionError:
+                self.connection_losses += 1
+                self.lost[i], next_obs[i], rewards[i] = True, obs[i], 0.0
+                terminated[i], truncated[i] = False, True
+                self.episode_returns[i] = 0.0
+                self.streams[i] += len(self.envs)
+                self.obs[i] = self._reset(i)
+                self.reconnects += 1
+                continue
+            self._ready[i] = time.perf_counter()
+            self.meter.step(i, info.get("tick"), own_s)
             self.episode_returns[i] += rewards[i]
             if terminated[i] or truncated[i]:
                 self.finished_returns.append(float(self.episode_returns[i]))
                 self.episode_returns[i] = 0.0
-                self.obs[i] = env.reset()[0]
+                self.obs[i] = self._reset(i)
             else:
                 self.obs[i] = next_obs[i]
         return {
@@ -57,42 +119,68 @@ class VectorStepper:
             "next_obs": next_obs.astype(np.float32),
         }
 
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
 
 @dataclass(frozen=True)
 class Segment:
     """A stretch of one actor's work: `steps` transitions into `table`, the first
-    `warmup_steps` of them with the behaviour's warm-up policy."""
+    `warmup_steps` of them with the behaviour's warm-up policy.
+
+    `pending_inserts` insert batches may wait for the background writer while acting goes
+    on; with more, acting waits (back-pressure: no batch is dropped). 0 waits for each
+    insert to be stored: a table whose rate limiter holds a samples-per-insert ratio then
+    paces acting batch by batch, as it must (with a queue the actor would act that many
+    batches ahead of what the limiter admitted, with older weights). Tables that never
+    hold inserts back (`min_size`) can take a queue, so a real-time actor never waits on
+    the network.
+    """
 
     table: str
     steps: int
     warmup_steps: int = 0
+    pending_inserts: int = 0
 
 
-@ray.remote(num_cpus=0.25)
+@ray.remote(num_cpus=0.25, max_concurrency=2)  # type: ignore[call-overload]  # task-only stubs
 class EnvActor:
-    """Collects transitions segment by segment with its behaviour policy."""
+    """Collects transitions segment by segment with its behaviour policy.
+
+    Two calls run at once: `report()` and `restart_meters()` answer while `run()` acts.
+    `nice`, when given, is the acting thread's CPU niceness: Ray starts workers at nice
+    15 (`RAY_worker_niceness`), below every ordinary process, so a real-time actor on a
+    busy machine would be starved; 0 asks for an ordinary share. Lowering niceness needs
+    CAP_SYS_NICE or RLIMIT_NICE; without them the actor keeps its niceness and reports it
+    (`actor/nice`).
+    """
 
     def __init__(
         self,
         *,
-        env_id: str,
+        env: EnvSpec,
         num_envs: int,
         seed: int,
         replay: ReplayWriter,
         weights: WeightSource,
         behaviour: Behaviour,
         steps_per_insert: int,
-        env_kwargs: Optional[dict[str, Any]] = None,
+        nice: Optional[int] = None,
     ) -> None:
         torch.set_num_threads(1)
-        self.stepper = VectorStepper(env_id, num_envs, seed, env_kwargs)
+        self.stepper = VectorStepper(env, num_envs, seed)
         self.rng = np.random.default_rng(seed)
-        self.replay = replay
+        self.writer = BackgroundWriter(replay)
         self.weights = weights
         self.behaviour = behaviour
         self.steps_per_insert = steps_per_insert
+        self.nice = nice
+        self.acting_nice = os.getpriority(os.PRIO_PROCESS, 0)
         self.versions_seen: list[int] = []
         self.stats: list[dict[str, float]] = []
+        self.env_steps = 0
+        self._window = (time.monotonic(), 0)  # measurement window: start, env steps then
 
     def _adopt_new_weights(self, block_s: float = 0.0) -> None:
         weights = self.weights.poll(block_s=block_s)
@@ -105,10 +193,21 @@ class EnvActor:
         while self.weights.version < 0 and not self.weights.stopped:
             self._adopt_new_weights(block_s=5.0)
 
+    def _set_priority(self) -> None:
+        # Linux niceness is per thread: set it on the thread that acts.
+        if self.nice is not None:
+            try:
+                os.setpriority(os.PRIO_PROCESS, 0, self.nice)
+            except OSError:
+                pass  # not permitted: `actor/nice` shows what the actor got
+        self.acting_nice = os.getpriority(os.PRIO_PROCESS, 0)
+
     def run(self, segments: list[Segment]) -> dict[str, Any]:
         """Steps through `segments` in order (or until the learner says stop)."""
+        self._set_priority()
+        self.restart_meters()
         n = len(self.stepper.envs)
-        done_steps, insert_wait_s, start = 0, 0.0, time.perf_counter()
+        start = time.perf_counter()
         for segment in segments:
             buffer: list[dict[str, np.ndarray]] = []
             seg_steps = 0
@@ -121,28 +220,67 @@ class EnvActor:
                 record.update(self.stepper.step(env_action))
                 # Columns computed on s' (e.g. the backbone's μ(s')); most add none.
                 record.update(self.behaviour.next_columns(record["next_obs"]))
-                self.behaviour.end_episodes(record["terminated"] | record["truncated"])
+                lost = self.stepper.lost
+                self.behaviour.end_episodes(record["terminated"] | record["truncated"] | lost)
                 version = -1 if warmup else self.weights.version  # -1: the warm-up policy
                 record["policy_version"] = np.full(n, version, np.int64)
                 # Each environment is one stream: the table links its steps into episodes,
                 # so sampled windows never mix environments or cross an episode end.
-                record["_stream"] = np.arange(n, dtype=np.int64)
+                record["_stream"] = self.stepper.streams.copy()
+                if lost.any():  # a world went away mid-step: no successor, no transition
+                    record = {k: v[~lost] for k, v in record.items()}
                 buffer.append(record)
-                seg_steps += n
+                kept = n - int(lost.sum())
+                seg_steps += kept
+                self.env_steps += kept
                 if len(buffer) >= self.steps_per_insert or seg_steps >= segment.steps:
                     batch = {k: np.concatenate([r[k] for r in buffer]) for k in buffer[0]}
-                    t = time.perf_counter()
-                    self.replay.insert(segment.table, batch)
-                    insert_wait_s += time.perf_counter() - t
+                    self.writer.insert(segment.table, batch, max_pending=segment.pending_inserts)
                     buffer.clear()
                     if stats := self.behaviour.stats():
-                        self.stats.append({"actor_steps": done_steps + seg_steps, **stats})
-            done_steps += seg_steps
+                        self.stats.append({"actor_steps": self.env_steps, **stats})
+        # A stopped run drops its unfinished batch: the learner no longer samples, and a
+        # rate-limited table could hold its insert forever. Queued batches still go out.
+        self.writer.flush(timeout_s=FLUSH_TIMEOUT_S)
         return {
-            "env_steps": done_steps,
+            "env_steps": self.env_steps,
             "wall_s": time.perf_counter() - start,
-            "insert_s": insert_wait_s,
+            "insert_s": self.writer.wait_s,
             "versions_seen": self.versions_seen,
             "episode_returns": self.stepper.finished_returns,
             "behaviour_stats": self.stats,
+            **self.report(),
         }
+
+    def restart_meters(self) -> None:
+        """Start a new measurement window for `report()` (ticks, latency, rates)."""
+        self.stepper.meter.restart()
+        self._window = (time.monotonic(), self.env_steps)
+
+    def report(self) -> dict[str, Any]:
+        """Namespaced counters, and rates over the current measurement window."""
+        t0, steps0 = self._window
+        wall = max(time.monotonic() - t0, 1e-9)
+        meter = self.stepper.meter.metrics()
+        out: dict[str, Any] = {
+            "actor/env_steps": self.env_steps,
+            "actor/nice": self.acting_nice,
+            "perf/measure_s": wall,
+            "perf/steps_per_s": (self.env_steps - steps0) / wall,
+            **meter,
+            "net/connection_losses": self.stepper.connection_losses,
+            "net/reconnects": self.stepper.reconnects,
+            "replay/inserted": self.writer.inserted,
+            "replay/insert_wait_s": self.writer.wait_s,
+            "policy/version": self.weights.version,
+            "policy/versions_adopted": len(self.versions_seen),
+        }
+        if "perf/ticks_seen" in meter:
+            ticks = meter["perf/ticks_seen"] + meter["perf/ticks_skipped"]
+            out["perf/world_ticks_per_s"] = ticks / wall
+        return out
+
+    def close(self) -> None:
+        """Send what is queued, then close the environments (their world connections)."""
+        self.writer.close(timeout_s=FLUSH_TIMEOUT_S)
+        self.stepper.close()

@@ -4,13 +4,18 @@ scores published weights with them.
 Episodes are stepped side by side in plain gymnasium environments with our own loop
 (no vector-env autoreset), so episode ``i`` is always seeded with ``seed + i`` and its
 return does not depend on how many environments run at once.
+
+An environment reports metrics of its own in the ``info`` of an episode's last step,
+``info["episode_metrics"] = {"success": 1.0, ...}``: each evaluation logs their means over
+its episodes as ``eval/<name>`` beside the return.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import Future
-from typing import Any, Optional
+from dataclasses import dataclass, field
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -19,22 +24,52 @@ import torch
 from ray import ObjectRef
 
 from actors.policies import UniformRandomPolicy
+from actors.task import EnvSpec
 from service.core import Behaviour, EvalTag, Evaluation, Weights
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """A batched policy: observations [B, *obs_shape] -> actions [B, *action_shape]."""
 
+EPISODE_METRICS = "episode_metrics"
+"""``info`` key of the last step of an episode: the environment's own metrics, {name: float}."""
+
+
+@dataclass(frozen=True)
+class Episodes:
+    """What a batch of episodes gave: their returns and the environment's own metrics."""
+
+    returns: np.ndarray
+    """Undiscounted returns, float64 [episodes], in episode order."""
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)
+    """``info["episode_metrics"]`` of each episode's last step, by name: float64
+    [episodes] (NaN for an episode that did not report the metric)."""
+
+    def metric_means(self) -> dict[str, float]:
+        """Each metric's mean over the episodes that reported it."""
+        return {name: float(np.nanmean(values)) for name, values in self.metrics.items()}
+
 
 def run_episodes(
     policy: Policy,
     *,
-    env_id: str = "Pendulum-v1",
+    env: EnvSpec | str = "Pendulum-v1",
     episodes: int = 100,
     seed: int = 0,
     num_envs: int | None = None,
-    env_kwargs: dict[str, Any] | None = None,
 ) -> np.ndarray:
-    """Runs full episodes and returns their undiscounted returns.
+    """Runs full episodes and returns their undiscounted returns (`play_episodes`' returns)."""
+    return play_episodes(policy, env=env, episodes=episodes, seed=seed, num_envs=num_envs).returns
+
+
+def play_episodes(
+    policy: Policy,
+    *,
+    env: EnvSpec | str = "Pendulum-v1",
+    episodes: int = 100,
+    seed: int = 0,
+    num_envs: int | None = None,
+) -> Episodes:
+    """Runs full episodes; returns their undiscounted returns and the env's own metrics.
 
     Each step calls ``policy`` once on the observations of all running environments.
     An episode ends on termination or truncation (time limit); a finished environment
@@ -42,18 +77,18 @@ def run_episodes(
 
     Args:
         policy: Batched policy; called with [B, *obs_shape], must return [B, ...].
-        env_id: Gymnasium environment id.
+        env: The task's environment (a run config's ``env_spec()``), or a gymnasium id.
         episodes: Number of episodes to run.
         seed: Episode ``i`` is reset with ``seed + i``.
         num_envs: Environments stepped side by side; all ``episodes`` at once when None.
-        env_kwargs: Keyword arguments for ``gym.make`` (the run config's ``env_kwargs``).
 
     Returns:
-        float64 returns of shape [episodes], in episode order.
+        The returns, float64 [episodes] in episode order, and the metrics the environment
+        put in ``info["episode_metrics"]`` at the end of each episode.
 
     Raises:
-        ValueError: If ``episodes`` or ``num_envs`` is not positive, or the policy
-            returns the wrong batch size.
+        ValueError: If ``episodes`` or ``num_envs`` is not positive, the policy returns
+            the wrong batch size, or an episode's metrics are not a mapping of numbers.
     """
     if episodes < 1:
         raise ValueError(f"episodes={episodes} must be >= 1")
@@ -62,8 +97,10 @@ def run_episodes(
         raise ValueError(f"num_envs={num_envs} must be >= 1")
     num_envs = min(num_envs, episodes)
 
-    envs = [gym.make(env_id, **(env_kwargs or {})) for _ in range(num_envs)]
+    spec = EnvSpec(env) if isinstance(env, str) else env
+    envs = [spec.make() for _ in range(num_envs)]
     returns = np.zeros(episodes, dtype=np.float64)
+    metrics: dict[str, np.ndarray] = {}
     episode_of = list(range(num_envs))  # episode each env is running; -1 when idle
     obs = [envs[k].reset(seed=seed + k)[0] for k in range(num_envs)]
     next_episode = num_envs
@@ -78,9 +115,10 @@ def run_episodes(
                     f"policy returned {actions.shape[0]} actions for {len(running)} observations"
                 )
             for action, k in zip(actions, running, strict=True):
-                obs[k], reward, terminated, truncated, _ = envs[k].step(action)
+                obs[k], reward, terminated, truncated, info = envs[k].step(action)
                 returns[episode_of[k]] += float(reward)
                 if terminated or truncated:
+                    _record(metrics, info.get(EPISODE_METRICS), episode_of[k], episodes)
                     if next_episode < episodes:
                         episode_of[k] = next_episode
                         obs[k] = envs[k].reset(seed=seed + next_episode)[0]
@@ -88,31 +126,55 @@ def run_episodes(
                     else:
                         episode_of[k] = -1
     finally:
-        for env in envs:
-            env.close()
-    return returns
+        for made in envs:
+            made.close()
+    return Episodes(returns, metrics)
 
 
-def random_policy_for(env_id: str, *, seed: int = 0) -> Policy:
-    """Returns a uniform random batched policy over an environment's Box action space.
+def _record(metrics: dict[str, np.ndarray], reported: Any, episode: int, episodes: int) -> None:
+    """Files one episode's ``info["episode_metrics"]`` under each metric's name."""
+    if reported is None:
+        return
+    if not isinstance(reported, dict):
+        raise ValueError(
+            f"info[{EPISODE_METRICS!r}] is {reported!r}; it must map metric names to numbers"
+        )
+    for name, value in reported.items():
+        metrics.setdefault(str(name), np.full(episodes, np.nan))[episode] = float(value)
+
+
+def random_policy_for(env: EnvSpec | str, *, seed: int = 0) -> Policy:
+    """Returns a uniform random batched policy over an environment's action space.
 
     Args:
-        env_id: Gymnasium environment id with a bounded ``Box`` action space.
+        env: The environment (or its gymnasium id), with a bounded ``Box`` or a
+            ``Discrete`` action space.
         seed: Seed of the policy's own random generator.
 
     Returns:
-        A policy mapping [B, *obs_shape] to float32 actions [B, *action_shape].
+        A policy mapping [B, *obs_shape] to actions [B, *action_shape] (float32 in a Box,
+        int64 in a Discrete space).
 
     Raises:
-        ValueError: If the action space is not a bounded Box.
+        ValueError: If the action space is neither a bounded Box nor Discrete.
     """
-    env = gym.make(env_id)
-    space = env.action_space
-    env.close()
-    if not isinstance(space, gym.spaces.Box):
-        raise ValueError(f"{env_id} has action space {space}; random_policy_for needs a Box")
-    uniform = UniformRandomPolicy(space.low.reshape(-1), space.high.reshape(-1))
+    spec = EnvSpec(env) if isinstance(env, str) else env
+    made = spec.make()
+    space = made.action_space
+    made.close()
     rng = np.random.default_rng(seed)
+    if isinstance(space, gym.spaces.Discrete):
+        n, start = int(space.n), int(space.start)
+
+        def discrete(obs: np.ndarray) -> np.ndarray:
+            return rng.integers(start, start + n, size=len(obs), dtype=np.int64)
+
+        return discrete
+    if not isinstance(space, gym.spaces.Box):
+        raise ValueError(
+            f"{spec.env_id} has action space {space}; random_policy_for needs a Box or Discrete"
+        )
+    uniform = UniformRandomPolicy(space.low.reshape(-1), space.high.reshape(-1))
 
     def policy(obs: np.ndarray) -> np.ndarray:
         action, _ = uniform.sample(len(obs), rng)
@@ -125,55 +187,37 @@ def random_policy_for(env_id: str, *, seed: int = 0) -> Policy:
 class Evaluator:
     """Runs `episodes` deterministic episodes of a behaviour's greedy policy (no exploration)."""
 
-    def __init__(
-        self,
-        *,
-        env_id: str,
-        behaviour: Behaviour,
-        seed: int,
-        env_kwargs: Optional[dict[str, Any]] = None,
-    ) -> None:
+    def __init__(self, *, env: EnvSpec, behaviour: Behaviour, seed: int) -> None:
         torch.set_num_threads(1)
-        self.env_id, self.seed, self.env_kwargs = env_id, seed, env_kwargs
+        self.env, self.seed = env, seed
         self.behaviour = behaviour
 
     def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Evaluation:
         """Returns mean and std of the episode returns, echoing `tag` back.
 
         `stats` carries what the behaviour counted while acting greedily (e.g. how often
-        each option ran).
+        each option ran) and the means of the environment's own episode metrics.
         """
         self.behaviour.load(weights)
         self.behaviour.stats()  # drop anything counted before these weights
-        returns = run_episodes(
-            self.behaviour.greedy,
-            env_id=self.env_id,
-            episodes=episodes,
-            seed=self.seed,
-            env_kwargs=self.env_kwargs,
+        played = play_episodes(
+            self.behaviour.greedy, env=self.env, episodes=episodes, seed=self.seed
         )
         return {
             "tag": tag,
-            "mean": float(returns.mean()),
-            "std": float(returns.std()),
-            "stats": self.behaviour.stats(),
+            "mean": float(played.returns.mean()),
+            "std": float(played.returns.std()),
+            "stats": {**played.metric_means(), **self.behaviour.stats()},
         }
 
 
 class RemoteEvaluator:
     """The learner's `Evaluator` (service/core.py): an `Evaluator` Ray actor runs the episodes."""
 
-    def __init__(
-        self,
-        *,
-        env_id: str,
-        behaviour: Behaviour,
-        seed: int,
-        env_kwargs: Optional[dict[str, Any]] = None,
-    ) -> None:
+    def __init__(self, *, env: EnvSpec, behaviour: Behaviour, seed: int) -> None:
         # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
         self._actor = Evaluator.remote(  # type: ignore[attr-defined]
-            env_id=env_id, behaviour=behaviour, seed=seed, env_kwargs=env_kwargs
+            env=env, behaviour=behaviour, seed=seed
         )
 
     def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:

@@ -1,14 +1,16 @@
 """Minecraft benchmarks: world server ticks per second, and the decoupling table.
 
-1. Ticks per second of one simulated world server in synchronous mode, through the
-   MalmoEnv protocol, without and with rendering. The server runs in its own process
+1. Ticks per second of one simulated world server in synchronous mode (ideal timing),
+   through the MalmoEnv protocol, without and with rendering. The server runs in its own process
    (``minecraft serve``), the client is graft's ``MalmoClient``; each step advances
    exactly one tick and returns the observations of the sample obtain-diamond mission
    (full stats, 15×15×15 grid, inventory, entities, ray).
-2. The decoupling table: 4 real-time clients (a pool of 4 world servers at 50 ms ticks)
-   on the same 2 cores as a TD3 learner, as graft runs them (Ray actors streaming to the
-   replay server, a learner sampling from it at full speed, weights broadcast) beside the
-   paper's naive loop (each client trains its own TD3 between two steps). Reported: the
+2. The decoupling table: 4 real-time clients (a pool of 4 world servers at 50 ms ticks,
+   real Malmo's timing)
+   on the same 2 cores as a TD3 learner, as graft runs them (its env actors, each
+   stepping a Minecraft mission environment and streaming to the replay server, a learner
+   sampling from it at full speed, weights broadcast) beside the paper's naive loop
+   (``naive_loop.py``: each client trains its own TD3 between two steps). Reported: the
    fraction of world ticks the clients never observed (``TotalTime`` gaps).
 
     python bench/minecraft.py                       # both parts, about 3 minutes
@@ -19,25 +21,30 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import threading
 import time
 from typing import Any
 
 import ray
 import torch
+from naive_loop import NaiveLoop  # bench/, beside this script (Ray workers import it too)
 
-from actors.minecraft.encoding import ACTION_SPACE, observation_space
+from actors.behaviours.gaussian import GaussianBehaviour
+from actors.env_actor import EnvActor, Segment
+from actors.minecraft.agent.mission_env import ACTION_SPACE, ENV_ID, observation_space
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.malmo.mission import parse_mission
 from actors.minecraft.malmo.mission_xml import mission_xml
-from actors.minecraft.ray_actor import MinecraftActor
 from actors.minecraft.sim.pool import ServerPool
-from actors.transitions import transition_signature
-from learner.td3.builder import make_td3_learner
+from actors.minecraft.sim.timing import IDEAL
+from actors.task import EnvSpec
+from actors.transitions import replay_signature
+from learner.td3.builder import make_actor_network, make_td3_learner
 from learner.td3.config import TD3Config
 from service.replay.client import ReplayClient
 from service.run.replay_process import ReplayProcess
-from service.weights import WeightBroadcaster
+from service.weights import WeightBroadcaster, WeightSubscriber
 
 
 def ticks_per_second(
@@ -54,6 +61,8 @@ def ticks_per_second(
         width=size, height=size, time_limit_ms=None, grid_radius=7 if full else 0,
         observations=obs,
     )  # fmt: skip
+    if size is None:  # the simulator's own cost: no frame (only ideal timing takes that)
+        xml = re.sub(r"<VideoProducer.*?</VideoProducer>", "", xml, flags=re.DOTALL)
     client.init(xml)
     client.reset()
     commands = ["move 1\njump 1", "turn 0.5", "move 1\nattack 1", "turn -0.3\nattack 0"]
@@ -75,7 +84,9 @@ def ticks_per_second(
 
 def ticks_table(args: argparse.Namespace) -> None:
     """Part 1: print ticks per second of one server, synchronous."""
-    with ServerPool(1, base_port=0, seed=args.seed) as pool:
+    # Ideal timing: this measures the simulator's ticks, which real Malmo's loading and
+    # frame pacing would only hide (and a mission without a frame needs it).
+    with ServerPool(1, base_port=0, seed=args.seed, timing=IDEAL) as pool:
         port = pool.ports[0]
         light = ticks_per_second(port, size=None, ticks=args.ticks, seed=args.seed, full=False)
         plain = ticks_per_second(port, size=None, ticks=args.ticks, seed=args.seed)
@@ -91,18 +102,20 @@ def ticks_table(args: argparse.Namespace) -> None:
 TABLE = "minecraft"
 CLIENTS = 4
 MS_PER_TICK = 50
+INSERT_EVERY = 32  # transitions per insert
+PENDING_INSERTS = 64  # insert batches an actor may queue before acting waits
 
 
 def bench_mission(seed: int) -> str:
-    """The sample mission's observations and handlers in real time, without video: the
-    actors' vectors do not use frames, and rendering 4 worlds would only load the cores."""
+    """The sample mission's observations and handlers in real time, with the small frame
+    real Malmo needs (the actors' vectors do not use frames)."""
     return mission_xml(
         width=None, ms_per_tick=MS_PER_TICK, seed=seed, time_limit_ms=None,
         handlers="continuous discrete inventory craft quit",
     )  # fmt: skip
 
 
-@ray.remote(num_cpus=1, max_concurrency=2)
+@ray.remote(num_cpus=1, max_concurrency=2)  # type: ignore[call-overload]
 class FullSpeedLearner:
     """TD3 sampling from the replay server as fast as it can, publishing weights every
     ``publish_every`` updates. ``nice`` raises its niceness above Ray's default 15."""
@@ -164,21 +177,36 @@ def _summary(reports: list[dict[str, Any]], updates_per_s: float) -> dict[str, f
         "p99": max(r["perf/step_latency_ms_p99"] for r in reports),
         "updates_per_s": updates_per_s,
         "losses": sum(r["net/connection_losses"] for r in reports),
-        "dropped": sum(r.get("replay/dropped", 0) for r in reports),
-        "versions": min(r["policy/versions_adopted"] for r in reports),
+        "insert_wait_s": max(r.get("replay/insert_wait_s", 0.0) for r in reports),
+        "versions": min(r.get("policy/versions_adopted", 0) for r in reports),
         "nice": max(r["actor/nice"] for r in reports),
     }
 
 
+def env_kwargs(port: int, seed: int, episode_steps: int) -> dict[str, Any]:
+    """One client's mission environment: real time, its own world seed, and an episode
+    limit on the actor's side (gymnasium's ``max_episode_steps``)."""
+    return {
+        "address": f"127.0.0.1:{port}",
+        "mission_xml": bench_mission(seed),
+        "world_seed": seed,
+        "max_episode_steps": episode_steps,
+    }
+
+
 def decoupled(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
-    """graft: 4 Ray actors stream to the replay server; a learner trains at full speed."""
-    xml = bench_mission(args.seed)
-    obs_space = observation_space(parse_mission(xml))
-    signature = transition_signature(obs_space, ACTION_SPACE)
+    """graft: 4 env actors stream to the replay server; a learner trains at full speed."""
+    obs_space = observation_space(parse_mission(bench_mission(args.seed)))
+    low, high = ACTION_SPACE.low, ACTION_SPACE.high
+    network = make_actor_network(obs_space.shape[0], ACTION_SPACE.shape[0], low, high, td3)
+    behaviour = GaussianBehaviour(network, std=td3.exploration_noise, low=low, high=high)
     table = {
-        "name": TABLE, "max_size": 100_000, "signature": signature,
+        "name": TABLE, "max_size": 100_000,
+        "signature": replay_signature(obs_space, behaviour.columns()),
         "rate_limiter": {"kind": "min_size", "min_size": td3.batch_size},  # inserts never wait
     }  # fmt: skip
+    # A min_size table never holds inserts back: acting need not wait for any of them.
+    segment = Segment(TABLE, steps=10**9, pending_inserts=PENDING_INSERTS)
     with ServerPool(CLIENTS, base_port=0, seed=args.seed, ms_per_tick=MS_PER_TICK) as pool:
         with ReplayProcess([table]) as server:
             replay = ReplayClient(server.address)
@@ -187,16 +215,30 @@ def decoupled(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
                 replay, broadcaster, obs_dim=obs_space.shape[0], td3=td3, seed=args.seed,
                 threads=args.learner_threads, nice=args.learner_nice,
             )  # fmt: skip
-            actors = _actors(pool.ports, xml, td3, args, replay=replay, broadcaster=broadcaster)
+            actors = [
+                EnvActor.remote(
+                    env=EnvSpec(ENV_ID, env_kwargs(port, args.seed + i, args.episode_steps)),
+                    num_envs=1,
+                    seed=args.seed + i,
+                    replay=replay,
+                    weights=WeightSubscriber(broadcaster),
+                    behaviour=behaviour,
+                    steps_per_insert=INSERT_EVERY,
+                    nice=0,
+                )  # fmt: skip
+                for i, port in enumerate(pool.ports)
+            ]
+            ray.get([a.report.remote() for a in actors])  # constructed, connected: time from here
             training = learner.run.remote()
-            runs = _start(actors, args)
+            runs = [a.run.remote([segment]) for a in actors]
             time.sleep(args.warmup)
-            ray.get(learner.mark.remote())
+            ray.get([learner.mark.remote(), *(a.restart_meters.remote() for a in actors)])
+            time.sleep(args.measure)
+            ray.get(broadcaster.stop.remote())  # as the learner loop ends a run
             reports = ray.get(runs)
             ray.get(learner.stop.remote())
             trained = ray.get(training)
-            for a in actors:
-                ray.get(a.close.remote())
+            ray.get([a.close.remote() for a in actors])
             for handle in [*actors, learner, broadcaster]:
                 ray.kill(handle)
             replay.close()
@@ -205,48 +247,32 @@ def decoupled(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
 
 def naive(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
     """The paper's loop: each client trains its own TD3 between two steps."""
-    xml = bench_mission(args.seed)
+    # Two calls at once: report() answers while run() acts (Ray's stubs know task options only).
+    remote_loop = ray.remote(num_cpus=0.25, max_concurrency=2)(NaiveLoop)  # type: ignore[call-overload]
     with ServerPool(CLIENTS, base_port=0, seed=args.seed, ms_per_tick=MS_PER_TICK) as pool:
-        actors = _actors(pool.ports, xml, td3, args, inline=args.naive_updates)
-        runs = _start(actors, args)
+        loops = [
+            remote_loop.remote(
+                env_id=ENV_ID,
+                env_kwargs=env_kwargs(port, args.seed + i, args.episode_steps),
+                td3=td3,
+                seed=args.seed + i,
+                updates_per_step=args.naive_updates,
+                learning_starts=td3.batch_size,
+                nice=0,
+            )  # fmt: skip
+            for i, port in enumerate(pool.ports)
+        ]
+        ray.get([c.report.remote() for c in loops])  # constructed, connected: time from here
+        total = args.warmup + args.measure
+        runs = [c.run.remote(duration_s=total, measure_after_s=args.warmup) for c in loops]
         time.sleep(args.warmup)
-        before = sum(ray.get(a.report.remote()).get("learner/inline_updates", 0) for a in actors)
+        before = sum(ray.get(c.report.remote())["learner/inline_updates"] for c in loops)
         reports = ray.get(runs)
-        for a in actors:
-            ray.kill(a)
+        ray.get([c.close.remote() for c in loops])
+        for c in loops:
+            ray.kill(c)
     after = sum(r["learner/inline_updates"] for r in reports)
     return _summary(reports, (after - before) / reports[0]["perf/measure_s"])
-
-
-def _actors(
-    ports: list[int], xml: str, td3: TD3Config, args: argparse.Namespace, *,
-    replay: ReplayClient | None = None, broadcaster: Any = None, inline: int = 0,
-) -> list[Any]:  # fmt: skip
-    actors = [
-        MinecraftActor.remote(
-            host="127.0.0.1",
-            port=port,
-            mission_xml=xml,
-            td3=td3,
-            seed=args.seed + i,
-            replay=replay,
-            table=TABLE,
-            broadcaster=broadcaster,
-            world_seed=args.seed + i,
-            max_episode_steps=args.episode_steps,
-            inline_updates_per_step=inline,
-            inline_learning_starts=td3.batch_size,
-        )  # fmt: skip
-        for i, port in enumerate(ports)
-    ]
-    ray.get([a.report.remote() for a in actors])  # constructed (torch imported) before timing
-    return actors
-
-
-def _start(actors: list[Any], args: argparse.Namespace) -> list[Any]:
-    """Start every actor's run: warm-up, then the measured window."""
-    total = args.warmup + args.measure
-    return [a.run.remote(duration_s=total, measure_after_s=args.warmup) for a in actors]
 
 
 def updates_alone(obs_dim: int, td3: TD3Config, *, threads: int, seconds: float = 8.0) -> float:
@@ -304,13 +330,14 @@ def decoupling_table(args: argparse.Namespace) -> None:
     )
     graft = next(iter(rows.values()))
     print(
-        f"graft's actors each adopted >= {graft['versions']} broadcast weight versions; "
+        f"graft's actors each adopted >= {graft['versions']} broadcast weight versions and "
+        f"waited at most {graft['insert_wait_s']:.2f} s in all for their background inserts; "
         f"every client acted at nice {max(r['nice'] for r in rows.values())}, the learner at "
         f"Ray's worker nice 15 + {args.learner_nice}, world and replay servers at 0"
     )
     for name, r in rows.items():
-        if r["losses"] or r["dropped"]:
-            print(f"{name}: {r['losses']} connection losses, {r['dropped']} dropped transitions")
+        if r["losses"]:
+            print(f"{name}: {r['losses']} connection losses")
 
 
 def main() -> None:

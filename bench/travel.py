@@ -235,15 +235,14 @@ def tree_eval_level(run: Path) -> float:
     """The tree alone's mean return on the evaluator's episodes of ``run`` (same seeds,
     same environment settings)."""
     from actors.evaluator import run_episodes
-    from actors.minecraft.agent.travel_env import ENV_ID, TravelBackbone
+    from actors.minecraft.agent.travel_env import TravelBackbone
 
     config = run_config(run)
     returns = run_episodes(
         TravelBackbone(),
-        env_id=ENV_ID,
+        env=config.env_spec(),
         episodes=config.eval_episodes,
         seed=10_000 + config.seed,
-        env_kwargs=config.env_kwargs,
     )
     return float(returns.mean())
 

@@ -1,6 +1,13 @@
-"""Shared fixtures: a real replay server process and a real local Ray instance."""
+"""Shared fixtures: a real replay server process and a real local Ray instance; the user
+task of tests/fixtures/usertask installed as its own distribution."""
 
 from __future__ import annotations
+
+import importlib.util
+import site
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,6 +15,27 @@ import ray
 
 from service.replay.client import ReplayClient
 from service.run.replay_process import ReplayProcess
+
+USERTASK = Path(__file__).resolve().parent / "fixtures" / "usertask"
+"""A user's own task package, which graft never imports (tests/service/run/test_own_task)."""
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Installs the user-task package (``pip install -e``, as a user would) when it is not
+    installed from this folder yet; `make test` does it before pytest starts."""
+    spec = importlib.util.find_spec("usertask")
+    if spec is not None and spec.origin and Path(spec.origin).is_relative_to(USERTASK):
+        return
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "-e", str(USERTASK)],
+        check=True,
+    )
+    # This process read site-packages' .pth files before the install: read the new one.
+    for folder in site.getsitepackages():
+        for pth in Path(folder).glob("__editable__.usertask-*.pth"):
+            site.addpackage(folder, pth.name, None)  # type: ignore[attr-defined]
+    importlib.invalidate_caches()
+
 
 PENDULUM_SIGNATURE = {
     "obs": {"dtype": "float32", "shape": [3]},

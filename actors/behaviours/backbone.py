@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from actors.behaviours.gaussian import box_column
-from actors.behaviours.hardcoded import HardCodedPolicy
+from actors.hardcoded import HardCodedPolicy
 from actors.policies import gaussian_log_prob
 from service.core import Columns, ColumnSpec, Weights
 

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from actors.behaviours.hardcoded import HardCodedPolicy
+from actors.hardcoded import HardCodedPolicy
 from actors.policies import GaussianExploration, UniformRandomPolicy
 from service.core import Columns, ColumnSpec, Weights
 

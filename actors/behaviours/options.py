@@ -18,7 +18,7 @@ from torch import nn
 
 from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
 from actors.behaviours.gaussian import box_column
-from actors.behaviours.hardcoded import HardCodedPolicy
+from actors.hardcoded import HardCodedPolicy
 from actors.policies import GaussianExploration, UniformRandomPolicy
 from service.core import Columns, ColumnSpec, Weights
 

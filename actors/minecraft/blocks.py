@@ -1,5 +1,9 @@
 """Block and item tables of the simulated world, with Minecraft 1.11 names and numbers.
 
+Every Minecraft 1.11 block type has an entry: the first ones are modelled in full, the
+rest (``approximate_blocks``) are drawn and observed under their own name but behave as
+the simplest block of their kind.
+
 Blocks are stored as small integer ids (``uint8``) in the voxel array; every per-block
 property is a numpy lookup table indexed by that id, so physics and observations can
 work on whole slices at once. Mining follows Minecraft's formula: each tick of holding
@@ -14,6 +18,9 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
+
+from actors.minecraft import approximate_blocks
+from actors.minecraft.names import numeric_id
 
 # Harvest levels as in Minecraft: the lowest tool tier that makes a block drop anything.
 HAND, WOOD, STONE, IRON, DIAMOND = -1, 0, 1, 2, 3
@@ -77,6 +84,12 @@ BLOCKS: tuple[Block, ...] = (
     _B("obsidian", 50.0, "pickaxe", DIAMOND, "obsidian", 1, True, False, (20, 18, 30), 49),
     _B("glass", 0.3, "", HAND, "", 0, True, False, (200, 230, 235), 20),
     _B("torch", 0.0, "", HAND, "torch", 1, False, False, (255, 220, 80), 50),
+)
+# Every other Minecraft 1.11 block, appended so the ids above never change.
+_LEVELS = {"hand": HAND, "wood": WOOD, "stone": STONE, "iron": IRON}
+BLOCKS += tuple(
+    _B(name, hardness, tool, _LEVELS[level], drop, count, solid, False, colour, numeric_id(name))
+    for name, hardness, tool, level, drop, count, solid, colour, _ in approximate_blocks.rows()
 )
 
 NAMES: tuple[str, ...] = tuple(b.name for b in BLOCKS)
@@ -157,8 +170,19 @@ FUEL: dict[str, float] = {
 }
 
 # Items whose name is a block and that can be placed with `use`.
+# Blocks no item places (technical states, crops, wires, the halves of a double slab).
+_NO_ITEM = frozenset(
+    """air grass leaves leaves2 piston_head piston_extension double_stone_slab
+    double_stone_slab2 double_wooden_slab purpur_double_slab redstone_wire wheat carrots
+    potatoes beetroots cocoa pumpkin_stem melon_stem standing_sign wall_sign standing_banner
+    wall_banner lit_furnace lit_redstone_ore lit_redstone_lamp lit_pumpkin
+    unlit_redstone_torch unpowered_repeater powered_repeater unpowered_comparator
+    powered_comparator daylight_detector_inverted tripwire farmland grass_path frosted_ice
+    end_portal_frame mob_spawner command_block repeating_command_block chain_command_block
+    structure_block structure_void barrier monster_egg""".split()
+)
 PLACEABLE: frozenset[str] = frozenset(
-    n for n in NAMES if n not in ("air", "grass", "leaves") and not BLOCKS[ID[n]].liquid
+    n for n in NAMES if n not in _NO_ITEM and not BLOCKS[ID[n]].liquid
 )
 
 

@@ -13,20 +13,47 @@ from typing import Optional
 import numpy as np
 
 from actors.minecraft.malmo import protocol as P
+from actors.minecraft.sim.timing import IDEAL, WAIT_S, Timing
+
+
+def _timing(args: argparse.Namespace) -> Timing:
+    if args.ideal:
+        return IDEAL
+    try:
+        return Timing(
+            loading_s=args.loading_s, ending_s=args.ending_s, fps=args.fps, wait_s=args.wait_s
+        )
+    except ValueError as e:
+        raise SystemExit(f"graft minecraft serve: {e}") from None
 
 
 def _serve(args: argparse.Namespace) -> int:
     from actors.minecraft.sim.server import WorldServer
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    server = WorldServer(args.host, args.port, seed=args.seed, ms_per_tick=args.ms_per_tick)
-    server.start()
-    print(f"graft minecraft world server on {args.host}:{server.port}", flush=True)
-    signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    if args.instances < 1:
+        raise SystemExit(f"graft minecraft serve: --instances must be >= 1, got {args.instances}")
+    timing = _timing(args)
+    # Several instances in one process: a multi-agent mission's roles join each other.
+    servers = [
+        WorldServer(args.host, args.port + i if args.port else 0, seed=args.seed + i,
+                    ms_per_tick=args.ms_per_tick, timing=timing)
+        for i in range(args.instances)
+    ]  # fmt: skip
+    for server in servers:
+        server.start()
+        print(f"graft minecraft world server ({timing.mode} timing) on "
+              f"{args.host}:{server.port}", flush=True)  # fmt: skip
+
+    def stop(*_: object) -> None:
+        for server in servers:
+            server.stop()
+
+    signal.signal(signal.SIGTERM, stop)
     try:
-        server.serve_forever()
+        servers[0].serve_forever()
     except KeyboardInterrupt:
-        server.stop()
+        stop()
     return 0
 
 
@@ -90,6 +117,43 @@ def add_minecraft_commands(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument("--seed", type=int, default=0, help="base world seed")
     serve.add_argument("--ms-per-tick", type=int, default=50, help="default tick period")
     serve.add_argument("--host", default="127.0.0.1", help="interface to bind")
+    serve.add_argument(
+        "--instances",
+        type=int,
+        default=1,
+        help="Minecraft instances on consecutive ports (multi-agent missions)",
+    )
+    serve.add_argument(
+        "--ideal",
+        action="store_true",
+        help="graft's convenient pacing instead of real Malmo's: no loading or "
+        "ending delay, a new mission replaces the running one, one frame per "
+        "tick, commands queued without a VideoProducer",
+    )
+    serve.add_argument(
+        "--loading-s",
+        type=float,
+        default=1.0,
+        help="real timing: seconds a mission loads before its first frame",
+    )
+    serve.add_argument(
+        "--ending-s",
+        type=float,
+        default=0.5,
+        help="real timing: seconds after a mission ends before the next starts",
+    )
+    serve.add_argument(
+        "--fps",
+        type=float,
+        default=60.0,
+        help="real timing: frames per second, independent of ticks",
+    )
+    serve.add_argument(
+        "--wait-s",
+        type=float,
+        default=WAIT_S,
+        help="longest wait of a Peek or step for a frame (Malmo: 3 s)",
+    )
     serve.set_defaults(func=_serve)
     view = sub.add_parser("view", help="save PNG frames of a short episode")
     view.add_argument("--seed", type=int, default=0, help="world seed")

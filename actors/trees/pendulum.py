@@ -1,7 +1,9 @@
 """The hard-coded Pendulum-v1 policy of the paper (sec. IV-B), written as a py_trees tree.
 
 The tree reads the observation ``[cos θ, sin θ, θ̇]`` (θ = 0 upright) from the blackboard
-and its leaves write the torque back::
+key ``/graft/observation`` and its leaves write the torque to ``/graft/action``, graft's
+convention for every hard-coded tree (actors/hardcoded.py). Presets name it by its import
+string, ``hardcoded_policy: actors.trees.pendulum:swing_up``::
 
     [o] Swing-up                              Selector, memory=False
         [-] Pump below pivot                  Sequence, memory=False
@@ -10,48 +12,28 @@ and its leaves write the torque back::
         --> Brake near top                    torque = −max · sign(θ̇)
 """
 
-import itertools
-
 import numpy as np
 import py_trees
+from gymnasium import spaces
 from py_trees.common import Access, Status
 
-OBSERVATION_KEY = "observation"
-"""Blackboard key (inside the tree's namespace) holding the current observation [3]."""
-
-ACTION_KEY = "action"
-"""Blackboard key (inside the tree's namespace) the action leaves write the torque to."""
-
-DEFAULT_NAMESPACE = "/pendulum"
-"""Blackboard namespace of a tree built without an explicit one."""
+from actors.hardcoded import ACTION_KEY, OBSERVATION_KEY
 
 PENDULUM_MAX_TORQUE = 2.0
 """Pendulum-v1 clips torque to [-2, 2]."""
-
-_tree_ids = itertools.count()
-
-
-def _new_namespace() -> str:
-    """Returns a blackboard namespace unique to one policy in this process.
-
-    The py_trees blackboard is process-global; a namespace per tree keeps two policies
-    living in the same process (tests, a learner evaluating while an actor runs) apart.
-    """
-    return f"/pendulum_{next(_tree_ids)}"
 
 
 class BelowPivot(py_trees.behaviour.Behaviour):
     """Condition: SUCCESS when the pendulum hangs below the pivot (cos θ < 0)."""
 
-    def __init__(self, name: str, *, namespace: str) -> None:
+    def __init__(self, name: str) -> None:
         """Initialises the condition.
 
         Args:
             name: Node name shown in the tree.
-            namespace: Blackboard namespace of the tree.
         """
         super().__init__(name)
-        self.blackboard = self.attach_blackboard_client(name=name, namespace=namespace)
+        self.blackboard = self.attach_blackboard_client(name=name)
         self.blackboard.register_key(OBSERVATION_KEY, access=Access.READ)
 
     def update(self) -> Status:
@@ -63,17 +45,16 @@ class BelowPivot(py_trees.behaviour.Behaviour):
 class _TorqueAction(py_trees.behaviour.Behaviour):
     """An action leaf: reads the observation, writes a torque to the blackboard."""
 
-    def __init__(self, name: str, *, namespace: str, max_torque: float) -> None:
+    def __init__(self, name: str, *, max_torque: float) -> None:
         """Initialises the action.
 
         Args:
             name: Node name shown in the tree.
-            namespace: Blackboard namespace of the tree.
             max_torque: Torque magnitude written to the blackboard.
         """
         super().__init__(name)
         self.max_torque = max_torque
-        self.blackboard = self.attach_blackboard_client(name=name, namespace=namespace)
+        self.blackboard = self.attach_blackboard_client(name=name)
         self.blackboard.register_key(OBSERVATION_KEY, access=Access.READ)
         self.blackboard.register_key(ACTION_KEY, access=Access.WRITE)
 
@@ -118,19 +99,15 @@ def _check_max_torque(max_torque: float) -> None:
         )
 
 
-def build_pendulum_tree(
-    max_torque: float = PENDULUM_MAX_TORQUE, *, namespace: str = DEFAULT_NAMESPACE
-) -> py_trees.trees.BehaviourTree:
+def build_pendulum_tree(max_torque: float = PENDULUM_MAX_TORQUE) -> py_trees.trees.BehaviourTree:
     """Builds the hard-coded swing-up tree.
 
     Args:
         max_torque: Torque magnitude of both action leaves (the paper's bang-bang
             policy pushes with full torque, 2.0).
-        namespace: Blackboard namespace for the observation and action keys. Trees
-            ticked concurrently in one process need distinct namespaces.
 
     Returns:
-        The tree: write ``<namespace>/observation``, tick, read ``<namespace>/action``.
+        The tree: write ``/graft/observation``, tick, read ``/graft/action``.
 
     Raises:
         ValueError: If ``max_torque`` is outside (0, 2].
@@ -140,8 +117,8 @@ def build_pendulum_tree(
         name="Pump below pivot",
         memory=False,
         children=[
-            BelowPivot("Below pivot?", namespace=namespace),
-            PumpEnergy("Pump energy", namespace=namespace, max_torque=max_torque),
+            BelowPivot("Below pivot?"),
+            PumpEnergy("Pump energy", max_torque=max_torque),
         ],
     )
     root = py_trees.composites.Selector(
@@ -149,7 +126,7 @@ def build_pendulum_tree(
         memory=False,
         children=[
             pump,
-            BrakeNearTop("Brake near top", namespace=namespace, max_torque=max_torque),
+            BrakeNearTop("Brake near top", max_torque=max_torque),
         ],
     )
     tree = py_trees.trees.BehaviourTree(root)
@@ -204,72 +181,13 @@ def render_tree_ascii(
     )
 
 
-class HardCodedPendulumPolicy:
-    """The paper's hard-coded Pendulum-v1 policy, backed by a behaviour tree.
+def swing_up(action_space: spaces.Box) -> py_trees.trees.BehaviourTree:
+    """The hard-coded policy's factory (``hardcoded_policy: actors.trees.pendulum:swing_up``):
+    the swing-up tree pushing with the action space's full torque (2.0 on Pendulum-v1).
 
-    Deterministic: it pushes along θ̇ below the pivot and against θ̇ above it.
+    Raises:
+        ValueError: If the action space is not a one-torque box within (0, 2].
     """
-
-    def __init__(self, max_torque: float = PENDULUM_MAX_TORQUE) -> None:
-        """Builds the tree and the blackboard client that feeds it.
-
-        Args:
-            max_torque: Torque magnitude of the bang-bang actions, in (0, 2].
-        """
-        self.max_torque = max_torque
-        namespace = _new_namespace()
-        self.tree = build_pendulum_tree(max_torque, namespace=namespace)
-        self._blackboard = py_trees.blackboard.Client(
-            name="HardCodedPendulumPolicy", namespace=namespace
-        )
-        self._blackboard.register_key(OBSERVATION_KEY, access=Access.WRITE)
-        self._blackboard.register_key(ACTION_KEY, access=Access.WRITE)
-
-    def __reduce__(self) -> tuple[type, tuple[float]]:
-        # The blackboard is process-global: rebuild the tree where we are unpickled
-        # (e.g. inside a Ray actor) instead of shipping clients of another process.
-        return (HardCodedPendulumPolicy, (self.max_torque,))
-
-    def _act_one(self, obs: np.ndarray) -> float:
-        """Ticks the tree once on one observation.
-
-        Args:
-            obs: ``[cos θ, sin θ, θ̇]``.
-
-        Returns:
-            The torque written by the leaf that ran.
-        """
-        self._blackboard.set(OBSERVATION_KEY, obs)
-        self._blackboard.set(ACTION_KEY, None)
-        self.tree.tick()
-        action = self._blackboard.get(ACTION_KEY)
-        if self.tree.root.status != Status.SUCCESS or action is None:
-            raise RuntimeError(
-                f"pendulum tree ended with {self.tree.root.status} without writing an "
-                "action; the 'Brake near top' fallback should always succeed"
-            )
-        return float(action)
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        """Acts on a batch of observations, one tree tick per row.
-
-        Args:
-            obs: Observations of shape [B, 3], or a single observation of shape [3].
-
-        Returns:
-            float32 torques in [-max_torque, max_torque], shape [B, 1] (or [1] for a
-            single observation).
-
-        Raises:
-            ValueError: If the observation does not have 3 features.
-        """
-        obs = np.asarray(obs, dtype=np.float64)
-        if obs.ndim not in (1, 2) or obs.shape[-1] != 3:
-            raise ValueError(
-                f"observation has shape {obs.shape}; Pendulum-v1 expects [3] or [B, 3] "
-                "rows of [cos θ, sin θ, θ̇]"
-            )
-        batch = np.atleast_2d(obs)
-        actions = np.array([[self._act_one(row)] for row in batch], dtype=np.float32)
-        actions = actions.reshape(batch.shape[0], 1)
-        return actions[0] if obs.ndim == 1 else actions
+    if not isinstance(action_space, spaces.Box) or action_space.shape != (1,):
+        raise ValueError(f"the swing-up tree acts one torque, not {action_space}")
+    return build_pendulum_tree(float(action_space.high[0]))

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Optional
+
 import numpy as np
 
 from actors.behaviours.backbone import BackboneBehaviour
-from actors.behaviours.hardcoded import HardCodedPolicy, hardcoded_policy
+from actors.hardcoded import HardCodedPolicy, required_policy
 from learner.agent import Phase
 from learner.backbone.config import BackboneConfig
 from learner.backbone.learning import ObservingBackboneLearner, TeacherBackboneLearner
@@ -17,9 +20,18 @@ from learner.td3.learning import TD3Learner
 class BackboneBuilder:
     """Backbone TD3: prefill with μ(s) + ε, then μ(s) + clip(π(s) + noise)."""
 
-    def __init__(self, env_id: str, td3: TD3Builder, *, config: BackboneConfig) -> None:
-        """`td3` holds the spaces and the TD3 side; `config` this method's own settings."""
-        self.td3, self.env_id, self.config = td3, env_id, config
+    def __init__(
+        self,
+        hardcoded_policy: Optional[str],
+        td3: TD3Builder,
+        *,
+        config: BackboneConfig,
+        import_path: Sequence[str] = (),
+    ) -> None:
+        """`hardcoded_policy` is μ's import string (unused with a teacher), `td3` holds the
+        spaces and the TD3 side, `config` this method's own settings; `import_path` is
+        where μ's package is found."""
+        self.td3, self.config = td3, config
         self.batch_size = td3.batch_size
         limit = config.correction_limit
         self.bound = np.full(self.td3.act_dim, limit, dtype=np.float32)
@@ -29,6 +41,17 @@ class BackboneBuilder:
             )
             if config.teacher
             else None
+        )
+        self.hardcoded = (
+            None
+            if self.teacher is not None
+            else required_policy(
+                hardcoded_policy,
+                td3.obs_space,
+                td3.action_space,
+                method="backbone_td3",
+                import_path=import_path,
+            )
         )
 
     def phases(self) -> list[Phase]:
@@ -60,7 +83,8 @@ class BackboneBuilder:
     def _backbone(self) -> HardCodedPolicy:
         if self.teacher is not None:
             return TeacherActor(self.teacher[0])
-        return hardcoded_policy(self.env_id)
+        assert self.hardcoded is not None
+        return self.hardcoded
 
     def make_behaviour(self, *, num_actors: int) -> BackboneBehaviour:
         t = self.td3

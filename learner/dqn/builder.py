@@ -9,6 +9,7 @@ from learner.agent import Budget, Phase, online_phase
 from learner.dqn.config import DQNConfig
 from learner.dqn.learning import DQNLearner
 from learner.dqn.networks import make_q_network
+from learner.spaces import discrete_actions, observation_dim
 
 
 class DQNBuilder:
@@ -23,14 +24,10 @@ class DQNBuilder:
         budget: Budget,
         seed: int,
     ) -> None:
-        if not isinstance(action_space, spaces.Discrete):
-            raise ValueError(
-                f"Double DQN needs a Discrete action space, got {action_space!r}; "
-                "use a TD3-family algorithm for continuous actions"
-            )
-        if not isinstance(obs_space, spaces.Box) or len(obs_space.shape) != 1:
-            raise ValueError(f"Double DQN needs a 1-D Box observation space, got {obs_space!r}")
-        self.obs_dim, self.num_actions = int(obs_space.shape[0]), int(action_space.n)
+        """Raises ValueError when the observation space is not a flat Box or the actions
+        are not Discrete."""
+        self.obs_dim = observation_dim(obs_space, "ddqn")
+        self.num_actions = discrete_actions(action_space, "ddqn")
         self.config, self.budget, self.seed = config, budget, seed
         self.batch_size = config.batch_size
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
+from typing import Optional
 
 import numpy as np
 
-from actors.behaviours.hardcoded import hardcoded_policy
 from actors.behaviours.options import OptionsBehaviour
+from actors.hardcoded import required_policy
 from learner.agent import Phase
 from learner.dqn.config import DQNConfig
 from learner.dqn.learning import DQNLearner
@@ -21,10 +23,25 @@ class OptionsBuilder:
     """One online phase whose table serves k-step windows; batches are `td3.batch_size` windows."""
 
     def __init__(
-        self, env_id: str, td3: TD3Builder, *, dqn: DQNConfig, config: OptionsConfig
+        self,
+        hardcoded_policy: Optional[str],
+        td3: TD3Builder,
+        *,
+        dqn: DQNConfig,
+        config: OptionsConfig,
+        import_path: Sequence[str] = (),
     ) -> None:
-        """`td3` holds the spaces and the RL option; `dqn` the policy over options."""
-        self.td3, self.env_id, self.dqn, self.config = td3, env_id, dqn, config
+        """`hardcoded_policy` is the hard-coded option's import string, `td3` holds the
+        spaces and the RL option, `dqn` the policy over options; `import_path` is where
+        the hard-coded option's package is found."""
+        self.td3, self.dqn, self.config = td3, dqn, config
+        self.hardcoded = required_policy(
+            hardcoded_policy,
+            td3.obs_space,
+            td3.action_space,
+            method="options",
+            import_path=import_path,
+        )
         self.batch_size = td3.batch_size
 
     def phases(self) -> list[Phase]:
@@ -50,7 +67,7 @@ class OptionsBuilder:
         return OptionsBehaviour(
             make_option_network(t.obs_dim, d.hidden_sizes),
             make_actor_network(t.obs_dim, t.act_dim, t.low, t.high, t.config),
-            hardcoded_policy(self.env_id),
+            self.hardcoded,
             option_length=self.config.option_length,
             std=self.td3.exploration_std,
             low=t.low,

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Optional
+
 from actors.behaviours.gaussian import GaussianBehaviour
-from actors.behaviours.hardcoded import hardcoded_policy
+from actors.hardcoded import required_policy
 from learner.agent import Phase, online_phase
 from learner.pretrain.config import PretrainConfig
 from learner.pretrain.learning import PretrainLearner, pretrain_step
@@ -14,9 +17,25 @@ class PretrainBuilder:
     """Two phases: N demonstrations μ(s) + N(0, σ²) and pre-training on them, then online
     TD3 from the pre-trained networks (none if the budget is only the demonstrations)."""
 
-    def __init__(self, env_id: str, td3: TD3Builder, *, config: PretrainConfig) -> None:
-        """`td3` holds the spaces and the TD3 side; `config` this method's own settings."""
-        self.td3, self.env_id, self.config = td3, env_id, config
+    def __init__(
+        self,
+        hardcoded_policy: Optional[str],
+        td3: TD3Builder,
+        *,
+        config: PretrainConfig,
+        import_path: Sequence[str] = (),
+    ) -> None:
+        """`hardcoded_policy` is the demonstrator μ's import string, `td3` holds the spaces
+        and the TD3 side, `config` this method's own settings; `import_path` is where μ's
+        package is found."""
+        self.td3, self.config = td3, config
+        self.hardcoded = required_policy(
+            hardcoded_policy,
+            td3.obs_space,
+            td3.action_space,
+            method="pretrain_td3",
+            import_path=import_path,
+        )
         self.batch_size = td3.batch_size
 
     def phases(self) -> list[Phase]:
@@ -62,6 +81,6 @@ class PretrainBuilder:
             std=t.exploration_std,
             low=self.td3.low,
             high=self.td3.high,
-            hardcoded=hardcoded_policy(self.env_id),
+            hardcoded=self.hardcoded,
             warmup_std=self.config.demo_noise,
         )

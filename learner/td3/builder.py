@@ -7,19 +7,10 @@ from gymnasium import spaces
 
 from actors.behaviours.gaussian import GaussianBehaviour
 from learner.agent import Budget, Phase, online_phase
+from learner.spaces import box_action_dim, observation_dim
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
 from learner.td3.networks import Actor
-
-
-def _box_dim(space: spaces.Space, name: str) -> int:
-    """Returns the size of a flat Box space, refusing anything TD3 cannot handle."""
-    if not isinstance(space, spaces.Box) or len(space.shape) != 1:
-        raise ValueError(
-            f"TD3 needs a 1-D gymnasium Box {name} space, got {space!r}; "
-            "flatten the space (gymnasium.wrappers.FlattenObservation) first."
-        )
-    return int(space.shape[0])
 
 
 def make_actor_network(
@@ -64,8 +55,8 @@ def make_td3_learner(
     Raises:
         ValueError: If a space is not a 1-D Box, or the action bounds are not finite.
     """
-    obs_dim = _box_dim(obs_space, "observation")
-    act_dim = _box_dim(action_space, "action")
+    obs_dim = observation_dim(obs_space, "td3")
+    act_dim = box_action_dim(action_space, "td3")
     assert isinstance(action_space, spaces.Box)
     return TD3Learner(
         obs_dim,
@@ -88,9 +79,16 @@ class TD3Builder:
         config: TD3Config,
         budget: Budget,
         seed: int,
+        method: str = "td3",
     ) -> None:
-        self.obs_dim = _box_dim(obs_space, "observation")
-        self.act_dim = _box_dim(action_space, "action")
+        """`method` is the algorithm built on these TD3 parts, named when a space is refused.
+
+        Raises:
+            ValueError: The observation space is not a flat Box, or the action space not a
+                bounded 1-D Box.
+        """
+        self.obs_dim = observation_dim(obs_space, method)
+        self.act_dim = box_action_dim(action_space, method)
         self.obs_space, self.action_space = obs_space, action_space
         assert isinstance(action_space, spaces.Box)
         self.low = np.asarray(action_space.low, dtype=np.float32)

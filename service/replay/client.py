@@ -239,10 +239,6 @@ class ReplayClient:
         except grpc.RpcError as error:
             raise _typed(error) from None
 
-    def writer(self, table: str, *, batch_items: int = 1024) -> BatchingWriter:
-        """A buffer that inserts once `batch_items` rows have accumulated."""
-        return BatchingWriter(self, table, batch_items=batch_items)
-
     def info(self) -> list[TableStatus]:
         try:
             response = self.stub.Info(replay_pb2.InfoRequest(), metadata=self._metadata)
@@ -266,16 +262,25 @@ class ReplayClient:
         ]
 
     def wait_until_ready(self, timeout: float = 30.0) -> None:
-        """Blocks until the server answers, or raises Unavailable."""
-        channel = grpc.insecure_channel(self.address)
+        """Blocks until the server answers a call of this client (its TLS, its token).
+
+        Raises:
+            Unavailable: no answer within `timeout` seconds.
+            Unauthenticated: the server answers, but refuses this client's token.
+        """
         try:
-            grpc.channel_ready_future(channel).result(timeout=timeout)
-        except grpc.FutureTimeoutError:
-            raise Unavailable(
-                f"replay server at {self.address} did not answer in {timeout}s"
-            ) from None
-        finally:
-            channel.close()
+            self.stub.Info(
+                replay_pb2.InfoRequest(),
+                metadata=self._metadata,
+                timeout=timeout,
+                wait_for_ready=True,
+            )
+        except grpc.RpcError as error:
+            if error.code() == grpc.StatusCode.DEADLINE_EXCEEDED:
+                raise Unavailable(
+                    f"replay server at {self.address} did not answer in {timeout}s"
+                ) from None
+            raise _typed(error) from None
 
 
 def _rebuild_client(
@@ -407,26 +412,3 @@ class SampleStream:
         self._closed.set()
         self._credits.put(None)
         self._call.cancel()
-
-
-class BatchingWriter:
-    """Accumulates rows and inserts them in batches of `batch_items` (fewer RPCs)."""
-
-    def __init__(self, client: ReplayClient, table: str, *, batch_items: int) -> None:
-        self.client, self.table, self.batch_items = client, table, batch_items
-        self._parts: list[Mapping[str, np.ndarray]] = []
-        self._rows = 0
-
-    def append(self, columns: Mapping[str, np.ndarray]) -> None:
-        """Adds rows (columns sharing their leading dimension); flushes when full."""
-        self._parts.append(columns)
-        self._rows += len(next(iter(columns.values())))
-        if self._rows >= self.batch_items:
-            self.flush()
-
-    def flush(self) -> int:
-        if not self._parts:
-            return 0
-        batch = {k: np.concatenate([p[k] for p in self._parts]) for k in self._parts[0]}
-        self._parts, self._rows = [], 0
-        return self.client.insert(self.table, batch)

@@ -1,33 +1,112 @@
-"""The `graft` command line: train, eval, replay, minecraft."""
+"""The `graft` command line: presets, train, eval, experiment, replay, minecraft.
+
+A bad value is one line on stderr naming the field, the value and what is allowed, and
+exit status 2; Ctrl-C during `graft train` exits with status 130 after a final checkpoint."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, NoReturn, Optional
 
 from service.run.figures import FIGURES
 from service.run.replay_cli import add_replay_commands
 
+if TYPE_CHECKING:
+    from service.run.config import TrainConfig
+
+DEFAULT_PRESET = "pendulum-td3"
+
+INTERRUPTED = 130
+"""Exit status after Ctrl-C (128 + SIGINT), as shells report it."""
+
+
+class UsageError(SystemExit):
+    """A bad command-line value: one line on stderr (main prints it), exit status 2."""
+
+    def __init__(self, command: str, message: str) -> None:
+        super().__init__(2)
+        self.message = f"graft {command}: {message}"
+
+    def __str__(self) -> str:
+        return self.message
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad flag is one line (the command, the flag, what is wrong), not the
+    usage block; `--help` still shows everything."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def _at_least(command: str, flag: str, value: Optional[int], minimum: int) -> None:
+    if value is not None and value < minimum:
+        raise UsageError(command, f"{flag}={value} must be >= {minimum}")
+
+
+def _presets(args: argparse.Namespace) -> None:
+    from service.run.config import preset_descriptions
+
+    print(_preset_table(preset_descriptions()))
+
+
+def _preset_table(descriptions: dict[str, str]) -> str:
+    width = max(map(len, descriptions))
+    return "\n".join(f"  {name:<{width}}  {text}" for name, text in descriptions.items())
+
+
+def _address(command: str, given: Optional[str]) -> str:
+    """--address, else RAY_ADDRESS (said in one line), else a new local Ray instance."""
+    from service.run.launcher import resolve_address
+
+    address, note = resolve_address(given)
+    if note:
+        print(f"graft {command}: {note}", file=sys.stderr)
+    return address
+
 
 def _train(args: argparse.Namespace) -> None:
-    from service.run.config import load_preset
-    from service.run.launcher import train
+    from learner.checkpoint import latest_checkpoint
+    from service.run.api import train
+    from service.run.validation import ConfigError
 
+    _at_least("train", "--actors", args.actors, 1)
+    _at_least("train", "--env-steps", args.env_steps, 1)
+    _at_least("train", "--seed", args.seed, 0)
     try:
-        config = load_preset(args.preset, **_train_overrides(args))
-    except ValueError as error:
-        raise SystemExit(f"graft train: {error}") from None
-    result = train(
-        config,
-        address=args.address,
-        run_dir=args.run_dir,
-        resume=args.resume,
-        progress=not args.no_progress,
-    )
+        config = _train_config(args)
+    except ConfigError as error:
+        raise UsageError("train", str(error)) from None
+    address = _address("train", args.address)
+    try:
+        result = train(
+            config,
+            address=address,
+            run_dir=args.run_dir,
+            resume=args.resume,
+            progress=not args.no_progress,
+        )
+    except ConfigError as error:
+        raise UsageError("train", str(error)) from None
+    except KeyboardInterrupt:
+        print(
+            "graft train: interrupted while starting, before any update; no checkpoint written",
+            file=sys.stderr,
+        )
+        raise SystemExit(INTERRUPTED) from None
     s = result.summary
+    if result.interrupted:
+        checkpoint = latest_checkpoint(result.run_dir / "checkpoints")
+        print(
+            f"graft train: interrupted at {s['env_steps']} env steps; checkpoint {checkpoint}, "
+            f"summary {result.run_dir / 'summary.json'}",
+            file=sys.stderr,
+        )
+        raise SystemExit(INTERRUPTED)
     print(f"\nrun folder: {result.run_dir}")
     print(
         f"final evaluation return: {s['final_eval_return_mean']:.1f} ± "
@@ -42,6 +121,25 @@ def _train(args: argparse.Namespace) -> None:
     print(f"learning curve: {result.run_dir / 'learning_curve.png'}")
 
 
+def _train_config(args: argparse.Namespace) -> TrainConfig:
+    """The preset with the flags' overrides; resuming without --preset, the config the run
+    folder recorded (whatever preset or YAML file it came from)."""
+    import yaml
+
+    from service.run.config import config_from_data, load_preset
+    from service.run.trained import run_config
+    from service.run.validation import yaml_error
+
+    overrides = _train_overrides(args)
+    recorded = args.run_dir is not None and (args.run_dir / "config.yaml").is_file()
+    if args.preset is None and args.resume and recorded:
+        try:
+            return config_from_data(run_config(args.run_dir).to_dict(), **overrides)
+        except yaml.YAMLError as error:
+            raise yaml_error(str(args.run_dir / "config.yaml"), error) from None
+    return load_preset(args.preset or DEFAULT_PRESET, **overrides)
+
+
 def _train_overrides(args: argparse.Namespace) -> dict[str, object]:
     """The flags' overrides and `--set`'s in one dict; a field given both ways is an error."""
     flags = {
@@ -49,103 +147,145 @@ def _train_overrides(args: argparse.Namespace) -> dict[str, object]:
         "seed": ("--seed", args.seed),
         "env_steps": ("--env-steps", args.env_steps),
     }
-    settings = parse_settings(args.set)
+    settings = _settings("train", args.set)
     for key, (flag, value) in flags.items():
         if value is not None and key in settings:
-            raise ValueError(f"{flag} and --set {key}=... both given; give one")
+            raise UsageError("train", f"{flag} and --set {key}=... both given; give one")
     return {**{key: value for key, (_, value) in flags.items()}, **settings}
 
 
+def _settings(command: str, pairs: list[str]) -> dict[str, object]:
+    from service.run.validation import ConfigError
+
+    try:
+        return parse_settings(pairs)
+    except ConfigError as error:
+        raise UsageError(command, str(error)) from None
+
+
 def parse_settings(pairs: list[str]) -> dict[str, object]:
-    """`--set section.field=value` pairs as preset overrides (values parsed as YAML)."""
+    """`--set section.field=value` pairs as preset overrides (values parsed as YAML).
+
+    Raises:
+        ConfigError: a pair without '=' or a value that is not YAML.
+    """
     import yaml
+
+    from service.run.validation import ConfigError
 
     out: dict[str, object] = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise ValueError(
+        if not sep or not key.strip():
+            raise ConfigError(
                 f"--set {pair!r}: expected key=value, e.g. backbone.correction_limit=0.5"
             )
-        out[key.strip()] = yaml.safe_load(value)
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as error:
+            problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+            raise ConfigError(
+                f"--set {key.strip()}={value!r}: not a YAML value ({problem})"
+            ) from None
     return out
+
+
+_EVAL_FIELDS = ("policy", "env_id", "episodes", "mean", "std")
 
 
 def _eval(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from actors.evaluator import Policy, random_policy_for, run_episodes
+    from actors.task import add_import_path
+    from service.run.api import evaluate, load_policy
+    from service.run.config import load_preset
+    from service.run.preflight import check_task
+    from service.run.validation import ConfigError, check_env_id
 
-    env_id, env_kwargs = args.env_id or "Pendulum-v1", None
-    policy: Policy
-    if args.policy == "hardcoded":
-        if env_id != "Pendulum-v1":
-            raise SystemExit("graft eval: the hard-coded policy is for Pendulum-v1")
-        from actors.trees.pendulum import HardCodedPendulumPolicy
+    _at_least("eval", "--episodes", args.episodes, 1)
+    _at_least("eval", "--seed", args.seed, 0)
 
-        policy = HardCodedPendulumPolicy()
-    elif args.policy == "random":
-        policy = random_policy_for(env_id, seed=args.seed)
-    else:
-        policy, config = _checkpoint_policy(Path(args.policy), args.env_id)
-        env_id, env_kwargs = config.env_id, config.env_kwargs
-    returns = run_episodes(
-        policy, env_id=env_id, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs
-    )
-    result = {
+    try:
+        if args.policy in ("hardcoded", "random"):
+            task = load_preset(args.preset or DEFAULT_PRESET, seed=args.seed)
+            if args.env_id is not None:
+                add_import_path(task.import_path)
+                try:
+                    check_env_id(args.env_id)
+                except ConfigError as error:
+                    raise UsageError("eval", f"--env-id: {error}") from None
+                if args.policy == "random":  # random actions may go to any environment
+                    task = dataclasses.replace(task, env_id=args.env_id)
+            check_task(task, policy=args.policy == "hardcoded")
+            policy = load_policy(args.policy, preset=task)
+        else:
+            policy = load_policy(args.policy)
+    except FileNotFoundError as error:
+        raise UsageError(
+            "eval",
+            f"{error}; --policy takes 'hardcoded', 'random', a run folder or a checkpoint",
+        ) from None
+    except ValueError as error:  # a ConfigError, or the task's refusal (one line)
+        raise UsageError("eval", str(error).splitlines()[0]) from None
+    env_id = policy.env.env_id
+    if args.env_id not in (None, env_id):
+        what = "was trained on" if args.policy not in ("hardcoded", "random") else "acts in"
+        raise UsageError("eval", f"{args.policy} {what} {env_id}, not {args.env_id}")
+    result = evaluate(policy, episodes=args.episodes, seed=args.seed)
+    out = {
         "policy": args.policy,
         "env_id": env_id,
         "episodes": args.episodes,
-        "mean": float(np.mean(returns)),
-        "std": float(np.std(returns)),
+        "mean": result.mean,
+        "std": result.std,
+        **{name: float(np.nanmean(v)) for name, v in result.metrics.items()},
     }
     print(
-        json.dumps(result)
+        json.dumps(out)
         if args.json
-        else f"{args.policy} on {env_id}: mean return {result['mean']:.1f} ± "
-        f"{result['std']:.1f} over {args.episodes} episodes"
+        else f"{args.policy} on {env_id}: mean return {out['mean']:.1f} ± "
+        f"{out['std']:.1f} over {args.episodes} episodes"
+        + "".join(f"; {k} {v:.3g}" for k, v in out.items() if k not in _EVAL_FIELDS)
     )
-
-
-def _checkpoint_policy(path: Path, env_id: Optional[str]):
-    """The greedy policy of a run folder or checkpoint file (any algorithm), and its config."""
-    from service.run.trained import load_behaviour
-
-    try:
-        behaviour, config = load_behaviour(path)
-    except FileNotFoundError as error:
-        raise SystemExit(
-            f"graft eval: {error}; --policy takes 'hardcoded', 'random', a run folder or a "
-            "checkpoint"
-        ) from None
-    if env_id not in (None, config.env_id):
-        raise SystemExit(f"graft eval: {path} was trained on {config.env_id}, not {env_id}")
-    return behaviour.greedy, config
 
 
 def _experiment(args: argparse.Namespace) -> None:
     import ray
 
-    from service.run.experiments import report, run_experiment
+    from service.run.experiments import plan_experiment, report, run_experiment
     from service.run.launcher import connect_ray
+    from service.run.validation import ConfigError
 
     if args.replot:
         csv_path, png_path = report(args.figure, args.out)
         print(f"results: {csv_path}\nfigure: {png_path}")
         return
-    started = connect_ray(args.address)
+    _at_least("experiment", "--seeds", args.seeds, 1)
+    _at_least("experiment", "--parallel", args.parallel, 1)
+    _at_least("experiment", "--env-steps", args.env_steps, 1)
+    address = _address("experiment", args.address)
+    plan = {
+        "seeds": args.seeds,
+        "out_dir": args.out,
+        "parallel": args.parallel,
+        "overrides": {"env_steps": args.env_steps, **_settings("experiment", args.set)},
+        "address": address,
+        "only": args.variant or None,
+    }
     try:
-        csv_path, png_path = run_experiment(
-            args.figure,
-            seeds=args.seeds,
-            out_dir=args.out,
-            parallel=args.parallel,
-            overrides={"env_steps": args.env_steps, **parse_settings(args.set)},
-            address=args.address,
-            only=args.variant or None,
+        plan_experiment(args.figure, **plan)  # every variant's config, before Ray starts
+    except ConfigError as error:
+        raise UsageError("experiment", str(error)) from None
+    started = connect_ray(address)
+    try:
+        csv_path, png_path = run_experiment(args.figure, **plan)
+    except KeyboardInterrupt:
+        print(
+            f"graft experiment: interrupted; the runs finished so far are in "
+            f"{args.out / args.figure / 'results.csv'} (`--replot` draws them)",
+            file=sys.stderr,
         )
-    except ValueError as error:
-        raise SystemExit(f"graft experiment: {error}") from None
+        raise SystemExit(INTERRUPTED) from None
     finally:
         if started:
             ray.shutdown()
@@ -153,13 +293,27 @@ def _experiment(args: argparse.Namespace) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    from service.run.config import preset_descriptions
+
+    parser = _Parser(
         prog="graft", description="Improve hard-coded policies with distributed off-policy RL."
     )
     commands = parser.add_subparsers(dest="command", required=True)
 
-    train = commands.add_parser("train", help="train a preset on a Ray cluster")
-    train.add_argument("--preset", default="pendulum-td3")
+    presets = commands.add_parser("presets", help="list the presets, one line each")
+    presets.set_defaults(handler=_presets)
+
+    train = commands.add_parser(
+        "train",
+        help="train a preset on a Ray cluster",
+        epilog="presets:\n" + _preset_table(preset_descriptions()),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    train.add_argument(
+        "--preset",
+        help=f"a preset's name (listed below, `graft presets`) or a path to a YAML file "
+        f"(default {DEFAULT_PRESET}; with --resume, the run's own)",
+    )
     train.add_argument(
         "--actors",
         "--clients",
@@ -169,8 +323,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument(
         "--address",
-        default="local",
-        help="'local' starts a Ray instance; 'auto' or ray://host:port joins one",
+        help="'local' starts a new local Ray instance; 'auto', host:port or ray://host:port "
+        "joins one (default: RAY_ADDRESS if set, else local)",
     )
     train.add_argument("--seed", type=int)
     train.add_argument("--env-steps", type=int, help="override the preset's env-step budget")
@@ -181,7 +335,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="override a preset field, e.g. --set backbone.teacher=runs/teacher (repeatable)",
     )
-    train.add_argument("--run-dir", type=Path, help="default runs/<preset>-s<seed>-<time>")
+    train.add_argument(
+        "--run-dir",
+        type=Path,
+        help="a new (or empty) folder; default runs/<preset>-s<seed>-<time>",
+    )
     train.add_argument("--resume", action="store_true", help="continue from --run-dir's checkpoint")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.set_defaults(handler=_train)
@@ -192,7 +350,11 @@ def build_parser() -> argparse.ArgumentParser:
         default="hardcoded",
         help="'hardcoded', 'random', or a run folder / checkpoint path",
     )
-    evaluate.add_argument("--env-id", help="default: the run's env, or Pendulum-v1")
+    evaluate.add_argument(
+        "--preset",
+        help="the task (name or YAML path) of 'hardcoded' and 'random' (default pendulum-td3)",
+    )
+    evaluate.add_argument("--env-id", help="default: the run's or the preset's environment")
     evaluate.add_argument("--episodes", type=int, default=100)
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--json", action="store_true")
@@ -206,7 +368,9 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.add_argument("--parallel", type=int, default=2, help="runs at a time")
     experiment.add_argument("--env-steps", type=int, help="override every variant's budget")
     experiment.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
-    experiment.add_argument("--address", default="local")
+    experiment.add_argument(
+        "--address", help="as for train (default: RAY_ADDRESS if set, else local)"
+    )
     experiment.add_argument(
         "--variant", action="append", default=[], help="run only this variant (repeatable)"
     )
@@ -229,7 +393,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Optional[list[str]] = None) -> None:
     args = build_parser().parse_args(argv if argv is not None else sys.argv[1:])
     handler = getattr(args, "handler", None) or args.func
-    code = handler(args)
+    try:
+        code = handler(args)
+    except UsageError as error:
+        print(error.message, file=sys.stderr)
+        raise
     if isinstance(code, int) and code:
         raise SystemExit(code)
 

@@ -3,18 +3,23 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import typing
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import yaml
 
+from actors.task import EnvSpec, split_import_string
 from learner.backbone.config import BackboneConfig
 from learner.dqn.config import DQNConfig
 from learner.options.config import OptionsConfig
 from learner.pretrain.config import PretrainConfig
 from learner.td3.config import TD3Config
+from service.run.validation import ConfigError, coerce, unknown_fields, yaml_error
 
 ALGORITHMS = ("td3", "ddqn", "backbone_td3", "pretrain_td3", "options")
 SECTIONS = {
@@ -33,10 +38,20 @@ class TrainConfig:
     preset: str
     """Name of the preset this run came from."""
     env_id: str = "Pendulum-v1"
-    """Gymnasium environment id the actors step."""
+    """The environment: a gymnasium id (``Pendulum-v1``, ``package.module:Env-v0``) or an
+    import string ``package.module:Factory`` naming a ``gym.Env`` class or a function."""
     env_kwargs: dict[str, Any] = field(default_factory=dict)
-    """Keyword arguments of ``gym.make(env_id, ...)`` (e.g. ``ticks_per_step`` of the
-    Minecraft travel task); set one with ``--set env_kwargs.NAME=VALUE``."""
+    """Keyword arguments of ``gym.make(env_id, ...)`` or of the factory (e.g.
+    ``ticks_per_step`` of the Minecraft travel task); ``--set env_kwargs.NAME=VALUE``."""
+    obs_wrapper: Optional[str] = None
+    """Import string of a gymnasium wrapper (or function env -> env) applied to every
+    environment: how Dict, tuple or image observations become a flat Box."""
+    hardcoded_policy: Optional[str] = None
+    """Import string ``package.module:factory`` of the hard-coded policy (a py_trees tree or
+    a callable) that backbone_td3, pretrain_td3 and options improve."""
+    import_path: list[str] = field(default_factory=list)
+    """Folders put first on ``sys.path`` in this process and every actor before the import
+    strings are resolved (default: the preset file's folder and the working directory)."""
     algorithm: str = "td3"
     """Learning algorithm: td3, ddqn, backbone_td3, pretrain_td3 or options."""
     env_steps: int = 20_000
@@ -107,10 +122,20 @@ class TrainConfig:
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
+        if not 0 <= self.seed < 2**32:
+            raise ValueError(f"seed={self.seed} must lie in [0, 2**32) (numpy's seed range)")
         if self.keep_checkpoints < 0:
             raise ValueError(f"keep_checkpoints={self.keep_checkpoints} must be >= 0 (0: all)")
         if not isinstance(self.env_kwargs, dict):
             raise ValueError(f"env_kwargs={self.env_kwargs!r} must be a mapping of name: value")
+        for name in ("obs_wrapper", "hardcoded_policy"):
+            value = getattr(self, name)
+            if value is not None:
+                split_import_string(value, name)
+        if not isinstance(self.import_path, list) or not all(
+            isinstance(p, str) for p in self.import_path
+        ):
+            raise ValueError(f"import_path={self.import_path!r} must be a list of folders")
 
     @property
     def online_env_steps(self) -> int:
@@ -121,68 +146,197 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def env_spec(self) -> EnvSpec:
+        """The task's environment as strings, for actors and the evaluator to build."""
+        return EnvSpec(
+            self.env_id, dict(self.env_kwargs), self.obs_wrapper, tuple(self.import_path)
+        )
+
     def make_env(self) -> Any:
-        """``gym.make(env_id, **env_kwargs)``.
+        """One environment of the task (``env_id`` with ``env_kwargs``, then ``obs_wrapper``).
 
         Raises:
-            ValueError: the environment refused ``env_kwargs`` (names the keys).
+            ValueError: an id or import string that does not resolve, or ``env_kwargs`` the
+                environment refuses (names the keys).
         """
-        import gymnasium as gym
-
         try:
-            return gym.make(self.env_id, **self.env_kwargs)
-        except TypeError as e:
-            raise ValueError(
-                f"preset {self.preset}: env_kwargs {sorted(self.env_kwargs)} rejected by "
-                f"{self.env_id}: {e}"
-            ) from e
+            return self.env_spec().make()
+        except ValueError as error:
+            raise ValueError(f"preset {self.preset}: {error}") from None
 
 
-def _build(cls: type, data: dict[str, Any], where: str) -> Any:
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
+def _build(cls: type, data: dict[str, Any], section: str = "") -> Any:
+    """``cls(**data)`` once every key is a field and every value has its field's type.
+
+    Raises:
+        ConfigError: one line naming the field (``td3.batch_size``), the value and what is
+            allowed, for unknown keys, wrong types and values the dataclass refuses.
+    """
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = set(data) - set(names)
     if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(names)}")
-    return cls(**data)
+        raise ConfigError(unknown_fields(unknown, names, section=section))
+    prefix = f"{section}." if section else ""
+    values = {k: coerce(prefix + k, v, hints[k]) for k, v in data.items()}
+    try:
+        return cls(**values)
+    except (ValueError, TypeError) as e:
+        message = str(e).splitlines()[0] if str(e) else type(e).__name__
+        if section and any(message.startswith(f"{name}=") for name in names):
+            message = prefix + message  # "batch_size=0 ..." -> "td3.batch_size=0 ..."
+        raise ConfigError(message) from None
+
+
+PRESETS = resources.files("service.run") / "presets"
 
 
 def preset_names() -> list[str]:
-    folder = resources.files("service.run") / "presets"
     return sorted(
-        p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml")
+        p.name.removesuffix(".yaml") for p in PRESETS.iterdir() if p.name.endswith(".yaml")
     )
 
 
-def load_preset(name_or_path: str, **overrides: Any) -> TrainConfig:
+def preset_description(text: str) -> str:
+    """A preset's one-line description: its first line, a comment."""
+    first = text.split("\n", 1)[0].strip()
+    return first.lstrip("#").strip() if first.startswith("#") else ""
+
+
+def preset_descriptions() -> dict[str, str]:
+    """Every shipped preset's name and one-line description (`graft presets`)."""
+    return {
+        name: preset_description((PRESETS / f"{name}.yaml").read_text()) for name in preset_names()
+    }
+
+
+def is_preset_path(name_or_path: str) -> bool:
+    """A YAML path (ends .yaml/.yml or names a folder) rather than a shipped preset's name."""
+    return Path(name_or_path).suffix in (".yaml", ".yml") or "/" in name_or_path
+
+
+def _read_preset(name_or_path: str) -> tuple[dict[str, Any], str, Optional[Path]]:
+    """A preset's fields, its name (a path's stem) and the folder of a preset file (None
+    for a shipped preset); refuses unknown names, missing files and malformed YAML in one
+    line."""
+    if is_preset_path(name_or_path):
+        path = Path(name_or_path)
+        if not path.is_file():
+            raise ConfigError(f"preset file {name_or_path} does not exist")
+        text, name, folder = path.read_text(), path.stem, path.resolve().parent
+    else:
+        candidate = PRESETS / f"{name_or_path}.yaml"
+        if not candidate.is_file():
+            close = difflib.get_close_matches(name_or_path, preset_names(), n=3, cutoff=0.8)
+            hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+            raise ConfigError(
+                f"unknown preset {name_or_path!r}{hint}; presets: {', '.join(preset_names())} "
+                "(`graft presets`), or a path to a YAML file"
+            )
+        text, name, folder = candidate.read_text(), name_or_path, None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise yaml_error(f"preset {name_or_path}", e) from None
+    if data is None:
+        return {}, name, folder
+    if not isinstance(data, dict):
+        raise ConfigError(
+            f"preset {name_or_path}: expected a mapping of field: value, got a "
+            f"{type(data).__name__}"
+        )
+    return data, name, folder
+
+
+def _check_keys(keys: Iterable[str]) -> None:
+    """Refuses a key naming no field ("td3.batchsize"), with the close matches."""
+    top = {f.name for f in dataclasses.fields(TrainConfig)}
+    for key in keys:
+        section, _, name = key.partition(".")
+        if section not in top:
+            raise ConfigError(unknown_fields([section], top))
+        if name and section in SECTIONS:
+            fields = {f.name for f in dataclasses.fields(SECTIONS[section])}
+            if name not in fields:
+                raise ConfigError(unknown_fields([name], fields, section=section))
+
+
+def _keys(data: dict[str, Any]) -> list[str]:
+    """A preset's keys, a section's fields as "section.field"."""
+    return [
+        f"{key}.{name}" if key in SECTIONS and isinstance(value, dict) else key
+        for key, value in data.items()
+        for name in (value if key in SECTIONS and isinstance(value, dict) else [None])
+    ]
+
+
+def load_preset(name_or_path: str | Path, **overrides: Any) -> TrainConfig:
     """Reads a preset by name (service/run/presets/NAME.yaml) or path; `overrides` win.
 
     An override key "section.field" (e.g. "pretrain.demo_noise") sets one field of a
-    section; pass such keys with `**{"pretrain.demo_noise": 0.1}`.
+    section; pass such keys with `**{"pretrain.demo_noise": 0.1}`, or a mapping for the
+    section (`td3={"batch_size": 64}`) to set several. A preset given by path puts its
+    folder (and the working directory) on the import path, where its import strings'
+    modules are found; relative ``import_path`` entries count from the preset's folder.
 
     Raises:
-        ValueError: unknown preset or keys, or values a run cannot use.
+        ConfigError: unknown preset or keys, malformed YAML, or values a run cannot use,
+            in one line naming the field, the value and what is allowed.
     """
-    path = Path(name_or_path)
-    if path.suffix not in (".yaml", ".yml"):
-        candidate = resources.files("service.run") / "presets" / f"{name_or_path}.yaml"
-        if not candidate.is_file():
-            raise ValueError(f"unknown preset {name_or_path!r}; presets: {preset_names()}")
-        text, name = candidate.read_text(), name_or_path
-    else:
-        text, name = path.read_text(), path.stem
-    data = yaml.safe_load(text) or {}
+    data, name, folder = _read_preset(str(name_or_path))
+    try:
+        _check_keys(_keys(data))
+    except ConfigError as e:
+        raise ConfigError(f"preset {name_or_path}: {e}") from None
+    data.setdefault("preset", name)
+    listed = data.get("import_path") or []
+    if not isinstance(listed, list) or not all(isinstance(p, str) for p in listed):
+        raise ConfigError(f"import_path={listed!r} must be a list of folders")
+    base = folder if folder is not None else Path.cwd()
+    search = [str((base / p).resolve()) for p in listed]
+    defaults = [str(folder)] if folder is not None else []
+    data["import_path"] = _unique(search + defaults + [str(Path.cwd())])
+    return config_from_data(data, **overrides)
+
+
+def config_from_data(data: dict[str, Any], **overrides: Any) -> TrainConfig:
+    """A config from parsed preset data (e.g. a run folder's config.yaml); `overrides` as
+    in `load_preset`. A ``versions`` record in the data is ignored.
+
+    Raises:
+        ConfigError: unknown keys, or values a run cannot use, in one line.
+    """
+    data = {k: v for k, v in data.items() if k != "versions"}
+    _check_keys(_keys(data))
+    _check_keys(key for key, value in overrides.items() if value is not None)
     for key, value in overrides.items():
         if value is None:
             continue
-        section, _, field_name = key.rpartition(".")  # "pretrain.demo_noise" -> section
-        if section:
-            data[section] = {**(data.get(section) or {}), field_name: value}
-        else:
-            data[key] = value
-    data.setdefault("preset", name)
+        *path, last = key.split(".")  # "pretrain.demo_noise" -> data["pretrain"]["demo_noise"]
+        node = data
+        for depth, part in enumerate(path):
+            child = node.get(part) or {}
+            if not isinstance(child, dict):
+                where = ".".join(path[: depth + 1])
+                raise ConfigError(f"{where}={child!r} must be a mapping of name: value")
+            node[part] = node = dict(child)
+        if not path and last in SECTIONS and isinstance(value, dict):
+            current = node.get(last) or {}
+            if isinstance(current, dict):  # td3={"batch_size": 64} sets those fields only
+                value = {**current, **value}
+        node[last] = value
     for key, cls in SECTIONS.items():
-        given = data.pop(key, {}) or {}
-        if not isinstance(given, cls):
-            given = _build(cls, given, f"preset {name}: {key}")
-        data[key] = given
-    return _build(TrainConfig, data, f"preset {name}")
+        section = data.pop(key, None) or {}
+        if isinstance(section, dict):
+            section = _build(cls, section, key)
+        elif not isinstance(section, cls):
+            raise ConfigError(
+                f"{key}={section!r} must be a mapping of {key}'s fields, e.g. {key}: "
+                f"{{{dataclasses.fields(cls)[0].name}: ...}}"
+            )
+        data[key] = section
+    return _build(TrainConfig, data)
+
+
+def _unique(items: list[str]) -> list[str]:
+    return list(dict.fromkeys(items))

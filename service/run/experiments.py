@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
@@ -20,6 +21,7 @@ import ray
 
 from service.run.figures import FIGURES, Variant
 from service.run.plots import curves, plot_figure
+from service.run.validation import ConfigError
 
 
 @ray.remote(num_cpus=0.25)
@@ -35,6 +37,76 @@ def _run_one(preset: str, overrides: dict[str, Any], run_dir: str, address: str)
         load_preset(preset, **overrides), run_dir=Path(run_dir), progress=False, address=address
     )
     return {"summary": result.summary, "evaluations": result.evaluations}
+
+
+@dataclass(frozen=True)
+class Job:
+    """One seed of one variant: its preset, the merged overrides and its run folder."""
+
+    variant: Variant
+    seed: int
+    overrides: dict[str, Any]
+    run_dir: Path
+
+
+def plan_experiment(
+    name: str,
+    *,
+    seeds: int,
+    out_dir: Path,
+    parallel: int = 2,
+    overrides: Optional[dict[str, Any]] = None,
+    address: str = "local",
+    only: Optional[list[str]] = None,
+) -> list[Job]:
+    """Every variant × seed of an experiment, each config checked; writes and starts nothing.
+
+    Raises:
+        ConfigError: unknown experiment or variant, a variant's preset refusing the
+            overrides (naming the variant), a run folder that already exists, or more runs
+            in parallel than a local Ray instance can place.
+    """
+    from service.run.config import load_preset
+    from service.run.preflight import local_cpus, ray_cpus, run_cpus
+
+    if name not in FIGURES:
+        raise ConfigError(f"unknown experiment {name!r}; choose from {sorted(FIGURES)}")
+    if seeds < 1 or parallel < 1:
+        raise ConfigError(f"seeds={seeds} and parallel={parallel} must be >= 1")
+    figure = FIGURES[name]
+    labels = [v.label for v in figure.variants]
+    unknown = sorted(set(only or []) - set(labels))
+    if unknown:
+        raise ConfigError(f"{name} has no variant(s) {unknown}; its variants: {labels}")
+    chosen = [v for v in figure.variants if not only or v.label in only]
+    jobs, widest = [], (0.0, "")
+    # Seed-major: an experiment cut short still has every variant on the same seeds.
+    for seed in range(seeds):
+        for variant in chosen:
+            merged = {**figure.shared, **variant.overrides, **(overrides or {}), "seed": seed}
+            try:
+                config = load_preset(variant.preset, **merged)
+            except ValueError as e:
+                raise ConfigError(
+                    f"variant {variant.label!r} (preset {variant.preset}): {e}"
+                ) from None
+            run_dir = out_dir / name / f"{_slug(variant)}-s{seed}"
+            if run_dir.exists() and any(run_dir.iterdir()):
+                raise ConfigError(
+                    f"variant {variant.label!r}: run folder {run_dir} already exists; remove "
+                    "it to run the variant again, or give another --out"
+                )
+            jobs.append(Job(variant, seed, merged, run_dir))
+            widest = max(widest, (ray_cpus(_run_one) + run_cpus(config), variant.label))
+    need, have = widest[0] * min(parallel, len(jobs)), local_cpus()
+    if address == "local" and need > have:
+        raise ConfigError(
+            f"parallel={parallel} does not fit the local Ray instance: a run of variant "
+            f"{widest[1]!r} takes {widest[0]:g} CPUs (its task, actors and evaluator), "
+            f"{min(parallel, len(jobs))} at a time {need:g}, it has {have:g}; at most "
+            f"{max(int(have // widest[0]), 1)} at a time"
+        )
+    return jobs
 
 
 def run_experiment(
@@ -53,43 +125,32 @@ def run_experiment(
     in results.csv are kept, so a figure can be filled in over several invocations.
 
     Raises:
-        ValueError: unknown experiment, or a variant's preset refuses the overrides.
+        ConfigError: see `plan_experiment`; nothing has run then.
     """
-    from service.run.config import load_preset
-
-    if name not in FIGURES:
-        raise ValueError(f"unknown experiment {name!r}; choose from {sorted(FIGURES)}")
-    if seeds < 1 or parallel < 1:
-        raise ValueError(f"seeds={seeds} and parallel={parallel} must be >= 1")
-    figure = FIGURES[name]
-    labels = [v.label for v in figure.variants]
-    unknown = sorted(set(only or []) - set(labels))
-    if unknown:
-        raise ValueError(f"{name} has no variant(s) {unknown}; its variants: {labels}")
-    chosen = [v for v in figure.variants if not only or v.label in only]
+    jobs = plan_experiment(
+        name,
+        seeds=seeds,
+        out_dir=out_dir,
+        parallel=parallel,
+        overrides=overrides,
+        address=address,
+        only=only,
+    )
     folder = out_dir / name
     folder.mkdir(parents=True, exist_ok=True)
     csv_path = folder / "results.csv"
+    chosen = {job.variant.label for job in jobs}
     kept = [
-        r
-        for r in (read_rows(csv_path) if csv_path.exists() else [])
-        if r["variant"] not in {v.label for v in chosen}
+        r for r in (read_rows(csv_path) if csv_path.exists() else []) if r["variant"] not in chosen
     ]
-    jobs = []
-    # Seed-major: an experiment cut short still has every variant on the same seeds.
-    for seed in range(seeds):
-        for variant in chosen:
-            merged = {**figure.shared, **variant.overrides, **(overrides or {}), "seed": seed}
-            load_preset(variant.preset, **merged)  # refuse bad settings before any run starts
-            jobs.append((variant, seed, merged, folder / f"{_slug(variant)}-s{seed}"))
     rows: list[dict[str, Any]] = list(kept)
     pending: dict[Any, tuple[Variant, int]] = {}
     queue, start = list(jobs), time.perf_counter()
     while queue or pending:
         while queue and len(pending) < parallel:
-            variant, seed, merged, run_dir = queue.pop(0)
-            ref = _run_one.remote(variant.preset, merged, str(run_dir), address)
-            pending[ref] = (variant, seed)
+            job = queue.pop(0)
+            ref = _run_one.remote(job.variant.preset, job.overrides, str(job.run_dir), address)
+            pending[ref] = (job.variant, job.seed)
         done, _ = ray.wait(list(pending), num_returns=1)
         variant, seed = pending.pop(done[0])
         result = ray.get(done[0])

@@ -15,29 +15,35 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import secrets
+import signal
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
 import ray
 import torch
-import yaml
 from tqdm import tqdm
 
 from actors.env_actor import EnvActor, Segment
 from actors.evaluator import RemoteEvaluator
 from actors.transitions import replay_signature
 from learner.agent import Phase
-from learner.checkpoint import latest_checkpoint, load_checkpoint
+from learner.checkpoint import load_checkpoint
 from learner.loop import LearnerLoop, LoopSettings, LoopState
 from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
 from service.run.config import TrainConfig
+from service.run.preflight import check_fits_locally, check_run_dir, check_task
+from service.run.provenance import config_record
 from service.run.registry import make_builder
 from service.run.replay_process import ReplayProcess
+from service.run.validation import ConfigError
 from service.weights import BroadcastPublisher
 
 # Reference levels drawn on learning curves (measured with `graft eval`, 100 episodes).
@@ -122,37 +128,105 @@ def _resumed_phases(phases: list[Phase], state: LoopState, config: TrainConfig) 
     ]
 
 
+PENDING_INSERTS = 8
+"""Insert batches an actor may queue for a table that never holds inserts back."""
+
+
 def _segments(phases: list[Phase], num_actors: int) -> list[Segment]:
-    """Each actor's share of every phase's env steps (rounded up)."""
+    """Each actor's share of every phase's env steps (rounded up). A phase whose table
+    holds a samples-per-insert ratio has each insert waited for, so the rate limiter
+    paces acting; a `min_size` table takes a queue of inserts."""
     return [
-        Segment(p.name, -(-p.env_steps // num_actors), -(-p.warmup_steps // num_actors))
+        Segment(
+            p.name,
+            -(-p.env_steps // num_actors),
+            -(-p.warmup_steps // num_actors),
+            pending_inserts=0 if p.samples_per_insert is not None else PENDING_INSERTS,
+        )
         for p in phases
         if p.env_steps > 0
     ]
 
 
 def connect_ray(address: str) -> bool:
-    """Starts a local Ray instance ('local') or joins a cluster; True if we started it."""
+    """Starts a new local Ray instance ('local', whatever RAY_ADDRESS says) or joins a
+    cluster ('auto', host:port, ray://host:port); True if we started it."""
     if ray.is_initialized():
         return False
     if address == "local":
-        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False)
+        ray.init(
+            address="local", include_dashboard=False, log_to_driver=False, configure_logging=False
+        )
         return True
     ray.init(address=address, log_to_driver=False)
     return False
 
 
-def default_run_dir(config: TrainConfig) -> Path:
-    return Path("runs") / f"{config.preset}-s{config.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+def resolve_address(given: Optional[str]) -> tuple[str, Optional[str]]:
+    """The Ray address a run uses: `given`, else RAY_ADDRESS, else 'local'; and, when
+    RAY_ADDRESS decided it, one line saying so (it must not change a run silently)."""
+    if given is not None:
+        return given, None
+    from_env = os.environ.get("RAY_ADDRESS")
+    if from_env:
+        return from_env, (
+            f"joining the Ray cluster at RAY_ADDRESS={from_env}; --address local starts a "
+            "new local Ray instead"
+        )
+    return "local", None
+
+
+def _probe(config: TrainConfig) -> tuple[Any, Any, dict[str, Any]]:
+    """The run's builder, its behaviour and the replay signature, built from one env probe.
+
+    Raises:
+        ConfigError: the env or an algorithm refuses the config (spaces, env_kwargs, a
+            missing teacher), in one line.
+    """
+    import gymnasium as gym
+
+    check_task(config)
+    try:
+        builder = make_builder(config)  # imports the task, refusing what the method cannot use
+        behaviour = builder.make_behaviour(num_actors=config.num_actors)
+        return builder, behaviour, _signature(config, behaviour)
+    except (ValueError, FileNotFoundError, gym.error.Error) as e:
+        raise ConfigError(str(e).splitlines()[0] if str(e) else type(e).__name__) from None
+
+
+def _restore(
+    algorithm: Any, checkpoint: Path, phases: list[Phase], config: TrainConfig
+) -> tuple[LoopState, list[Phase]]:
+    """The loop state and the phases left after `checkpoint`, loaded into `algorithm`.
+
+    Raises:
+        ConfigError: the checkpoint does not fit the config, or nothing is left to train.
+    """
+    saved = load_checkpoint(checkpoint)
+    try:
+        algorithm.load_state_dict(saved["algorithm"])
+    except (RuntimeError, KeyError, ValueError) as e:
+        first = str(e).splitlines()[0]
+        raise ConfigError(
+            f"--resume: {checkpoint} does not fit this config ({config.algorithm}, "
+            f"{config.env_id}): {first}"
+        ) from None
+    state = LoopState(**saved["loop"])
+    try:
+        return state, _resumed_phases(phases, state, config)
+    except ValueError as e:
+        raise ConfigError(f"--resume: {e}") from None
 
 
 @dataclass
 class RunResult:
-    """What a finished run reports (also written to summary.json)."""
+    """What a finished (or interrupted) run reports (also written to summary.json)."""
 
     run_dir: Path
     summary: dict[str, Any]
     evaluations: list[Evaluation]
+    interrupted: bool = False
+    """Ctrl-C stopped the run; its last checkpoint holds the state at `summary['env_steps']`."""
 
 
 def train(
@@ -163,40 +237,45 @@ def train(
     resume: bool = False,
     progress: bool = True,
 ) -> RunResult:
-    """Runs one preset end to end and writes the run folder."""
-    run_dir = Path(run_dir) if run_dir else default_run_dir(config)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+    """Runs one preset end to end and writes the run folder.
+
+    Every value a run cannot use is refused (ConfigError) before anything is written or
+    started. Ctrl-C (KeyboardInterrupt) stops the run cleanly: a final checkpoint,
+    summary.json with ``interrupted: true``, no process left behind.
+
+    Raises:
+        ConfigError: a bad value, a refused run folder or resume, in one line.
+    """
+    run_dir, checkpoint = check_run_dir(config, run_dir, resume)
+    check_fits_locally(config, address)
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
     start = time.perf_counter()
-    builder = make_builder(config)
-    behaviour = builder.make_behaviour(num_actors=config.num_actors)
-    signature = _signature(config, behaviour)
+    builder, behaviour, signature = _probe(config)
     algorithm = builder.make_learner()
-    state = LoopState()
-    phases = builder.phases()
-    if resume and (found := latest_checkpoint(run_dir / "checkpoints")):
-        saved = load_checkpoint(found)
-        algorithm.load_state_dict(saved["algorithm"])
-        state = LoopState(**saved["loop"])
-        phases = _resumed_phases(phases, state, config)
-        print(f"resumed from {found} at {state.updates} updates, {state.env_steps} env steps")
+    state, phases = LoopState(), builder.phases()
+    if checkpoint is not None:
+        state, phases = _restore(algorithm, checkpoint, phases, config)
     tables = preset_tables(config, phases=phases, signature=signature)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(config_record(config))
+    if checkpoint is not None:
+        print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
     started_ray = connect_ray(address)
     # Beyond one machine the replay server must listen on the network: then it needs a token.
     host = "127.0.0.1" if address == "local" else "0.0.0.0"
     token = None if address == "local" else secrets.token_urlsafe(24)
-    replay = ReplayProcess(tables, host=host, token=token, log_path=run_dir / "replay.log")
     actors: list[Any] = []  # Ray handles: their `.remote` methods exist only at run time
+    replay: Optional[ReplayProcess] = None
+    interrupted, release_sigint = False, _no_op
     try:
+        replay = ReplayProcess(tables, host=host, token=token, log_path=run_dir / "replay.log")
         connect_to = replay.address
         if host == "0.0.0.0":
             connect_to = f"{ray.util.get_node_ip_address()}:{replay.address.rsplit(':', 1)[1]}"
         client = ReplayClient(connect_to, token=token)
         publisher = BroadcastPublisher()
         evaluator = RemoteEvaluator(
-            env_id=config.env_id,
-            env_kwargs=config.env_kwargs,
+            env=config.env_spec(),
             behaviour=builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
         )
@@ -205,14 +284,13 @@ def train(
         for i in range(config.num_actors):
             # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
             actor = EnvActor.remote(  # type: ignore[attr-defined]
-                env_id=config.env_id,
+                env=config.env_spec(),
                 num_envs=config.envs_per_actor,
                 seed=config.seed * 1000 + i * config.envs_per_actor,
                 replay=client,
                 weights=publisher.subscriber(),
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
-                env_kwargs=config.env_kwargs,
             )
             actors.append(actor)
         runs = [a.run.remote(segments) for a in actors]
@@ -230,60 +308,84 @@ def train(
             checkpoint_every=config.checkpoint_every,
             keep_checkpoints=config.keep_checkpoints,
         )
-        with tqdm(
+        bar = tqdm(
             total=sum(p.updates for p in phases),
             initial=state.updates,
             unit="upd",
             disable=not progress,
             dynamic_ncols=True,
-        ) as bar:
+        )
 
-            def on_progress(s: LoopState) -> None:
-                if s.updates % 100 == 0:
-                    bar.update(s.updates - bar.n)
-                    last = s.evaluations[-1]["mean"] if s.evaluations else float("nan")
-                    bar.set_postfix(
-                        env_steps=s.env_steps, eval_return=f"{last:.0f}", version=s.version
-                    )
+        def on_progress(s: LoopState) -> None:
+            if s.updates % 100 == 0:
+                bar.update(s.updates - bar.n)
+                last = s.evaluations[-1]["mean"] if s.evaluations else float("nan")
+                bar.set_postfix(env_steps=s.env_steps, eval_return=f"{last:.0f}", version=s.version)
 
-            loop = LearnerLoop(
-                algorithm,
-                phases=phases,
-                open_stream=open_stream,
-                publisher=publisher,
-                evaluator=evaluator,
-                logger=logger,
-                checkpoint_dir=run_dir / "checkpoints",
-                settings=settings,
-                state=state,
-                on_progress=on_progress,
-                watchdog=lambda: _check_actors(runs),
-            )
+        loop = LearnerLoop(
+            algorithm,
+            phases=phases,
+            open_stream=open_stream,
+            publisher=publisher,
+            evaluator=evaluator,
+            logger=logger,
+            checkpoint_dir=run_dir / "checkpoints",
+            settings=settings,
+            state=state,
+            on_progress=on_progress,
+            watchdog=lambda: _check_actors(runs),
+        )
+        try:
             final = loop.run()
             bar.update(final.updates - bar.n)
-        publisher.stop()
-        actor_reports = ray.get(runs, timeout=120)
-        # The learner may stop before it sees the actors' last inserts: count them directly.
-        final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)
-        loop.checkpoint()  # again, with the true env-step count a resume continues from
+            publisher.stop()
+            actor_reports = ray.get(runs, timeout=120)
+            # The learner may stop before it sees the actors' last inserts: count them directly.
+            final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)
+        except KeyboardInterrupt:  # Ctrl-C: stop here and keep what was learned
+            interrupted, final, actor_reports = True, loop.state, []
+        finally:
+            # From here on the run only saves and stops: a (second) Ctrl-C must not cut that
+            # short and leave a half-written folder or processes behind.
+            release_sigint = _hold_sigint()
+            bar.close()
+        loop.checkpoint()  # with the env-step count a resume continues from
         _log_behaviour_stats(logger, actor_reports, config.num_actors, resumed_env_steps)
         logger.close()
+        summary = _summarise(config, final, actor_reports, time.perf_counter() - start)
+        summary["interrupted"] = interrupted
+        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        plot_learning_curve(
+            run_dir / "metrics.csv",
+            run_dir / "learning_curve.png",
+            title=f"{config.preset} (seed {config.seed})",
+            reference=REFERENCE_LEVELS.get(config.env_id),
+        )
     finally:
         for actor in actors:
             ray.kill(actor)
-        replay.stop()
+        if replay is not None:
+            replay.stop()
         if started_ray:
             ray.shutdown()
-    wall = time.perf_counter() - start
-    summary = _summarise(config, final, actor_reports, wall)
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-    plot_learning_curve(
-        run_dir / "metrics.csv",
-        run_dir / "learning_curve.png",
-        title=f"{config.preset} (seed {config.seed})",
-        reference=REFERENCE_LEVELS.get(config.env_id),
-    )
-    return RunResult(run_dir, summary, final.evaluations)
+        release_sigint()
+    return RunResult(run_dir, summary, final.evaluations, interrupted=interrupted)
+
+
+def _no_op() -> None:
+    pass
+
+
+def _hold_sigint() -> Callable[[], None]:
+    """Ignores SIGINT (main thread only) until the returned function is called."""
+    if threading.current_thread() is not threading.main_thread():
+        return _no_op
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def release() -> None:
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
+
+    return release
 
 
 def _check_actors(runs: list[Any]) -> None:

@@ -11,7 +11,7 @@ if TYPE_CHECKING:
 
 
 def make_builder(config: TrainConfig) -> AgentBuilder:
-    """Returns the builder of `config.algorithm` for `config.env_id`.
+    """Returns the builder of `config.algorithm` for the config's task.
 
     Raises:
         ValueError: unknown algorithm, or spaces / settings the algorithm refuses.
@@ -34,19 +34,28 @@ def make_builder(config: TrainConfig) -> AgentBuilder:
     # Every other algorithm is TD3 plus something: the TD3 builder checks the spaces.
     from learner.td3.builder import TD3Builder
 
-    td3 = TD3Builder(obs_space, action_space, config=config.td3, budget=budget, seed=config.seed)
+    td3 = TD3Builder(
+        obs_space,
+        action_space,
+        config=config.td3,
+        method=config.algorithm,
+        budget=budget,
+        seed=config.seed,
+    )
+    # The methods that improve a hard-coded policy get its import string, and build it.
+    policy, path = config.hardcoded_policy, config.import_path
     if config.algorithm == "td3":
         return td3
     if config.algorithm == "backbone_td3":
         from learner.backbone.builder import BackboneBuilder
 
-        return BackboneBuilder(config.env_id, td3, config=config.backbone)
+        return BackboneBuilder(policy, td3, config=config.backbone, import_path=path)
     if config.algorithm == "pretrain_td3":
         from learner.pretrain.builder import PretrainBuilder
 
-        return PretrainBuilder(config.env_id, td3, config=config.pretrain)
+        return PretrainBuilder(policy, td3, config=config.pretrain, import_path=path)
     if config.algorithm == "options":
         from learner.options.builder import OptionsBuilder
 
-        return OptionsBuilder(config.env_id, td3, dqn=config.dqn, config=config.options)
+        return OptionsBuilder(policy, td3, dqn=config.dqn, config=config.options, import_path=path)
     raise ValueError(f"unknown algorithm {config.algorithm!r}")

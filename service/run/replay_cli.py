@@ -31,11 +31,7 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     serve.add_argument("--host", default="127.0.0.1", help="bind address (default loopback)")
     serve.add_argument("--port", type=int, default=9100)
-    serve.add_argument(
-        "--token",
-        default=os.environ.get("GRAFT_TOKEN"),
-        help="shared token clients must send (env GRAFT_TOKEN)",
-    )
+    _add_token_arguments(serve, "the shared token clients must send")
     serve.add_argument(
         "--insecure", action="store_true", help="allow a non-loopback bind without a token"
     )
@@ -73,6 +69,12 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument(
         "--metrics-port", type=int, help="serve Prometheus metrics on this HTTP port"
     )
+    serve.add_argument(
+        "--metrics-host",
+        default="127.0.0.1",
+        help="bind address of the metrics port, which answers without a token (default "
+        "loopback, whatever --host is)",
+    )
     serve.add_argument("--ready-file", help="write {'address': ...} here once listening")
     serve.add_argument(
         "--exit-with-parent",
@@ -83,8 +85,36 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
     serve.set_defaults(handler=_serve)
     info = commands.add_parser("info", help="print a server's tables and figures")
     info.add_argument("address", help="host:port")
-    info.add_argument("--token", default=os.environ.get("GRAFT_TOKEN"))
+    _add_token_arguments(info, "the server's shared token")
     info.set_defaults(handler=_info)
+
+
+def _add_token_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument(
+        "--token-file",
+        type=Path,
+        help=f"file holding {what} (default: the GRAFT_TOKEN environment variable)",
+    )
+    # Refused with a hint: a command line is readable by every local user (ps, /proc).
+    parser.add_argument("--token", dest="token_on_command_line", help=argparse.SUPPRESS)
+
+
+def _token(args: argparse.Namespace, command: str) -> Optional[str]:
+    """The token from --token-file, else from GRAFT_TOKEN; never from the command line."""
+    if args.token_on_command_line is not None:
+        raise SystemExit(
+            f"graft replay {command}: --token would show the secret to every local user in "
+            "the process list; set GRAFT_TOKEN or pass --token-file PATH instead"
+        )
+    if args.token_file is not None:
+        try:
+            token = args.token_file.read_text().strip()
+        except OSError as error:
+            raise SystemExit(f"graft replay {command}: --token-file: {error}") from None
+        if not token:
+            raise SystemExit(f"graft replay {command}: --token-file {args.token_file} is empty")
+        return token
+    return os.environ.get("GRAFT_TOKEN") or None
 
 
 def _table_specs(args: argparse.Namespace) -> list[dict]:
@@ -112,7 +142,7 @@ def _serve(args: argparse.Namespace) -> None:
         options = ServerOptions(
             host=args.host,
             port=args.port,
-            token=args.token,
+            token=_token(args, "serve"),
             insecure=args.insecure,
             tls_cert=args.tls_cert,
             tls_key=args.tls_key,
@@ -123,17 +153,18 @@ def _serve(args: argparse.Namespace) -> None:
             options,
             ready_file=args.ready_file,
             metrics_port=args.metrics_port,
+            metrics_host=args.metrics_host,
             checkpoint_every_s=args.checkpoint_every_s if args.checkpoint_dir else 0.0,
             parent_pid=args.exit_with_parent,
         )
-    except ValueError as error:
+    except (ValueError, OSError) as error:
         raise SystemExit(f"graft replay serve: {error}") from None
 
 
 def _info(args: argparse.Namespace) -> None:
     from service.replay.client import ReplayClient, ReplayError
 
-    client = ReplayClient(args.address, token=args.token, max_retries=0)
+    client = ReplayClient(args.address, token=_token(args, "info"), max_retries=0)
     try:
         tables = client.info()
     except ReplayError as error:

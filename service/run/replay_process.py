@@ -15,7 +15,11 @@ from typing import Any, Optional
 
 
 class ReplayProcess:
-    """A `graft replay serve` child process; `address` is known once it listens."""
+    """A `graft replay serve` child process; `address` is known once it listens.
+
+    `token` (None: the server takes none, whatever this process's GRAFT_TOKEN) reaches
+    the child in its environment, never on its command line.
+    """
 
     def __init__(
         self,
@@ -48,12 +52,24 @@ class ReplayProcess:
             "--exit-with-parent",
             str(os.getpid()),
         ]
-        if token:
-            command += ["--token", token]
         command += list(extra_args)
+        # The token goes by environment: a command line is readable by every local user.
+        env = {k: v for k, v in os.environ.items() if k != "GRAFT_TOKEN"}
+        if token:
+            env["GRAFT_TOKEN"] = token
         self._log = open(log_path, "ab") if log_path else subprocess.DEVNULL
-        self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT)
-        deadline = time.monotonic() + startup_timeout_s
+        self.process = subprocess.Popen(
+            command, stdout=self._log, stderr=subprocess.STDOUT, env=env
+        )
+        try:
+            self._wait_until_ready(ready, startup_timeout_s, log_path)
+        except BaseException:  # failed, timed out or Ctrl-C: no server outlives its start
+            self.stop()
+            raise
+        self.address: str = json.loads(ready.read_text())["address"]
+
+    def _wait_until_ready(self, ready: Path, timeout_s: float, log_path: Optional[Path]) -> None:
+        deadline = time.monotonic() + timeout_s
         while not ready.exists():
             if self.process.poll() is not None:
                 raise RuntimeError(
@@ -61,10 +77,8 @@ class ReplayProcess:
                     + (f"; see {log_path}" if log_path else "")
                 )
             if time.monotonic() > deadline:
-                self.stop()
-                raise TimeoutError(f"replay server did not start within {startup_timeout_s}s")
+                raise TimeoutError(f"replay server did not start within {timeout_s}s")
             time.sleep(0.05)
-        self.address: str = json.loads(ready.read_text())["address"]
 
     def stop(self, timeout_s: float = 15.0) -> None:
         """SIGTERM (graceful: final checkpoint, drain), then SIGKILL if it hangs."""

@@ -6,11 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from service.run.config import TrainConfig, load_preset
+from service.run.config import TrainConfig, config_from_data, load_preset, preset_names
 
 
 def run_config(run_dir: Path) -> TrainConfig:
-    """The config a run folder was trained with.
+    """The config a run folder was trained with, read from the folder alone (whatever
+    preset or YAML file it came from; its import path is recorded there).
 
     Raises:
         FileNotFoundError: ``run_dir`` has no config.yaml.
@@ -21,7 +22,10 @@ def run_config(run_dir: Path) -> TrainConfig:
     if not path.is_file():
         raise FileNotFoundError(f"{run_dir} is not a run folder: no config.yaml")
     data = yaml.safe_load(path.read_text()) or {}
-    return load_preset(data.pop("preset"), **data)
+    if "hardcoded_policy" not in data and data.get("preset") in preset_names():
+        # A config.yaml that names no hard-coded policy takes its built-in preset's.
+        data["hardcoded_policy"] = load_preset(data["preset"]).hardcoded_policy
+    return config_from_data(data)
 
 
 def load_behaviour(path: Path) -> tuple[Any, TrainConfig]:

@@ -3,18 +3,26 @@
 import math
 import pickle
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from py_trees.common import Status
 
 from actors.evaluator import random_policy_for, run_episodes
+from actors.hardcoded import ImportedPolicy, TreePolicy, make_hardcoded_policy
 from actors.policies import GaussianExploration, UniformRandomPolicy, gaussian_log_prob
-from actors.trees.pendulum import (
-    HardCodedPendulumPolicy,
-    build_pendulum_tree,
-    last_tick_statuses,
-    render_tree_ascii,
-)
+from actors.trees.pendulum import build_pendulum_tree, last_tick_statuses, render_tree_ascii
+
+SWING_UP = "actors.trees.pendulum:swing_up"
+"""The Pendulum presets' ``hardcoded_policy``."""
+PENDULUM = gym.make("Pendulum-v1")
+
+
+def pendulum_policy() -> TreePolicy:
+    """The tree the Pendulum presets name, built the way every actor builds it."""
+    policy = make_hardcoded_policy(SWING_UP, PENDULUM.observation_space, PENDULUM.action_space)
+    assert isinstance(policy, TreePolicy)
+    return policy
 
 
 def _obs(theta: float, theta_dot: float) -> np.ndarray:
@@ -34,7 +42,7 @@ SIGN_CASES = [
 
 @pytest.mark.parametrize("theta, theta_dot, expected", SIGN_CASES)
 def test_tree_action_sign_cases(theta: float, theta_dot: float, expected: float) -> None:
-    action = HardCodedPendulumPolicy()(_obs(theta, theta_dot))
+    action = pendulum_policy()(_obs(theta, theta_dot))
     assert action.shape == (1,)
     assert action.dtype == np.float32
     assert action[0] == expected
@@ -68,7 +76,7 @@ STATUS_CASES = [  # None: the node was not ticked
 
 @pytest.mark.parametrize("theta, expected", STATUS_CASES)
 def test_tree_status_table_after_tick(theta: float, expected: dict[str, Status | None]) -> None:
-    policy = HardCodedPendulumPolicy()
+    policy = pendulum_policy()
     # Tick the other branch first, so a leaf that ran only then must show as not ticked.
     policy(_obs(ABOVE if theta == BELOW else BELOW, 1.0))
     policy(_obs(theta, 1.0))
@@ -79,7 +87,7 @@ def test_batch_matches_single() -> None:
     rng = np.random.default_rng(0)
     theta = rng.uniform(-math.pi, math.pi, size=64)
     obs = np.stack([np.cos(theta), np.sin(theta), rng.uniform(-8, 8, size=64)], axis=1)
-    policy = HardCodedPendulumPolicy()
+    policy = pendulum_policy()
     batch = policy(obs.astype(np.float32))
     singles = np.stack([policy(row) for row in obs.astype(np.float32)])
     assert batch.shape == (64, 1) and batch.dtype == np.float32
@@ -89,19 +97,67 @@ def test_batch_matches_single() -> None:
 
 def test_policy_refuses_wrong_observation_shape() -> None:
     with pytest.raises(ValueError, match=r"\(2, 4\)"):
-        HardCodedPendulumPolicy()(np.zeros((2, 4)))
+        pendulum_policy()(np.zeros((2, 4)))
 
 
-def test_policy_survives_pickling() -> None:
-    policy = pickle.loads(pickle.dumps(HardCodedPendulumPolicy(1.0)))
-    assert policy(_obs(BELOW, 1.0))[0] == 1.0
+def test_policy_pickles_as_its_import_string_and_rebuilds_the_tree() -> None:
+    low_torque = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    policy = ImportedPolicy(SWING_UP, PENDULUM.observation_space, low_torque)
+    assert policy(_obs(BELOW, 1.0))[0] == 1.0  # built here, with the box's torque
+    shipped = pickle.dumps(policy)
+    assert b"py_trees" not in shipped  # the tree stays behind; the string travels
+    assert pickle.loads(shipped)(_obs(ABOVE, 1.0))[0] == -1.0
+
+
+# Recorded from the Pendulum presets' tree (seed 0 episodes; warm-up acts on fixed
+# observations): the same seeds must keep giving the same returns and the same actions.
+RECORDED_RETURNS = [-522.5450591084027, -265.1920441850731, -393.71600588109175]
+RECORDED_WARMUP = {
+    "pendulum-backbone": (
+        [2.0, -2.0, 2.0, -2.0, 1.0947014093399048, -2.0],
+        {
+            "action": [4.081838130950928, -5.111330032348633, 0.8361976742744446,
+                       -1.135539174079895, -0.9052985906600952, -0.43119433522224426],
+            "backbone_action": [2.0, 2.0, 2.0, -2.0, 2.0, -2.0],
+        },
+    ),
+    "pendulum-td3bc": (
+        [2.0, 0.7221674919128418, 2.0, -2.0, 1.7736753225326538, -2.0],
+        {"backbone_action": [2.0, 2.0, 2.0, -2.0, 2.0, -2.0]},
+    ),
+    "pendulum-options": (
+        [-1.5453119277954102, 2.0, 2.0, -2.0, 0.34719428420066833, 0.9513511657714844],
+        {"option": [1, 0, 0, 0, 1, 1]},
+    ),
+}  # fmt: skip
+
+
+def test_registered_tree_scores_what_the_old_policy_scored() -> None:
+    returns = run_episodes(pendulum_policy(), episodes=3, seed=0)
+    assert returns.tolist() == RECORDED_RETURNS
+
+
+@pytest.mark.parametrize("preset", sorted(RECORDED_WARMUP))
+def test_preset_behaviours_act_as_before(preset: str) -> None:
+    from service.run.config import load_preset
+    from service.run.registry import make_builder
+
+    rng = np.random.default_rng(7)
+    theta = rng.uniform(-np.pi, np.pi, 6)
+    obs = np.stack([np.cos(theta), np.sin(theta), rng.uniform(-8, 8, 6)], 1).astype(np.float32)
+    behaviour = make_builder(load_preset(preset)).make_behaviour(num_actors=2)
+    action, columns = behaviour.act(obs, np.random.default_rng(3), warmup=True)
+    expected_action, expected_columns = RECORDED_WARMUP[preset]
+    assert action.ravel().tolist() == expected_action
+    for name, values in expected_columns.items():
+        assert columns[name].ravel().tolist() == values, name
 
 
 def test_tree_renders_as_ascii() -> None:
     text = render_tree_ascii(build_pendulum_tree())
     for name in ("Swing-up", "Pump below pivot", "Below pivot?", "Pump energy", "Brake near top"):
         assert name in text
-    policy = HardCodedPendulumPolicy()
+    policy = pendulum_policy()
     policy(_obs(ABOVE, 1.0))
     status_text = render_tree_ascii(policy.tree, show_status=True)
     assert "Below pivot? [x]" in status_text and "Brake near top [o]" in status_text
@@ -161,17 +217,17 @@ def test_uniform_random_policy_log_prob() -> None:
 
 
 def test_run_episodes_is_deterministic_for_a_fixed_seed() -> None:
-    first = run_episodes(HardCodedPendulumPolicy(), episodes=4, seed=3)
-    second = run_episodes(HardCodedPendulumPolicy(), episodes=4, seed=3, num_envs=3)
+    first = run_episodes(pendulum_policy(), episodes=4, seed=3)
+    second = run_episodes(pendulum_policy(), episodes=4, seed=3, num_envs=3)
     assert first.shape == (4,)
     np.testing.assert_array_equal(first, second)
-    assert not np.array_equal(first, run_episodes(HardCodedPendulumPolicy(), episodes=4, seed=4))
+    assert not np.array_equal(first, run_episodes(pendulum_policy(), episodes=4, seed=4))
 
 
 def test_hard_coded_policy_beats_random_by_a_wide_margin() -> None:
     # Paper sec. IV-B: hard-coded about -580, random about -1200 (we measure about -430
     # and -1200 over 100 episodes at seed 0).
-    hard_coded = run_episodes(HardCodedPendulumPolicy(), episodes=100, seed=0).mean()
+    hard_coded = run_episodes(pendulum_policy(), episodes=100, seed=0).mean()
     random = run_episodes(random_policy_for("Pendulum-v1", seed=0), episodes=100, seed=0).mean()
     assert -1400.0 < random < -1000.0
     assert hard_coded > random + 300.0

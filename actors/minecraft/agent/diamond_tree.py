@@ -9,7 +9,7 @@ Shape (``graft minecraft tree`` prints it in full)::
         [-] Quest                             Sequence of backchained needs:
             [o] Wood                          enough wood for the whole quest, or gather logs
             [o] Ensure iron_pickaxe           ← sticks, iron_ingot ×3 (← furnace ← cobblestone
-                                                ← wooden/stone pickaxe; iron_ore; fuel), table
+                                                ← wooden/stone pickaxe; iron_ore; fuel)
             [o] Diamond                       mine a visible diamond, else descend to y=12
                                               (A* digs down safely), else tunnel and look
 
@@ -165,10 +165,11 @@ class _Builder:
         )
 
     def iron_pickaxe(self) -> Behaviour:
+        # No crafting table asked for here: SimpleCraft crafts anywhere, and smelting may
+        # have burnt the table (fuel burns from the first inventory slot up). Sticks are
+        # checked after the ingots, since smelting may burn them too.
         return self.ensure(
-            "iron_pickaxe",
-            1,
-            [self.table(), self.sticks(2), self.iron_ingots(), self.craft("iron_pickaxe")],
+            "iron_pickaxe", 1, [self.iron_ingots(), self.sticks(2), self.craft("iron_pickaxe")]
         )
 
     def wood(self) -> Behaviour:

@@ -17,8 +17,8 @@ simulator does not count as full unless they are air. Items are the dropped-item
 entities of ObservationFromNearbyEntities (they carry ``quantity``), by Euclidean
 distance from the agent; animals are not items.
 
-This module is the single source of the encoding: the Ray actor's
-``actors.minecraft.encoding.encode_observation`` delegates here.
+This module is the single source of the encoding: the mission environment's
+``actors.minecraft.agent.mission_env.encode_observation`` delegates here.
 """
 
 from __future__ import annotations

@@ -95,7 +95,11 @@ def load(spec: str) -> Any:
 
 class TravelBackbone:
     """μ(s) for the backbone and options methods: the tree's steering, which the
-    environment computed and put in the observation (``travel_control.MU``)."""
+    environment computed and put in the observation (``travel_control.MU``). The presets
+    name it ``hardcoded_policy: actors.minecraft.agent.travel_env:TravelBackbone``."""
+
+    batched = True
+    """It reads μ(s) off every row of a batch at once."""
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         return np.array(np.asarray(obs)[..., MU], dtype=np.float32)
@@ -250,7 +254,7 @@ class MinecraftTravelEnv(gym.Env):
         self.mission = self._next_mission()
         client.init(travel_mission_xml(self.mission, time_limit_ticks=self.max_ticks + 20))
         client.reset()
-        reply = client.step("")
+        reply = client.observe()  # real Malmo may answer a step without info
         if not reply.info:
             raise RuntimeError("the travel mission ended before its first observation")
         p = parse(reply.info)
@@ -258,7 +262,7 @@ class MinecraftTravelEnv(gym.Env):
         self.reward_fn.reset(route_to_go(self.mission.route, p.x, p.y, p.z))
         self._percept, self._ticks = None, 0
         obs = self._observe(p)
-        return obs, {"phi": self.reward_fn.phi}
+        return obs, {"phi": self.reward_fn.phi, "tick": p.tick}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         assert self.mission is not None and self._client is not None
@@ -289,6 +293,8 @@ class MinecraftTravelEnv(gym.Env):
             "died": died,
             "ticks": self._ticks,
         }
+        if reply.info:
+            info["tick"] = p.tick  # the world's clock: an actor meters the ticks skipped
         return obs, float(reward), bool(terminated), bool(truncated), info
 
     def _ended(self, p: Percept) -> bool:

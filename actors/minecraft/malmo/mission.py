@@ -1,9 +1,10 @@
 """Parse a Malmo mission XML (or the ``<MissionInit>`` that wraps it) into a ``Mission``.
 
-Only the parts the simulator models are read; everything else is ignored, as Malmo
-ignores handlers it does not need. Element names are matched without their XML
-namespace, so both namespaced (``http://ProjectMalmo.microsoft.com``) and bare missions
-parse.
+The XML is first checked against Malmo's schema (``schema.validate``): a mission real
+Malmo would refuse is refused here too, with the element at fault named. Then the
+handlers are read into plain dataclasses. Every element present is recorded in
+``Mission.elements``, so a consumer (the simulator) can refuse, by name, the ones it
+does not implement instead of ignoring them.
 """
 
 from __future__ import annotations
@@ -13,34 +14,12 @@ import zlib
 from dataclasses import dataclass, field
 from typing import Optional
 
-DEFAULT_VERBS: dict[str, tuple[str, ...]] = {
-    "ContinuousMovement": ("jump", "move", "pitch", "strafe", "turn", "crouch", "attack", "use"),
-    "DiscreteMovement": (
-        "move",
-        "jumpmove",
-        "strafe",
-        "jumpstrafe",
-        "turn",
-        "movenorth",
-        "moveeast",
-        "movesouth",
-        "movewest",
-        "jumpnorth",
-        "jumpeast",
-        "jumpsouth",
-        "jumpwest",
-        "jump",
-        "look",
-        "attack",
-        "use",
-        "jumpuse",
-    ),  # fmt: skip
-    "AbsoluteMovement": ("tpx", "tpy", "tpz", "tp", "setYaw", "setPitch"),
-    "Inventory": ("swapInventoryItems", "combineInventoryItems", "discardCurrentItem")
-    + tuple(f"hotbar.{i}" for i in range(1, 10)),
-    "SimpleCraft": ("craft",),
-    "MissionQuit": ("quit",),
-    "Chat": ("chat",),
+from actors.minecraft.malmo import schema
+from actors.minecraft.malmo.mission_rules import Rules, parse_rules
+
+# Handler element -> the verbs it implements (lower case, as Malmo compares them).
+HANDLER_VERBS: dict[str, frozenset[str]] = {
+    k: frozenset(v.lower() for v in verbs) for k, verbs in schema.COMMAND_VERBS.items()
 }
 
 
@@ -50,44 +29,66 @@ class MissionError(ValueError):
 
 @dataclass(frozen=True)
 class Grid:
-    """An ObservationFromGrid grid: its name and inclusive bounds relative to the player."""
+    """An ObservationFromGrid grid: its name and inclusive bounds, relative to the
+    player's block unless ``absolute`` (``absoluteCoords="true"``: world coordinates)."""
 
     name: str
     lo: tuple[int, int, int]
     hi: tuple[int, int, int]
+    absolute: bool = False
 
 
 @dataclass(frozen=True)
 class EntityRange:
-    """An ObservationFromNearbyEntities range (half-widths in blocks)."""
+    """An ObservationFromNearbyEntities range (half-widths in blocks, exclusive) that
+    is reported every ``every`` ticks (``update_frequency``)."""
 
     name: str
     x: float
     y: float
     z: float
+    every: int = 1
 
 
 @dataclass(frozen=True)
 class Handler:
-    """A command handler: its kind (``"ContinuousMovement"``...) and the verbs it accepts."""
+    """A command handler: its element (``"ContinuousMovementCommands"``...), the verbs
+    it implements and its ModifierList, applied as Malmo applies it.
+
+    Attributes:
+        kind: the element name without ``Commands`` (``"ContinuousMovement"``).
+        verbs: lower-case verbs the handler implements.
+        allow: an allow-list's entries as written, or None.
+        deny: a deny-list's entries as written, or None.
+        turn_speed: ContinuousMovementCommands ``turnSpeedDegs``.
+        description: MissionQuitCommands ``quitDescription`` (the quit code).
+    """
 
     kind: str
     verbs: frozenset[str]
+    allow: Optional[frozenset[str]] = None
+    deny: Optional[frozenset[str]] = None
     turn_speed: float = 180.0
+    description: str = ""
 
+    def accepts(self, verb: str) -> bool:
+        """Whether this handler takes ``verb`` (already lower-cased).
 
-@dataclass(frozen=True)
-class TouchReward:
-    """RewardForTouchingBlockType entry."""
-
-    types: frozenset[str]
-    reward: float
-    behaviour: str
+        Malmo lower-cases the verb and then looks it up in the lists as written, so a
+        list entry with capitals (``setYaw``) never matches; an empty allow-list
+        allows nothing.
+        """
+        if verb not in self.verbs:
+            return False
+        if self.deny is not None and verb in self.deny:
+            return False
+        return self.allow is None or verb in self.allow
 
 
 @dataclass(frozen=True)
 class DrawOp:
-    """A DrawingDecorator operation: ``kind`` is block, cuboid, item or entity."""
+    """A DrawingDecorator operation: ``kind`` is block, cuboid, sphere, line, item or
+    entity; ``coords`` as the element gives them (x y z, corners, or x y z radius)."""
 
     kind: str
     coords: tuple[float, ...]
@@ -96,19 +97,26 @@ class DrawOp:
 
 @dataclass(frozen=True)
 class Mission:
-    """What the simulator needs from a mission.
+    """What a Malmo mission asks for, for one agent (``role``).
 
     Attributes:
         agent_name: the agent's Name.
-        agent_count: number of AgentSections (only 1 is simulated).
+        agent_count: number of AgentSections.
+        role: which AgentSection this is (the MissionInit's ClientRole).
+        mode: the AgentSection's game mode (Survival, Creative, Adventure, Spectator).
+        elements: every element name in the mission (for refusing unsupported ones).
         has_video: a VideoProducer is present (otherwise frames are empty).
         width: frame width in pixels.
         height: frame height in pixels.
         want_depth: the frame has a 4th (depth) channel.
+        viewpoint: VideoProducer viewpoint (0 first person, 1 and 2 third person).
         ms_per_tick: ModSettings/MsPerTick, or None to use the server's default.
         time_limit_ms: ServerQuitFromTimeUp limit in game milliseconds (50 per tick).
+        server_quit_description: ServerQuitFromTimeUp ``description`` (the quit code).
         start_time: ServerInitialConditions/Time/StartTime (time of day in ticks).
         passage_of_time: AllowPassageOfTime.
+        weather: ServerInitialConditions/Weather.
+        allow_spawning: ServerInitialConditions/AllowSpawning.
         flat_generator: FlatWorldGenerator generatorString, or None.
         seed: DefaultWorldGenerator seed, or None (the server chooses).
         drawing: DrawingDecorator operations, in order.
@@ -118,27 +126,34 @@ class Mission:
         grids: ObservationFromGrid grids.
         full_inventory: ObservationFromFullInventory.
         inventory_flat: its ``flat`` attribute (Malmo's default is true).
+        hotbar: ObservationFromHotBar.
         nearby: ObservationFromNearbyEntities ranges.
         ray: ObservationFromRay.
-        handlers: command handlers in XML order (the first that accepts a verb runs it).
-        collect_rewards: RewardForCollectingItem item -> reward.
-        touch_rewards: RewardForTouchingBlockType entries.
-        command_reward: RewardForSendingCommand reward per command, or None.
-        quit_collect: AgentQuitFromCollectingItem item types.
-        quit_touch: AgentQuitFromTouchingBlockType block types.
-        quit_positions: AgentQuitFromReachingPosition markers (x, y, z, tolerance).
+        distances: ObservationFromDistance markers (name, x, y, z).
+        recent_commands: ObservationFromRecentCommands.
+        chat: ObservationFromChat.
+        handlers: command handlers in XML order (the first that takes a command runs it).
+        rules: rewards and agent quits.
+        colour_or_variant: some block or item names a colour or variant.
     """
 
     agent_name: str = "agent"
     agent_count: int = 1
+    role: int = 0
+    mode: str = "Survival"
+    elements: frozenset[str] = frozenset()
     has_video: bool = False
     width: int = 0
     height: int = 0
     want_depth: bool = False
+    viewpoint: int = 0
     ms_per_tick: Optional[int] = None
     time_limit_ms: Optional[float] = None
+    server_quit_description: str = ""
     start_time: int = 6000
     passage_of_time: bool = True
+    weather: str = "normal"
+    allow_spawning: bool = False
     flat_generator: Optional[str] = None
     seed: Optional[int] = None
     drawing: tuple[DrawOp, ...] = ()
@@ -148,27 +163,30 @@ class Mission:
     grids: tuple[Grid, ...] = ()
     full_inventory: bool = False
     inventory_flat: bool = True
+    hotbar: bool = False
     nearby: tuple[EntityRange, ...] = ()
     ray: bool = False
+    distances: tuple[tuple[str, float, float, float], ...] = ()
+    recent_commands: bool = False
+    chat: bool = False
     handlers: tuple[Handler, ...] = ()
-    collect_rewards: dict[str, float] = field(default_factory=dict)
-    touch_rewards: tuple[TouchReward, ...] = ()
-    command_reward: Optional[float] = None
-    quit_collect: frozenset[str] = frozenset()
-    quit_touch: frozenset[str] = frozenset()
-    quit_positions: tuple[tuple[float, float, float, float], ...] = ()
+    rules: Rules = field(default_factory=Rules)
+    colour_or_variant: bool = False
+
+    def handler_for(self, verb: str) -> Optional[Handler]:
+        """The first handler implementing ``verb`` (any case), or None: which handler a
+        command belongs to, before its allow and deny lists are applied."""
+        verb = verb.lower()
+        return next((h for h in self.handlers if verb in h.verbs), None)
 
     @property
     def channels(self) -> int:
         """Bytes per pixel of the frame (3, or 4 with depth)."""
         return 4 if self.want_depth else 3
 
-    def handler_for(self, verb: str) -> Optional[Handler]:
-        """The first handler that accepts ``verb``, or None (the command is ignored)."""
-        for h in self.handlers:
-            if verb in h.verbs:
-                return h
-        return None
+    def block_types(self) -> frozenset[str]:
+        """Every block type the mission draws."""
+        return frozenset(op.type for op in self.drawing if op.kind not in ("item", "entity"))
 
 
 def _tag(e: ET.Element) -> str:
@@ -188,30 +206,22 @@ def _children(e: Optional[ET.Element], name: str) -> list[ET.Element]:
     return [] if e is None else [c for c in e if _tag(c) == name]
 
 
-def _find(e: ET.Element, name: str) -> list[ET.Element]:
-    return [c for c in e.iter() if _tag(c) == name]
-
-
 def _num(e: ET.Element, attr: str, default: Optional[float] = None) -> float:
     raw = e.get(attr)
     if raw is None:
         if default is None:
             raise MissionError(f"<{_tag(e)}> needs attribute {attr!r}")
         return default
-    try:
-        return float(raw)
-    except ValueError:
-        raise MissionError(f"<{_tag(e)} {attr}={raw!r}> is not a number") from None
+    return float(raw)
 
 
-def _text_int(e: Optional[ET.Element], name: str) -> Optional[int]:
+def _text(e: Optional[ET.Element], name: str) -> Optional[str]:
     c = _child(e, name)
-    if c is None or c.text is None:
-        return None
-    try:
-        return int(float(c.text.strip()))
-    except ValueError:
-        raise MissionError(f"<{name}>{c.text}</{name}> is not a number") from None
+    return None if c is None or c.text is None else c.text.strip()
+
+
+def _bool(raw: Optional[str], default: bool) -> bool:
+    return default if raw is None else raw.strip() in ("true", "1")
 
 
 def seed_from_text(text: str) -> int:
@@ -223,98 +233,121 @@ def seed_from_text(text: str) -> int:
         return zlib.crc32(text.encode())
 
 
-def _handler(e: ET.Element, kind: str) -> Handler:
-    allow: set[str] = set()
-    deny: set[str] = set()
-    for ml in _children(e, "ModifierList"):
-        verbs = {(c.text or "").strip() for c in _children(ml, "command")}
-        (deny if ml.get("type") == "deny-list" else allow).update(verbs)
-    verbs = (allow or set(DEFAULT_VERBS[kind])) - deny
-    return Handler(kind, frozenset(verbs), _num(e, "turnSpeedDegs", 180.0))
+def parse_mission(xml: str | bytes, role: Optional[int] = None) -> Mission:
+    """Check and parse mission XML (a ``<Mission>`` or a ``<MissionInit>`` wrapping one).
 
-
-_HANDLERS = {k + "Commands": k for k in DEFAULT_VERBS}
-
-
-def parse_mission(xml: str | bytes) -> Mission:
-    """Parse mission XML (a ``<Mission>`` or a ``<MissionInit>`` wrapping one).
+    Args:
+        xml: the XML text.
+        role: which AgentSection to read; None reads the MissionInit's ClientRole
+            (0 for a bare ``<Mission>``).
 
     Raises:
-        MissionError: malformed XML or values the simulator cannot use.
+        MissionError: malformed XML, a schema violation (Malmo would refuse it too) or
+            values that cannot be used; the message names the element.
     """
     try:
         root = ET.fromstring(xml)
     except ET.ParseError as e:
         raise MissionError(f"mission XML does not parse: {e}") from None
+    try:
+        schema.validate(root)
+    except schema.SchemaError as e:
+        raise MissionError(f"not a valid Malmo mission: {e}") from None
     mission = root if _tag(root) == "Mission" else _child(root, "Mission")
-    if mission is None:
-        raise MissionError("no <Mission> element")
+    assert mission is not None  # the schema requires it
+    if role is None:
+        role = int(_text(root, "ClientRole") or 0) if _tag(root) == "MissionInit" else 0
     agents = _children(mission, "AgentSection")
-    if not agents:
-        raise MissionError("<Mission> has no <AgentSection>")
-    agent = agents[0]
-    server = _child(mission, "ServerSection")
-    kw: dict[str, object] = {"agent_count": len(agents)}
-    name = _child(agent, "Name")
-    if name is not None and name.text:
-        kw["agent_name"] = name.text.strip()
-    mod = _child(mission, "ModSettings")
-    ms = _text_int(mod, "MsPerTick")
+    if not 0 <= role < len(agents):
+        raise MissionError(f"ClientRole {role} has no AgentSection ({len(agents)} agents)")
+    agent = agents[role]
+    kw: dict[str, object] = {
+        "agent_count": len(agents),
+        "role": role,
+        "agent_name": (_text(agent, "Name") or "agent"),
+        "mode": agent.get("mode", "Survival"),
+        "elements": frozenset(_tag(e) for e in mission.iter()),
+        "colour_or_variant": any(
+            e.get("colour") is not None or e.get("variant") is not None for e in mission.iter()
+        ),
+    }
+    ms = _text(_child(mission, "ModSettings"), "MsPerTick")
     if ms is not None:
-        if ms <= 0:
-            raise MissionError(f"<MsPerTick>{ms}</MsPerTick> must be positive")
-        kw["ms_per_tick"] = ms
-    init = _child(server, "ServerInitialConditions")
-    time_e = _child(init, "Time")
-    start = _text_int(time_e, "StartTime")
-    if start is not None:
-        kw["start_time"] = start
-    pot = _child(time_e, "AllowPassageOfTime")
-    if pot is not None and (pot.text or "").strip().lower() == "false":
-        kw["passage_of_time"] = False
-    handlers = _child(server, "ServerHandlers")
-    drawing: list[DrawOp] = []
-    for h in handlers if handlers is not None else []:
-        t = _tag(h)
-        if t == "FlatWorldGenerator":
-            kw["flat_generator"] = h.get("generatorString") or "3;7,2*3,2;1;"
-        elif t == "DefaultWorldGenerator" and (h.get("seed") or "").strip():
-            kw["seed"] = seed_from_text(h.get("seed", ""))
-        elif t == "ServerQuitFromTimeUp":
-            kw["time_limit_ms"] = _num(h, "timeLimitMs")
-        elif t == "DrawingDecorator":
-            drawing.extend(_draw_ops(h))
-    kw["drawing"] = tuple(drawing)
-    start_e = _child(agent, "AgentStart")
-    pl = _child(start_e, "Placement")
+        kw["ms_per_tick"] = int(ms)
+    server = _child(mission, "ServerSection")
+    _initial_conditions(_child(server, "ServerInitialConditions"), kw)
+    _server_handlers(_child(server, "ServerHandlers"), kw)
+    start = _child(agent, "AgentStart")
+    pl = _child(start, "Placement")
     if pl is not None:
         kw["placement"] = tuple(
             _num(pl, a, d) for a, d in (("x", None), ("y", None), ("z", None), ("yaw", 0.0),
                                        ("pitch", 0.0))
         )  # fmt: skip
-    inv = _child(start_e, "Inventory")
+    inv = _child(start, "Inventory")
     kw["start_inventory"] = tuple(
-        (int(_num(i, "slot")), i.get("type", "air"), int(_num(i, "quantity", 1.0)))
-        for i in _children(inv, "InventoryItem")
+        (int(_num(i, "slot")), i.get("type", "air").strip(), int(_num(i, "quantity", 1.0)))
+        for i in (list(inv) if inv is not None else [])
     )
     _agent_handlers(_child(agent, "AgentHandlers"), kw)
     return Mission(**kw)  # type: ignore[arg-type]
 
 
+def _initial_conditions(init: Optional[ET.Element], kw: dict[str, object]) -> None:
+    time_e = _child(init, "Time")
+    start = _text(time_e, "StartTime")
+    if start is not None:
+        kw["start_time"] = int(start)
+    kw["passage_of_time"] = _bool(_text(time_e, "AllowPassageOfTime"), True)
+    kw["weather"] = _text(init, "Weather") or "normal"
+    kw["allow_spawning"] = _bool(_text(init, "AllowSpawning"), False)
+
+
+def _server_handlers(handlers: Optional[ET.Element], kw: dict[str, object]) -> None:
+    drawing: list[DrawOp] = []
+    for h in handlers if handlers is not None else []:
+        t = _tag(h)
+        if t == "FlatWorldGenerator":
+            kw["flat_generator"] = h.get("generatorString", "3;7,2*3,2;1;village")
+            if (h.get("seed") or "").strip():
+                kw["seed"] = seed_from_text(h.get("seed", ""))
+        elif t == "DefaultWorldGenerator" and (h.get("seed") or "").strip():
+            kw["seed"] = seed_from_text(h.get("seed", ""))
+        elif t == "ServerQuitFromTimeUp":
+            kw["time_limit_ms"] = _num(h, "timeLimitMs")
+            kw["server_quit_description"] = h.get("description", "")
+        elif t == "DrawingDecorator":
+            drawing.extend(_draw_ops(h))
+    kw["drawing"] = tuple(drawing)
+
+
+_DRAW_COORDS = {
+    "DrawBlock": ("block", ("x", "y", "z")),
+    "DrawItem": ("item", ("x", "y", "z")),
+    "DrawEntity": ("entity", ("x", "y", "z")),
+    "DrawCuboid": ("cuboid", ("x1", "y1", "z1", "x2", "y2", "z2")),
+    "DrawLine": ("line", ("x1", "y1", "z1", "x2", "y2", "z2")),
+    "DrawSphere": ("sphere", ("x", "y", "z", "radius")),
+}
+
+
 def _draw_ops(deco: ET.Element) -> list[DrawOp]:
     ops = []
     for d in deco:
-        t = _tag(d)
-        if t == "DrawBlock":
-            ops.append(DrawOp("block", tuple(_num(d, a) for a in "xyz"), d.get("type", "air")))
-        elif t == "DrawCuboid":
-            c = tuple(_num(d, a) for a in ("x1", "y1", "z1", "x2", "y2", "z2"))
-            ops.append(DrawOp("cuboid", c, d.get("type", "air")))
-        elif t == "DrawItem":
-            ops.append(DrawOp("item", tuple(_num(d, a) for a in "xyz"), d.get("type", "air")))
-        elif t == "DrawEntity":
-            ops.append(DrawOp("entity", tuple(_num(d, a) for a in "xyz"), d.get("type", "Pig")))
+        spec = _DRAW_COORDS.get(_tag(d))
+        if spec is not None:  # DrawContainer and DrawSign: refused by name by consumers
+            kind, attrs = spec
+            ops.append(DrawOp(kind, tuple(_num(d, a) for a in attrs), d.get("type", "").strip()))
     return ops
+
+
+def _modifiers(h: ET.Element) -> dict[str, object]:
+    out: dict[str, object] = {}
+    ml = _child(h, "ModifierList")
+    if ml is not None:
+        entries = frozenset((c.text or "").strip() for c in _children(ml, "command"))
+        out["allow" if ml.get("type") == "allow-list" else "deny"] = entries
+    return out
 
 
 def _agent_handlers(ah: Optional[ET.Element], kw: dict[str, object]) -> None:
@@ -323,66 +356,63 @@ def _agent_handlers(ah: Optional[ET.Element], kw: dict[str, object]) -> None:
     handlers: list[Handler] = []
     nodes = list(ah)
     for tb in _children(ah, "TurnBasedCommands"):
-        nodes.extend(tb)  # turn-based wrappers are accepted; commands run in real time
+        nodes.extend(tb)  # the handlers a TurnBasedCommands wraps
     for h in nodes:
         t = _tag(h)
-        if t in _HANDLERS:
-            handlers.append(_handler(h, _HANDLERS[t]))
+        if t in HANDLER_VERBS:
+            kind = t.removesuffix("Commands")
+            handlers.append(
+                Handler(kind, HANDLER_VERBS[t], turn_speed=_num(h, "turnSpeedDegs", 180.0),
+                        description=h.get("quitDescription", ""),
+                        **_modifiers(h))  # type: ignore[arg-type]
+            )  # fmt: skip
         elif t == "VideoProducer":
             kw["has_video"] = True
-            kw["width"] = _text_int(h, "Width") or 0
-            kw["height"] = _text_int(h, "Height") or 0
+            kw["width"] = int(_text(h, "Width") or 0)
+            kw["height"] = int(_text(h, "Height") or 0)
             if kw["width"] <= 0 or kw["height"] <= 0:  # type: ignore[operator]
                 raise MissionError("<VideoProducer> needs positive <Width> and <Height>")
-            kw["want_depth"] = h.get("want_depth", "false").lower() in ("true", "1")
-        elif t == "ObservationFromFullStats":
-            kw["full_stats"] = True
-        elif t == "ObservationFromRay":
-            kw["ray"] = True
+            kw["want_depth"] = _bool(h.get("want_depth"), False)
+            kw["viewpoint"] = int(h.get("viewpoint", "0"))
         elif t == "ObservationFromFullInventory":
             kw["full_inventory"] = True
-            kw["inventory_flat"] = h.get("flat", "true").lower() != "false"
+            kw["inventory_flat"] = _bool(h.get("flat"), True)
         elif t == "ObservationFromGrid":
-            grids = []
-            for g in _children(h, "Grid"):
-                lo, hi = _child(g, "min"), _child(g, "max")
-                if lo is None or hi is None:
-                    raise MissionError(f"<Grid name={g.get('name')!r}> needs <min> and <max>")
-                lo_t = tuple(int(_num(lo, a)) for a in "xyz")
-                hi_t = tuple(int(_num(hi, a)) for a in "xyz")
-                if any(a > b for a, b in zip(lo_t, hi_t, strict=True)):
-                    raise MissionError(f"<Grid name={g.get('name')!r}> has min > max")
-                grids.append(Grid(g.get("name", "grid"), lo_t, hi_t))  # type: ignore[arg-type]
-            kw["grids"] = tuple(grids)
+            kw["grids"] = tuple(_grid(g) for g in _children(h, "Grid"))
         elif t == "ObservationFromNearbyEntities":
             kw["nearby"] = tuple(
                 EntityRange(r.get("name", "entities"), _num(r, "xrange"), _num(r, "yrange"),
-                            _num(r, "zrange"))
+                            _num(r, "zrange"), max(1, int(_num(r, "update_frequency", 1))))
                 for r in _children(h, "Range")
             )  # fmt: skip
-        elif t == "RewardForCollectingItem":
-            kw["collect_rewards"] = {
-                ty: _num(i, "reward") for i in _children(h, "Item") for ty in _types(i)
-            }
-        elif t == "RewardForTouchingBlockType":
-            kw["touch_rewards"] = tuple(
-                TouchReward(frozenset(_types(b)), _num(b, "reward"),
-                            b.get("behaviour", "oncePerBlock"))
-                for b in _children(h, "Block")
-            )  # fmt: skip
-        elif t == "RewardForSendingCommand":
-            kw["command_reward"] = _num(h, "reward")
-        elif t == "AgentQuitFromCollectingItem":
-            kw["quit_collect"] = frozenset(ty for i in _children(h, "Item") for ty in _types(i))
-        elif t == "AgentQuitFromTouchingBlockType":
-            kw["quit_touch"] = frozenset(ty for b in _children(h, "Block") for ty in _types(b))
-        elif t == "AgentQuitFromReachingPosition":
-            kw["quit_positions"] = tuple(
-                (_num(m, "x"), _num(m, "y"), _num(m, "z"), _num(m, "tolerance", 1.0))
+        elif t == "ObservationFromDistance":
+            kw["distances"] = tuple(
+                (m.get("name", "").strip(), _num(m, "x"), _num(m, "y"), _num(m, "z"))
                 for m in _children(h, "Marker")
             )
+        else:
+            flag = _FLAGS.get(t)
+            if flag is not None:
+                kw[flag] = True
     kw["handlers"] = tuple(handlers)
+    kw["rules"] = parse_rules(ah)
 
 
-def _types(e: ET.Element) -> list[str]:
-    return [t.removeprefix("minecraft:") for t in e.get("type", "").split()]
+_FLAGS = {
+    "ObservationFromFullStats": "full_stats",
+    "ObservationFromRay": "ray",
+    "ObservationFromHotBar": "hotbar",
+    "ObservationFromRecentCommands": "recent_commands",
+    "ObservationFromChat": "chat",
+}
+
+
+def _grid(g: ET.Element) -> Grid:
+    lo, hi = _child(g, "min"), _child(g, "max")
+    assert lo is not None and hi is not None  # the schema requires both
+    lo_t = tuple(int(_num(lo, a)) for a in "xyz")
+    hi_t = tuple(int(_num(hi, a)) for a in "xyz")
+    name = g.get("name", "grid").strip()
+    if any(a > b for a, b in zip(lo_t, hi_t, strict=True)):
+        raise MissionError(f"<Grid name={name!r}> has min > max")
+    return Grid(name, lo_t, hi_t, _bool(g.get("absoluteCoords"), False))  # type: ignore[arg-type]

@@ -1,4 +1,8 @@
-"""Mission XML builders for the simulator (and for a real Malmo Minecraft).
+"""Mission XML builders for the simulator and for a real Malmo Minecraft.
+
+Every mission carries a VideoProducer: real Malmo never queues the commands of a mission
+without one (each step waits 3 s and answers sent = 0). An agent that does not read
+pixels gets a small one (``SMALL_VIDEO``), cheap to draw and to send.
 
 ``obtain_diamond()`` is the sample mission shipped beside this module as
 ``obtain_diamond.xml``: survival in a seeded default world, the observations the
@@ -14,6 +18,7 @@ from typing import Optional
 
 NS = "http://ProjectMalmo.microsoft.com"
 SAMPLE_PATH = Path(__file__).with_name("obtain_diamond.xml")
+SMALL_VIDEO = (32, 32)  # width, height of the frame of an agent that does not use pixels
 
 
 def mission_xml(
@@ -35,8 +40,8 @@ def mission_xml(
     """Build a mission XML string.
 
     Args:
-        width: frame width, or None for no VideoProducer (no rendering).
-        height: frame height.
+        width: frame width, or None when the agent does not use pixels (``SMALL_VIDEO``).
+        height: frame height (None: ``SMALL_VIDEO``).
         ms_per_tick: ModSettings/MsPerTick.
         time_limit_ms: ServerQuitFromTimeUp in game ms (50 per tick), None for none.
         seed: DefaultWorldGenerator seed (None lets the server choose).
@@ -71,12 +76,12 @@ def mission_xml(
             f'<InventoryItem slot="{s}" type="{t}" quantity="{q}"/>' for s, t, q in inventory
         )
         inv = f"<Inventory>{items}</Inventory>"
-    video = ""
-    if width is not None and height is not None:
-        video = (
-            f'<VideoProducer want_depth="false"><Width>{width}</Width>'
-            f"<Height>{height}</Height></VideoProducer>"
-        )
+    if width is None or height is None:
+        width, height = SMALL_VIDEO
+    video = (
+        f'<VideoProducer want_depth="false"><Width>{width}</Width>'
+        f"<Height>{height}</Height></VideoProducer>"
+    )
     grid = ""
     if grid_radius > 0:
         r = grid_radius
@@ -143,8 +148,9 @@ def mission_xml(
 """
 
 
-def obtain_diamond(seed: Optional[int] = None) -> str:
-    """The sample obtain-diamond mission (reward 1 per log ... 1024 for the diamond)."""
+def obtain_diamond(seed: Optional[int] = None, *, pixels: bool = True) -> str:
+    """The sample obtain-diamond mission (reward 1 per log ... 1024 for the diamond);
+    ``pixels=False``: the small frame, for an agent that reads observations only."""
     rewards = (
         "<RewardForCollectingItem>"
         '<Item type="log" reward="1"/><Item type="planks" reward="2"/>'
@@ -157,6 +163,8 @@ def obtain_diamond(seed: Optional[int] = None) -> str:
         '<AgentQuitFromCollectingItem><Item type="diamond"/></AgentQuitFromCollectingItem>'
     )
     # No AbsoluteMovementCommands: teleporting would make the quest trivial.
+    size = 64 if pixels else None
     return mission_xml(
-        seed=seed, rewards=rewards, handlers="continuous discrete inventory craft quit"
-    )
+        width=size, height=size, seed=seed, rewards=rewards,
+        handlers="continuous discrete inventory craft quit",
+    )  # fmt: skip

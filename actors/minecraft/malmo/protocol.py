@@ -8,8 +8,13 @@ opens with the hello ``<MalmoEnv0.37.0/>``. Requests are XML-ish strings
 binary (int32 flags, raw frames, a 10-byte ``!dbb`` reward/done/sent record) and UTF-8
 strings (info JSON, turn keys), each framed the same way.
 
-The token is ``exp_uid:role:reset:agent_count``; MineRL's fork adds a 5th field
-``synchronous`` (true/false). graft also accepts an optional 6th field, the world seed.
+Two dialects share the framing. Malmo's (the token ``exp_uid:role:reset:agent_count``):
+MissionInit is answered with ok and a turn key, Peek with frame and done, ``<StepN>``
+with frame, record, info and turn key as N asks. MineRL's fork (a token with a 5th field
+``synchronous`` true/false and an optional 6th, the world seed): MissionInit is answered
+with ok alone, Peek with frame, info and done, and a synchronous step is
+``<StepClientN>commands</StepClientN >`` (answered with frame, record and, for N in
+{0, 2}, info) followed by ``<StepServer></StepServer>`` (not answered).
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ _LEN = struct.Struct("!I")
 _INT = struct.Struct("!i")
 _STEP_RECORD = struct.Struct("!dbb")
 _STEP_RE = re.compile(r"<Step([0-3])>(.*)</Step\1\s*>\s*$", re.DOTALL)
+_STEP_CLIENT_RE = re.compile(r"<StepClient([0-3])>(.*)</StepClient\1\s*>\s*$", re.DOTALL)
+STEP_SERVER = b"<StepServer></StepServer>"
 
 
 class ProtocolError(Exception):
@@ -119,13 +126,19 @@ def step_message(commands: str, options: int = 0) -> bytes:
     return f"<Step{options}>{commands}</Step{options} >".encode()
 
 
+def step_client_message(commands: str, options: int = 0) -> bytes:
+    """MineRL's synchronous step request (always followed by ``STEP_SERVER``)."""
+    return f"<StepClient{options}>{commands}</StepClient{options} >".encode()
+
+
 def parse_step(message: str) -> tuple[int, list[str]]:
-    """Split a step request into its option and commands (one per line).
+    """Split a ``<StepN>`` or ``<StepClientN>`` request into its option and commands (one
+    per line).
 
     Raises:
         ProtocolError: the message is not a well-formed step.
     """
-    m = _STEP_RE.match(message)
+    m = (_STEP_CLIENT_RE if message.startswith("<StepClient") else _STEP_RE).match(message)
     if m is None:
         raise ProtocolError(f"malformed step message {message[:80]!r}")
     body = m.group(2)
@@ -142,19 +155,32 @@ def tag_body(message: str, tag: str) -> str:
 
 @dataclass(frozen=True)
 class Token:
-    """A mission token ``exp_uid:role:reset:agent_count[:synchronous[:seed]]``."""
+    """A mission token ``exp_uid:role:reset:agent_count[:synchronous[:seed]]``.
+
+    ``synchronous`` is None for Malmo's 4-field token; a value (MineRL's 5th field)
+    selects MineRL's dialect. The seed (6th field) needs the 5th.
+    """
 
     exp_uid: str
     role: int
     reset: int
     agent_count: int = 1
-    synchronous: bool = False
+    synchronous: Optional[bool] = None
     seed: Optional[int] = None
+
+    def __post_init__(self) -> None:
+        if self.seed is not None and self.synchronous is None:
+            raise ValueError("a token's seed (6th field) needs the synchronous 5th field")
+
+    @property
+    def minerl(self) -> bool:
+        """The token carries MineRL's 5th field (the peer speaks MineRL's dialect)."""
+        return self.synchronous is not None
 
     def encode(self) -> str:
         """The token string (5th/6th fields only when set)."""
         s = f"{self.exp_uid}:{self.role}:{self.reset}:{self.agent_count}"
-        if self.synchronous or self.seed is not None:
+        if self.synchronous is not None:
             s += ":" + ("true" if self.synchronous else "false")
         if self.seed is not None:
             s += f":{self.seed}"
@@ -177,25 +203,34 @@ class Token:
             raise ProtocolError(f"token {text!r} needs exp_uid:role:reset:agent_count")
         try:
             seed = int(f[5]) if len(f) > 5 and f[5] else None
-            return Token(
-                f[0], int(f[1]), int(f[2]), int(f[3]),
-                len(f) > 4 and f[4].strip().lower() == "true", seed,
-            )  # fmt: skip
+            sync = f[4].strip().lower() == "true" if len(f) > 4 else None
+            role, reset, count = int(f[1]), int(f[2]), int(f[3])
         except ValueError:
             raise ProtocolError(f"token {text!r} has a non-integer field") from None
+        return Token(f[0], role, reset, count, sync, seed)
 
 
-def mission_init_xml(mission_xml: str, exp_uid: str, role: int = 0) -> str:
-    """Wrap a ``<Mission>`` in the ``<MissionInit>`` element a MalmoEnv client sends."""
+def mission_init_xml(
+    mission_xml: str, exp_uid: str, role: int = 0, *,
+    server: Optional[tuple[str, int]] = None,
+) -> str:  # fmt: skip
+    """Wrap a ``<Mission>`` in the ``<MissionInit>`` element a MalmoEnv client sends.
+
+    ``server`` (address, integrated server port) adds the ``MinecraftServerConnection``
+    by which a role > 0 joins role 0's mission.
+    """
     i = mission_xml.find("<Mission")
     if i < 0:
         raise ValueError("mission XML must contain a <Mission> element")
     body = mission_xml[i:]
+    join = ""
+    if server is not None:
+        join = f'<MinecraftServerConnection address="{server[0]}" port="{server[1]}"/>'
     return (
         '<MissionInit xmlns="http://ProjectMalmo.microsoft.com" '
         'xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
         f'SchemaVersion="" PlatformVersion="{VERSION}">'
-        f"{body}<ExperimentUID>{exp_uid}</ExperimentUID><ClientRole>{role}</ClientRole>"
+        f"{body}<ExperimentUID>{exp_uid}</ExperimentUID>{join}<ClientRole>{role}</ClientRole>"
         "<ClientAgentConnection><ClientIPAddress>127.0.0.1</ClientIPAddress>"
         "<ClientMissionControlPort>0</ClientMissionControlPort>"
         "<ClientCommandsPort>0</ClientCommandsPort><AgentIPAddress>127.0.0.1</AgentIPAddress>"

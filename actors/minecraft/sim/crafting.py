@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from actors.minecraft.blocks import FUEL
-from actors.minecraft.sim.inventory import Inventory
+from actors.minecraft.sim.inventory import N_STORAGE, Inventory
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,8 @@ class Recipe:
         output: item produced.
         count: how many are produced per craft.
         inputs: item -> number consumed.
-        needs_table: True for 3×3 recipes (crafting table required).
+        needs_table: a 3×3 recipe (in Minecraft it needs a crafting table; SimpleCraft
+            does not ask for one).
     """
 
     output: str
@@ -72,64 +73,65 @@ SMELTING: dict[str, str] = {
     "coal": "log",  # charcoal (coal variant 1 in 1.11)
 }
 
-# Fuel preference: cheapest useful fuel first.
-_FUEL_ORDER = ("coal", "planks", "log", "stick", "wooden_shovel", "wooden_sword")
-
 
 @dataclass
 class CraftState:
-    """Per-player crafting state: fuel already paid for but not yet used."""
+    """Per-player crafting state: fuel already burnt but not yet used (in smelts)."""
 
     fuel_credit: float = 0.0
 
 
-def craft(
-    inv: Inventory, state: CraftState, item: str, *, table_near: bool, furnace_near: bool
-) -> tuple[bool, str]:
-    """Craft or smelt one batch of ``item``.
+def craft(inv: Inventory, state: CraftState, item: str) -> tuple[bool, str, list[tuple[str, int]]]:
+    """Craft or smelt one batch of ``item``, as Malmo's SimpleCraft does: wherever the
+    player stands, no crafting table or furnace needed.
+
+    Smelting needs one smelt's worth of fuel across the inventory (a coal smelts 8, a
+    plank 1.5); fuel is burnt whole items at a time from the first inventory slot up,
+    whatever the item (sticks and wooden tools burn too), and the unused part carries
+    over to the next smelt.
 
     Args:
         inv: the inventory, changed in place on success.
         state: fuel credit carried between smelts.
         item: the requested output name.
-        table_near: a crafting table is placed within reach (one in the inventory counts
-            too; checked here).
-        furnace_near: a furnace is placed within reach (idem).
 
     Returns:
-        (success, reason): reason says what was missing when success is False.
+        (success, reason, ingredients used): reason says what was missing on failure.
     """
     recipe = RECIPES.get(item)
     if recipe is not None:
-        if recipe.needs_table and not (table_near or inv.count("crafting_table") > 0):
-            return False, f"{item} needs a crafting table"
         for name, n in recipe.inputs:
             if inv.count(name) < n:
-                return False, f"{item} needs {n} {name}"
+                return False, f"{item} needs {n} {name}", []
         if inv.room_for(item) < recipe.count:
-            return False, "inventory full"
+            return False, "inventory full", []
         for name, n in recipe.inputs:
             inv.remove(name, n)
         inv.add(item, recipe.count)
-        return True, ""
+        return True, "", list(recipe.inputs)
     source = SMELTING.get(item)
     if source is None:
-        return False, f"no recipe for {item}"
-    if not (furnace_near or inv.count("furnace") > 0):
-        return False, f"smelting {item} needs a furnace"
+        return False, f"no recipe for {item}", []
     if inv.count(source) < 1:
-        return False, f"{item} needs 1 {source}"
+        return False, f"{item} needs 1 {source}", []
+    storage = inv.slots[:N_STORAGE]
+    fuel = state.fuel_credit + sum(s.count * FUEL.get(s.item, 0.0) for s in storage if s)
+    if fuel < 1.0 - 1e-9:
+        return False, f"smelting {item} needs fuel", []
     if inv.room_for(item) < 1:
-        return False, "inventory full"
-    while state.fuel_credit < 1.0 - 1e-9:
-        # Never burn the very item being smelted.
-        fuel = next((f for f in _FUEL_ORDER if f != source and inv.count(f) > 0), None)
-        if fuel is None:
-            return False, f"smelting {item} needs fuel"
-        inv.remove(fuel, 1)
-        state.fuel_credit += FUEL[fuel]
+        return False, "inventory full", []
     inv.remove(source, 1)
     state.fuel_credit -= 1.0
-    state.fuel_credit = max(state.fuel_credit, 0.0)
+    i = 0
+    while state.fuel_credit < -1e-9 and i < N_STORAGE:
+        s = inv.slots[i]
+        if s is None or s.item not in FUEL:
+            i += 1
+            continue
+        state.fuel_credit += FUEL[s.item]
+        s.count -= 1
+        if s.count == 0:
+            inv.slots[i] = None
+            i += 1
     inv.add(item, 1)
-    return True, ""
+    return True, "", [(source, 1)]

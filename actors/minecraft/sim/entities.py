@@ -1,4 +1,5 @@
-"""Dropped items and passive animals (pigs and cows, the agent's meat)."""
+"""Dropped items and passive animals (pigs, cows, chickens, sheep and rabbits, the
+agent's meat)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,9 @@ MOBS: dict[str, tuple[float, float, float, str]] = {
     # name: (half width, height, health, meat)
     "Pig": (0.45, 0.9, 10.0, "porkchop"),
     "Cow": (0.45, 1.4, 10.0, "beef"),
+    "Chicken": (0.2, 0.7, 4.0, "chicken"),
+    "Sheep": (0.45, 1.3, 8.0, "mutton"),
+    "Rabbit": (0.2, 0.5, 3.0, "rabbit"),
 }
 
 

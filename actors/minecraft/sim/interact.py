@@ -15,21 +15,24 @@ if TYPE_CHECKING:
     from actors.minecraft.sim.world import World
 
 
-def target(world: World, max_dist: float = REACH) -> Optional[Hit]:
-    """What the crosshair hits within ``max_dist``: the nearer of a block or an animal."""
+def target(world: World, max_dist: float = REACH, *, items: bool = False) -> Optional[Hit]:
+    """What the crosshair hits within ``max_dist``: the nearest block or animal, and with
+    ``items`` also dropped items (Malmo's ray observation sees them; hands do not)."""
     p = world.player
     eye, d = p.eye, p.look()
     hit = cast_block(world.blocks, world.x0, world.z0, eye, d, max_dist)
     best = hit.distance if hit is not None else max_dist
-    for i, m in enumerate(world.mobs):
-        mb = m.body
+    bodies = [("entity", i, m.body) for i, m in enumerate(world.mobs)]
+    if items:
+        bodies += [("item", i, it.body) for i, it in enumerate(world.items)]
+    for kind, i, mb in bodies:
         if abs(mb.x - eye[0]) > max_dist + 1 or abs(mb.z - eye[2]) > max_dist + 1:
             continue
         w = mb.half_width
         t = ray_box(eye, d, (mb.x - w, mb.y, mb.z - w, mb.x + w, mb.y + mb.height, mb.z + w))
         if t is not None and t < best:
             best = t
-            hit = Hit("entity", eye[0] + d[0] * t, eye[1] + d[1] * t, eye[2] + d[2] * t, t,
+            hit = Hit(kind, eye[0] + d[0] * t, eye[1] + d[1] * t, eye[2] + d[2] * t, t,
                       entity=i)  # fmt: skip
     return hit
 
@@ -83,6 +86,7 @@ def hit_mob(world: World, mob: Mob) -> None:
     p.attack_cooldown = 10
     p.exhaustion += EXHAUSTION["attack"]
     p.damage_dealt += dmg
+    world.rules.damaged(world, mob.name, dmg)
     mob.health -= dmg
     mob.hurt_timer = 60
     mob.body.vy = 0.3
@@ -144,5 +148,7 @@ def use(world: World, *, hold: bool) -> None:
         if (x < body.x + w and x + 1 > body.x - w and z < body.z + w and z + 1 > body.z - w
                 and y < body.y + body.height and y + 1 > body.y):  # fmt: skip
             return
+    # Malmo's RewardForDiscardingItem counts the held stack, whole, when a block is placed.
+    world.lost(held, p.inventory.slots[p.inventory.selected].count)  # type: ignore[union-attr]
     world.set(x, y, z, B.ID[held])
     p.inventory.remove_selected_one()

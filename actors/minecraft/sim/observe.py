@@ -1,11 +1,16 @@
 """Malmo observation producers: the JSON "info" string a step returns.
 
 Formats follow Malmo's producers: ObservationFromFullStats keys (distances in
-centimetres and damage in tenths, as Minecraft's statistics count them),
-ObservationFromGrid lists of block names ordered x fastest, then z, then y (relative to
-the block the agent stands in), ObservationFromFullInventory (flat ``InventorySlot_i_*``
-keys or a list), ObservationFromNearbyEntities and ObservationFromRay (``LineOfSight``).
-Grids are cut from the voxel array by slicing, never by per-block loops.
+centimetres and damage in tenths, as Minecraft's statistics count them; ``Yaw`` is not
+wrapped), ObservationFromGrid lists of block names ordered x fastest, then z, then y
+(relative to the block the agent stands in, or in world coordinates with
+``absoluteCoords``), ObservationFromFullInventory (flat ``InventorySlot_i_*`` keys or a
+list), ObservationFromHotBar (``Hotbar_i_*``), ObservationFromNearbyEntities (UUID ids,
+strictly inside the range), ObservationFromRay (``LineOfSight``: the first block, animal
+or item within 50 blocks), ObservationFromDistance (``distanceFrom<name>``),
+ObservationFromRecentCommands (``CommandsSinceLastObservation``) and
+ObservationFromChat (``Chat``). Grids are cut from the voxel array by slicing, never by
+per-block loops.
 """
 
 from __future__ import annotations
@@ -22,13 +27,17 @@ from actors.minecraft.sim.inventory import N_SLOTS
 from actors.minecraft.sim.raycast import REACH
 from actors.minecraft.sim.world import World
 
-RAY_RANGE = 20.0
+RAY_RANGE = 50.0  # Malmo's ObservationFromRay depth
+ENTITY_REACH = 3.0  # the ray's inRange for animals and items (survival)
 
 
 def grid_ids(world: World, grid: Grid) -> np.ndarray:
-    """Block ids of a grid as a (y, z, x) array relative to the agent's block."""
+    """Block ids of a grid as a (y, z, x) array, relative to the agent's block unless the
+    grid is absolute."""
     b = world.player.body
     px, py, pz = math.floor(b.x), math.floor(b.y), math.floor(b.z)
+    if grid.absolute:
+        px = py = pz = 0
     lo = (px + grid.lo[0] - world.x0, py + grid.lo[1], pz + grid.lo[2] - world.z0)
     hi = (px + grid.hi[0] - world.x0 + 1, py + grid.hi[1] + 1, pz + grid.hi[2] - world.z0 + 1)
     sx, sy, sz = world.blocks.shape
@@ -79,68 +88,78 @@ def inventory(world: World, flat: bool) -> dict[str, object]:
     inv = world.player.inventory
     out: dict[str, object] = {}
     if flat:
-        for i in range(N_SLOTS):
-            s = inv.slots[i]
-            out[f"InventorySlot_{i}_size"] = s.count if s is not None else 0
-            out[f"InventorySlot_{i}_item"] = s.item if s is not None else "air"
+        out.update(_slots(world, "InventorySlot_", N_SLOTS))
     else:
         out["inventory"] = [
             {"type": s.item, "index": i, "quantity": s.count, "inventory": "inventory"}
             for i, s in enumerate(inv.slots)
             if s is not None
         ]
-        out["inventoriesAvailable"] = [{"name": "inventory", "size": N_SLOTS}]
+    out["inventoriesAvailable"] = [{"name": "inventory", "size": N_SLOTS}]
     out["currentItemIndex"] = inv.selected
     return out
 
 
+def _slots(world: World, prefix: str, n: int) -> dict[str, object]:
+    out: dict[str, object] = {}
+    for i, s in enumerate(world.player.inventory.slots[:n]):
+        out[f"{prefix}{i}_size"] = s.count if s is not None else 0
+        out[f"{prefix}{i}_item"] = s.item if s is not None else "air"
+    return out
+
+
 def nearby(world: World, xr: float, yr: float, zr: float) -> list[dict[str, object]]:
-    """Entities within a box around the agent (the agent itself first, as in Malmo)."""
+    """Entities strictly inside a box around the agent (the agent itself first)."""
     p, b = world.player, world.player.body
+
+    def near(e: object) -> bool:
+        return abs(e.x - b.x) < xr and abs(e.y - b.y) < yr and abs(e.z - b.z) < zr  # type: ignore[attr-defined]
+
     out: list[dict[str, object]] = [
-        {"yaw": p.yaw, "x": b.x, "y": b.y, "z": b.z, "pitch": p.pitch, "id": "agent",
-         "motionX": b.vx, "motionY": b.vy, "motionZ": b.vz, "life": p.health, "name": p.name}
+        {"yaw": p.yaw, "x": b.x, "y": b.y, "z": b.z, "pitch": p.pitch,
+         "id": world.entity_uuid(0), "motionX": b.vx, "motionY": b.vy, "motionZ": b.vz,
+         "life": p.health, "name": p.name}
     ]  # fmt: skip
     for m in world.mobs:
         mb = m.body
-        if abs(mb.x - b.x) <= xr and abs(mb.y - b.y) <= yr and abs(mb.z - b.z) <= zr:
+        if near(mb):
             out.append(
-                {"yaw": m.yaw, "x": mb.x, "y": mb.y, "z": mb.z, "pitch": 0.0, "id": str(m.uid),
-                 "motionX": mb.vx, "motionY": mb.vy, "motionZ": mb.vz, "life": m.health,
-                 "name": m.name}
+                {"yaw": m.yaw, "x": mb.x, "y": mb.y, "z": mb.z, "pitch": 0.0,
+                 "id": world.entity_uuid(m.uid), "motionX": mb.vx, "motionY": mb.vy,
+                 "motionZ": mb.vz, "life": m.health, "name": m.name}
             )  # fmt: skip
     for it in world.items:
         ib = it.body
-        if abs(ib.x - b.x) <= xr and abs(ib.y - b.y) <= yr and abs(ib.z - b.z) <= zr:
+        if near(ib):
             out.append(
-                {"yaw": 0.0, "x": ib.x, "y": ib.y, "z": ib.z, "pitch": 0.0, "id": str(it.uid),
-                 "motionX": ib.vx, "motionY": ib.vy, "motionZ": ib.vz, "name": it.item,
-                 "quantity": it.count}
+                {"yaw": 0.0, "x": ib.x, "y": ib.y, "z": ib.z, "pitch": 0.0,
+                 "id": world.entity_uuid(it.uid), "motionX": ib.vx, "motionY": ib.vy,
+                 "motionZ": ib.vz, "quantity": it.count, "name": it.item}
             )  # fmt: skip
     return out
 
 
 def line_of_sight(world: World) -> dict[str, object]:
-    """ObservationFromRay: what the crosshair points at within 20 blocks."""
-    hit = interact.target(world, RAY_RANGE)
+    """ObservationFromRay: the first block, animal or item on the crosshair's ray within
+    50 blocks (liquids are looked through), in Malmo's fields."""
+    hit = interact.target(world, RAY_RANGE, items=True)
     if hit is None:
         return {}
-    d: dict[str, object] = {
-        "hitType": hit.kind,
-        "x": hit.x,
-        "y": hit.y,
-        "z": hit.z,
-        "distance": hit.distance,
-        "inRange": hit.distance <= REACH,
-    }
     if hit.kind == "block":
-        d["type"] = B.NAMES[world.get(*hit.cell)]
-        d["blockX"], d["blockY"], d["blockZ"] = hit.cell
+        return {"hitType": "block", "x": hit.x, "y": hit.y, "z": hit.z,
+                "type": B.NAMES[world.get(*hit.cell)], "inRange": hit.distance <= REACH,
+                "distance": hit.distance}  # fmt: skip
+    if hit.kind == "item":
+        it = world.items[hit.entity]
+        e, name, kind = it.body, it.item, "item"
+        extra: dict[str, object] = {"stackSize": it.count}
+        yaw = 0.0
     else:
         m = world.mobs[hit.entity]
-        d["type"] = m.name
-        d["life"] = m.health
-    return d
+        e, name, kind, extra, yaw = m.body, m.name, "entity", {}, m.yaw
+    return {"x": e.x, "y": e.y, "z": e.z, "yaw": yaw, "pitch": 0.0, **extra, "type": name,
+            "hitType": kind, "inRange": hit.distance <= ENTITY_REACH,
+            "distance": hit.distance}  # fmt: skip
 
 
 def info_json(world: World) -> str:
@@ -151,12 +170,22 @@ def info_json(world: World) -> str:
         obs.update(full_stats(world))
     if m.full_inventory:
         obs.update(inventory(world, m.inventory_flat))
+    if m.hotbar:
+        obs.update(_slots(world, "Hotbar_", 9))
     for r in m.nearby:
-        obs[r.name] = nearby(world, r.x, r.y, r.z)
+        if world.tick_count % r.every == 0:
+            obs[r.name] = nearby(world, r.x, r.y, r.z)
     if m.ray:
         los = line_of_sight(world)
         if los:
             obs["LineOfSight"] = los
+    b = world.player.body
+    for name, x, y, z in m.distances:
+        obs["distanceFrom" + name] = math.dist((b.x, b.y, b.z), (x, y, z))
+    if m.recent_commands and world.recent_commands:
+        obs["CommandsSinceLastObservation"] = list(world.recent_commands)
+    if m.chat and world.chat_log:
+        obs["Chat"] = list(world.chat_log)
     text = json.dumps(obs, separators=(",", ":"))
     if not m.grids:
         return text

@@ -29,11 +29,22 @@ EXHAUSTION = {
 MAX_AIR = 300
 
 
+INERTIA_TICKS = 6  # Malmo's ContinuousMovement ramp from one "move" speed to the next
+
+
 @dataclass
 class Controls:
-    """Continuous movement states, as set by ContinuousMovementCommands (they persist)."""
+    """Continuous movement states, as set by ContinuousMovementCommands (they persist).
+
+    ``move`` is the forward speed in use; a ``move`` command sets ``move_target`` and the
+    speed ramps towards it over 6 ticks, as Malmo's ContinuousMovement does: on the k-th
+    tick after the change it closes k/6 of the remaining gap (0 -> 1: 0.17, 0.44, 0.72,
+    0.91, 0.98, 1). Strafe, turn and pitch take effect at once.
+    """
 
     move: float = 0.0
+    move_target: float = 0.0
+    move_ticks: int = 0
     strafe: float = 0.0
     turn: float = 0.0
     pitch: float = 0.0
@@ -41,6 +52,20 @@ class Controls:
     crouch: bool = False
     attack: bool = False
     use: bool = False
+
+    def set_move(self, target: float) -> None:
+        """A ``move`` command: ramp towards ``target`` from the next tick."""
+        if target != self.move_target:
+            self.move_target = target
+            self.move_ticks = 0
+
+    def ramp_move(self) -> None:
+        """One tick of the ramp."""
+        self.move_ticks += 1
+        if self.move_ticks <= INERTIA_TICKS:
+            self.move += (self.move_target - self.move) * self.move_ticks / INERTIA_TICKS
+        else:
+            self.move = self.move_target
 
 
 @dataclass

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Optional
 
 from actors.minecraft.malmo import protocol as P
+from actors.minecraft.sim.timing import REAL, Timing
 
 _ROOT = str(Path(__file__).resolve().parents[3])
 
@@ -62,6 +63,16 @@ def wait_ready(host: str, port: int, timeout: float = 30.0) -> None:
     raise TimeoutError(f"world server {host}:{port} not ready after {timeout}s: {last}")
 
 
+def timing_flags(timing: Timing) -> list[str]:
+    """The ``minecraft serve`` flags that give a server ``timing``."""
+    if timing.ideal:
+        return ["--ideal"]
+    return [
+        "--loading-s", str(timing.loading_s), "--ending-s", str(timing.ending_s),
+        "--fps", str(timing.fps), "--wait-s", str(timing.wait_s),
+    ]  # fmt: skip
+
+
 class ServerPool:
     """Start ``n`` world servers in subprocesses on consecutive ports.
 
@@ -71,15 +82,17 @@ class ServerPool:
         seed: base seed; server i uses ``seed + i`` so the worlds differ.
         ms_per_tick: default tick period of each server.
         host: interface to bind.
+        timing: real Malmo's pacing (the default) or ``Timing(ideal=True)``.
     """
 
     def __init__(
         self, n: int, base_port: int = P.DEFAULT_PORT, *, seed: int = 0, ms_per_tick: int = 50,
-        host: str = "127.0.0.1",
+        host: str = "127.0.0.1", timing: Timing = REAL,
     ) -> None:  # fmt: skip
         if n < 1:
             raise ValueError(f"a pool needs at least one server, got n={n}")
         self.n, self.seed, self.ms_per_tick, self.host = n, seed, ms_per_tick, host
+        self.timing = timing
         self.base_port = base_port
         self.ports: list[int] = []
         self.procs: list[subprocess.Popen[bytes]] = []
@@ -93,6 +106,7 @@ class ServerPool:
                 sys.executable, "-m", "actors.minecraft.cli", "minecraft", "serve",
                 "--port", str(port), "--seed", str(self.seed + i),
                 "--ms-per-tick", str(self.ms_per_tick), "--host", self.host,
+                *timing_flags(self.timing),
             ]  # fmt: skip
             env = dict(os.environ)
             # The servers import this package wherever the caller's cwd is.

@@ -19,7 +19,7 @@ class Hit:
     """A ray hit.
 
     Attributes:
-        kind: ``"block"`` or ``"entity"``.
+        kind: ``"block"``, ``"entity"`` (an animal) or ``"item"``.
         x: hit point x.
         y: hit point y.
         z: hit point z.

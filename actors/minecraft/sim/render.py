@@ -19,7 +19,13 @@ from actors.minecraft.sim.world import World
 FOV_Y = 70.0  # Minecraft's default vertical field of view, degrees
 MAX_DIST = 32.0
 SKY = np.array([135.0, 175.0, 255.0], dtype=np.float32)
-ENTITY_COLOURS = {"Pig": (240, 160, 160), "Cow": (90, 60, 40)}
+ENTITY_COLOURS = {
+    "Pig": (240, 160, 160),
+    "Cow": (90, 60, 40),
+    "Chicken": (240, 240, 240),
+    "Sheep": (220, 220, 215),
+    "Rabbit": (150, 120, 90),
+}
 _SHADE = np.array([0.8, 1.0, 0.65], dtype=np.float32)  # x faces, top faces, z faces
 
 

@@ -1,16 +1,16 @@
-"""The simulated Minecraft world server, speaking MalmoEnv over TCP with Malmo's real-time
-semantics.
+"""The simulated world server: one Minecraft instance speaking MalmoEnv over TCP.
 
-Asynchronous mode (Malmo's): a ticking thread advances the world every ``MsPerTick`` ms
-whether or not the agent acts. Commands that steps deliver between two ticks are queued
-and all applied at the next tick. Only the latest frame and observation exist (a step
-gets the newest; older ones are skipped) and a step that arrives before a new tick waits
-for it, up to 3 s, as Malmo's ``cond.await`` does. Rewards add up until a step collects
-them. Synchronous mode (5th token field ``true``, MineRL's fork): the world does not tick
-by itself; each step queues its commands and advances exactly one tick.
+By default it behaves like a real Malmo client started with ``launchClient.sh -env``
+(``timing.py``): MissionInit answered 0 while busy, a loading delay with empty frames,
+frames paced at their own rate, empty info between ticks, no queued commands without a
+VideoProducer. ``Timing(ideal=True)`` (``--ideal``) keeps graft's convenient pacing.
 
-Protocol errors (bad hello, oversized or unknown messages) close that one connection
-with a logged reason, as Malmo does; the server keeps serving.
+It speaks Malmo's dialect to a 4-field token and MineRL's (``<StepClient>`` and
+``<StepServer>``, synchronous) to a token with the 5th field; see ``protocol.py``.
+Multi-agent missions join across servers of one process (``session.py``).
+
+Protocol errors (bad hello, oversized or unknown messages, the other dialect's steps)
+close that one connection with a logged reason, as Malmo does; the server keeps serving.
 """
 
 from __future__ import annotations
@@ -24,13 +24,15 @@ import time
 from typing import Optional
 
 from actors.minecraft.malmo import protocol as P
-from actors.minecraft.malmo.mission import MissionError, parse_mission
-from actors.minecraft.sim.observe import info_json
-from actors.minecraft.sim.render import render
+from actors.minecraft.malmo.mission import Mission, MissionError, parse_mission
+from actors.minecraft.malmo.roles import RoleMission, role_mission
+from actors.minecraft.sim import session as S
+from actors.minecraft.sim import support
+from actors.minecraft.sim.instance import LOADING, RUNNING, Instance
+from actors.minecraft.sim.timing import REAL, Timing
 from actors.minecraft.sim.world import World
 
 log = logging.getLogger("graft.minecraft.server")
-WAIT_S = 3.0  # Malmo's COND_WAIT_SECONDS
 
 
 class WorldServer:
@@ -42,36 +44,26 @@ class WorldServer:
         seed: base world seed; episode ``reset`` r uses a seed derived from (seed, r)
             unless the mission or the token names one.
         ms_per_tick: tick period when the mission has no ModSettings/MsPerTick.
+        timing: real Malmo's pacing (the default) or ``Timing(ideal=True)``.
     """
 
     def __init__(
         self, host: str = "127.0.0.1", port: int = P.DEFAULT_PORT, *, seed: int = 0,
-        ms_per_tick: int = 50,
+        ms_per_tick: int = 50, timing: Timing = REAL,
     ) -> None:  # fmt: skip
         if ms_per_tick <= 0:
             raise ValueError(f"ms_per_tick must be positive, got {ms_per_tick}")
-        self.host, self.seed, self.default_ms = host, seed, ms_per_tick
+        self.host, self.seed, self.default_ms, self.timing = host, seed, ms_per_tick, timing
         self._requested_port = port
         self.port = 0
-        self._cond = threading.Condition()
+        self.inst = Instance(timing, ms_per_tick)
         self._stopped = threading.Event()
-        self._wake = threading.Event()  # new mission or stop: re-plan the tick thread
         self._listener: Optional[socket.socket] = None
         self._conns: dict[int, socket.socket] = {}
         self._next_conn = 0
-        self.world: Optional[World] = None
-        self._owner = -1
-        self._sync = False
-        self._ms = ms_per_tick
-        self._done = False
-        self._quit = False
-        self._commands: list[str] = []
-        self._delivered = -1
-        self._frame: tuple[int, bytes] = (-1, b"")
-        self._info: tuple[int, str] = (-1, "")
-        self._tokens: dict[str, int] = {}
+        self._session: Optional[S.Session] = None
         self.protocol_errors = 0
-        self.missions_started = 0
+        self.busy_replies = 0
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> int:
@@ -84,7 +76,7 @@ class WorldServer:
         self.port = s.getsockname()[1]
         threading.Thread(target=self._accept_loop, name="mc-accept", daemon=True).start()
         threading.Thread(target=self._tick_loop, name="mc-tick", daemon=True).start()
-        log.info("world server listening on %s:%d", self.host, self.port)
+        log.info("world server (%s timing) on %s:%d", self.timing.mode, self.host, self.port)
         return self.port
 
     def serve_forever(self) -> None:
@@ -96,7 +88,9 @@ class WorldServer:
     def stop(self) -> None:
         """Stop serving and close every connection."""
         self._stopped.set()
-        self._wake.set()
+        self.inst.wake.set()
+        if self._session is not None:
+            S.unregister(self._session)
         if self._listener is not None:
             try:
                 # shutdown() wakes the thread blocked in accept(); close() alone does not.
@@ -104,14 +98,14 @@ class WorldServer:
             except OSError:
                 pass
             self._listener.close()
-        with self._cond:
+        with self.inst.cond:
             for c in list(self._conns.values()):
                 try:
                     c.shutdown(socket.SHUT_RDWR)
                 except OSError:
                     pass
                 c.close()
-            self._cond.notify_all()
+            self.inst.cond.notify_all()
 
     def __enter__(self) -> WorldServer:
         self.start()
@@ -124,62 +118,32 @@ class WorldServer:
     def _tick_loop(self) -> None:
         # Sleeps on its own event, not on the condition: steps notify the condition and
         # must not wake this thread (a context switch per synchronous step).
-        next_t = time.monotonic()
+        inst = self.inst
+        generation, next_t = -1, 0.0
         while not self._stopped.is_set():
-            with self._cond:
-                idle = self.world is None or self._done or self._sync
-                period = self._ms / 1000.0
-            if idle:
-                self._wake.wait(0.1)
-                self._wake.clear()
-                next_t = time.monotonic()
+            with inst.cond:
+                inst.poll_phase(time.monotonic())
+                due = inst.tick_due()
+                if inst.generation != generation:
+                    # A new mission keeps none of the previous one's tick deadline.
+                    generation, next_t = inst.generation, 0.0
+                phase, period, t0 = inst.phase, inst.ms / 1000.0, inst.run_t0
+            if due is None or phase == LOADING:
+                inst.wake.wait(0.1 if due is None else due)
+                inst.wake.clear()
                 continue
             now = time.monotonic()
+            if next_t == 0.0:
+                next_t = t0 + period  # the first tick one period after the run starts
             if now < next_t:
-                self._wake.wait(next_t - now)
-                self._wake.clear()
+                inst.wake.wait(next_t - now)
+                inst.wake.clear()
                 continue
-            with self._cond:
-                if self.world is not None and not self._done and not self._sync:
-                    self._advance()
+            with inst.cond:
+                if inst.generation == generation and inst.phase == RUNNING and not inst.sync:
+                    inst.advance()
             # Real time: a late tick is not made up by a burst of ticks.
             next_t = max(next_t + period, now)
-
-    def _advance(self) -> None:
-        """One tick under the lock: apply queued commands, tick, publish."""
-        w = self.world
-        assert w is not None
-        if self._quit:
-            w.end("quit")
-        else:
-            cmds, self._commands = self._commands, []
-            w.tick(cmds)
-        if w.done:
-            self._done = True
-            log.info("mission ended at tick %d: %s", w.tick_count, w.end_reason)
-        self._cond.notify_all()
-
-    # ------------------------------------------------------------ observation
-    def _latest_frame(self) -> bytes:
-        w = self.world
-        if w is None:
-            return b""
-        if self._frame[0] != w.tick_count:
-            m = w.mission
-            data = render(w, m.width, m.height, depth=m.want_depth) if m.has_video else b""
-            self._frame = (w.tick_count, data)
-        return self._frame[1]
-
-    def _latest_info(self) -> str:
-        w = self.world
-        if w is None:
-            return ""
-        if self._info[0] != w.tick_count:
-            self._info = (w.tick_count, info_json(w))
-        return self._info[1]
-
-    def _fresh(self) -> bool:
-        return self.world is not None and self.world.tick_count > self._delivered
 
     # ------------------------------------------------------------ connections
     def _accept_loop(self) -> None:
@@ -190,7 +154,7 @@ class WorldServer:
             except OSError:
                 return
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            with self._cond:
+            with self.inst.cond:
                 cid = self._next_conn
                 self._next_conn += 1
                 self._conns[cid] = conn
@@ -211,50 +175,50 @@ class WorldServer:
         except (OSError, ConnectionError):
             pass
         finally:
-            with self._cond:
+            with self.inst.cond:
                 self._conns.pop(cid, None)
-                if self._owner == cid and self.world is not None and not self._done:
+                if self.inst.owner == cid and self.inst.phase in (LOADING, RUNNING):
                     log.info("mission owner disconnected; quitting the mission")
-                    self._quit = True
-                    if self._sync:
-                        self._advance()
+                    self.inst.request_quit()
             conn.close()
 
     def _dispatch(self, cid: int, conn: socket.socket, msg: str) -> None:
-        if msg.startswith("<Step"):
+        inst = self.inst
+        if msg.startswith("<StepClient"):
+            self._step_client(conn, msg)
+        elif msg.startswith("<StepServer"):
+            if not inst.minerl:
+                raise P.ProtocolError("<StepServer> is MineRL's; the mission has a 4-field token")
+            # MineRL's server tick; the world already advanced in <StepClient>. No reply.
+        elif msg.startswith("<Step"):
             self._step(conn, msg)
         elif msg.startswith("<Peek"):
-            self._peek(conn)
+            with inst.cond:
+                frame, info, done = inst.peek()
+            done_b = bytes([1 if done else 0])
+            P.send(conn, *([frame, info.encode(), done_b] if inst.minerl else [frame, done_b]))
         elif msg.startswith("<MissionInit"):
             self._mission_init(cid, conn, msg)
         elif msg.startswith("<Quit"):
-            with self._cond:
-                if not self._done and self.world is not None:
-                    self._quit = True
-                    if self._sync:
-                        self._advance()
-                P.send(conn, P.pack_int(1 if self._done else 0))
+            with inst.cond:
+                done = inst.request_quit()
+            P.send(conn, P.pack_int(1 if done else 0))
         elif msg.startswith("<Close"):
-            with self._cond:
-                self._tokens.pop(P.tag_body(msg, "Close"), None)
+            with inst.cond:
+                inst.tokens.pop(P.tag_body(msg, "Close"), None)
+                inst.cond.notify_all()
             P.send(conn, P.pack_int(1))
         elif msg.startswith("<Init"):
-            with self._cond:
-                self._tokens.clear()
+            with inst.cond:
+                inst.tokens.clear()
             P.send(conn, P.pack_int(1))
         elif msg.startswith("<Find"):
-            key = P.tag_body(msg, "Find")
-            with self._cond:
-                port = self._tokens.get(key, 0)
-            P.send(conn, P.pack_int(port))
+            P.send(conn, P.pack_int(self._find(P.tag_body(msg, "Find"))))
         elif msg.startswith("<Exit"):
             # Malmo exits the JVM for its launcher to restart; we restart in place.
-            with self._cond:
-                self._tokens.clear()
-                if self.world is not None and not self._done:
-                    self.world.end("exit")
-                    self._done = True
-                self._cond.notify_all()
+            with inst.cond:
+                inst.tokens.clear()
+                inst.end_now("exit")
             P.send(conn, P.pack_int(1))
         elif msg.startswith("<Status"):
             P.send(conn, json.dumps(self.status()).encode())
@@ -265,96 +229,192 @@ class WorldServer:
 
     def status(self) -> dict[str, object]:
         """Server state for ``<Status/>`` (Malmo answers ``{}``; this is a superset)."""
-        with self._cond:
-            w = self.world
+        inst = self.inst
+        with inst.cond:
+            w = inst.world
             return {
                 "version": P.VERSION,
-                "mission_running": w is not None and not self._done,
-                "synchronous": self._sync,
-                "ms_per_tick": self._ms,
+                "timing": self.timing.mode,
+                "phase": inst.phase,
+                "mission_running": inst.phase in (LOADING, RUNNING),
+                "synchronous": inst.sync,
+                "ms_per_tick": inst.ms,
                 "tick": w.tick_count if w is not None else 0,
                 "seed": w.seed if w is not None else self.seed,
                 "end_reason": w.end_reason if w is not None else "",
                 "ignored_commands": w.ignored_commands if w is not None else 0,
                 "protocol_errors": self.protocol_errors,
-                "missions_started": self.missions_started,
+                "missions_started": inst.missions_started,
+                "busy_replies": self.busy_replies,
             }
 
+    # ------------------------------------------------------------ mission init
     def _mission_init(self, cid: int, conn: socket.socket, xml: str) -> None:
         token_text = P.recv(conn).decode("utf-8", "replace")
         try:
             token = P.Token.parse(token_text)
-            mission = parse_mission(xml)
-            if token.role != 0 or token.agent_count > 1 or mission.agent_count > 1:
-                raise MissionError("multi-agent missions are not simulated (role 0 only)")
-        except (P.ProtocolError, MissionError) as e:
+        except (P.ProtocolError, ValueError) as e:
+            self._reply_init(conn, False, f"error: {e}", minerl=len(token_text.split(":")) > 4)
+            return
+        try:
+            role = role_mission(xml, token.role)
+            parse_mission(xml, role=token.role)  # Malmo's schema rules on the whole MissionInit
+            mission = parse_mission(role.xml)
+            for warning in support.check(mission):  # refuses what the simulator lacks
+                log.warning("mission approximated: %s", warning)
+            if token.minerl and not token.synchronous:
+                raise MissionError("MineRL's asynchronous mode answers no steps; use synchronous")
+            if token.agent_count != role.agent_count:
+                raise MissionError(
+                    f"the token says {token.agent_count} agent(s), the mission has "
+                    f"{role.agent_count} AgentSection(s)"
+                )
+            if token.role > 0 and role.server_port == 0:
+                raise MissionError(f"role {token.role} needs a MinecraftServerConnection")
+        except MissionError as e:
             log.warning("refusing mission: %s", e)
-            # Malmo replies 0 and an empty turn key; the reason rides in the turn key slot.
-            P.send(conn, P.pack_int(0), f"error: {e}".encode())
+            self._reply_init(conn, False, f"error: {e}", minerl=token.minerl)
             return
         if token.seed is not None:
             mission = dataclasses.replace(mission, seed=token.seed)
-        seed = (self.seed * 1_000_003 + token.reset) & 0x7FFFFFFF
-        world = World(mission, seed)
-        with self._cond:
-            if self.world is not None and not self._done:
-                self.world.end("replaced by a new mission")
-            self.world = world
-            self._owner = cid
-            self._sync = token.synchronous
-            self._ms = mission.ms_per_tick or self.default_ms
-            self._done = self._quit = False
-            self._commands = []
-            self._delivered = -1
-            self._frame, self._info = (-1, b""), (-1, "")
-            self._tokens[token.key] = self.port
-            self.missions_started += 1
-            self._cond.notify_all()
-        self._wake.set()
-        P.send(conn, P.pack_int(1), b"")
+        if token.role == 0:
+            ok, reason = self._init_role0(cid, token, role, mission)
+        else:
+            ok, reason = self._join(cid, token, role, mission)
+        if not ok:
+            self.busy_replies += 1
+        self._reply_init(conn, ok, reason, minerl=token.minerl)
 
-    def _peek(self, conn: socket.socket) -> None:
-        with self._cond:
-            if self.world is None and not self._done:
-                self._cond.wait(WAIT_S)
-            frame = self._latest_frame()
-            done = self._done
-        P.send(conn, frame, bytes([1 if done else 0]))
+    @staticmethod
+    def _reply_init(conn: socket.socket, ok: bool, reason: str, *, minerl: bool) -> None:
+        # Malmo replies ok and an empty turn key (graft puts a refusal's reason there);
+        # MineRL replies ok alone.
+        if minerl:
+            P.send(conn, P.pack_int(1 if ok else 0))
+        else:
+            P.send(conn, P.pack_int(1 if ok else 0), (reason if not ok else "").encode())
 
+    def _free(self) -> Optional[str]:
+        """None when the instance may start a mission, else the busy reason."""
+        with self.inst.cond:
+            return self.inst.claim(time.monotonic())
+
+    def _init_role0(
+        self, cid: int, token: P.Token, role: RoleMission, mission: Mission
+    ) -> tuple[bool, str]:
+        inst = self.inst
+        with inst.cond:
+            inst.tokens.pop(f"{token.exp_uid}:0:{token.reset - 1}", None)
+            pre_started = token.key in inst.tokens
+        reason: Optional[str] = None
+        if not pre_started:
+            reason = self._free()
+            if reason is None:
+                seed = (self.seed * 1_000_003 + token.reset) & 0x7FFFFFFF
+                world = World(mission, seed)  # built outside the lock: terrain takes a while
+                session = S.Session(self.port, token.exp_uid, token.reset, role.agent_count,
+                                    world.seed)  # fmt: skip
+                session.join(0, role.turn_position)
+                with inst.cond:
+                    reason = inst.claim(time.monotonic())
+                    if reason is None:
+                        self._launch(cid, token, role, world, session)
+        with inst.cond:
+            if reason is None and not self._consumed(token):
+                inst.cond.wait(self.timing.wait_s)
+                if not self._consumed(token):
+                    reason = "busy: the other agents have not taken their previous turn tokens"
+        return reason is None, reason or ""
+
+    def _launch(
+        self, cid: int, token: P.Token, role: RoleMission, world: World, session: S.Session
+    ) -> None:
+        inst = self.inst
+        if self._session is not None:
+            S.unregister(self._session)
+        self._session = session
+        S.register(session)
+        inst.start(
+            world, owner=cid, sync=bool(token.synchronous), minerl=token.minerl,
+            session=session, role=0, turn_handlers=role.turn_handlers, token=token.key,
+        )  # fmt: skip
+        # Malmo's addTokens once the integrated server is up: every role can Find it.
+        inst.tokens[token.key] = self.port
+        for i in range(1, role.agent_count):
+            inst.tokens[f"{token.exp_uid}:{i}:{token.reset}"] = self.port
+
+    def _consumed(self, token: P.Token) -> bool:
+        """Malmo's areAllTokensConsumed: the other roles took their previous tokens."""
+        prev = token.reset - 1
+        return all(
+            f"{token.exp_uid}:{i}:{prev}" not in self.inst.tokens
+            for i in range(1, token.agent_count)
+        )
+
+    def _join(
+        self, cid: int, token: P.Token, role: RoleMission, mission: Mission
+    ) -> tuple[bool, str]:
+        session = S.lookup(role.server_port)
+        if session is None or (session.exp_uid, session.reset) != (token.exp_uid, token.reset):
+            return (
+                False,
+                f"busy: no mission {token.exp_uid}:{token.reset} on port {role.server_port}",
+            )
+        reason = self._free()
+        if reason is not None:
+            return False, reason
+        world = World(mission, session.seed)
+        session.join(token.role, role.turn_position)
+        with self.inst.cond:
+            self.inst.start(
+                world, owner=cid, sync=bool(token.synchronous), minerl=token.minerl,
+                session=session, role=token.role, turn_handlers=role.turn_handlers,
+                token=token.key,
+            )  # fmt: skip
+        return True, ""
+
+    def _find(self, key: str) -> int:
+        """``<Find>``: purge the previous reset's token, then the integrated port for
+        ``key`` (waiting up to ``wait_s``), 0 if unknown."""
+        inst = self.inst
+        try:
+            exp, role, reset = key.split(":")[:3]
+            prev = f"{exp}:{role}:{int(reset) - 1}"
+        except ValueError:
+            raise P.ProtocolError(f"malformed <Find> token {key!r}") from None
+        with inst.cond:
+            inst.tokens.pop(prev, None)
+            inst.cond.notify_all()
+            if key not in inst.tokens:
+                inst.cond.wait_for(lambda: key in inst.tokens, self.timing.wait_s)
+            return inst.tokens.get(key, 0)
+
+    # ------------------------------------------------------------------ steps
     def _step(self, conn: socket.socket, msg: str) -> None:
+        if self.inst.minerl:
+            raise P.ProtocolError(
+                "MineRL's server has no <StepN>: send <StepClientN>, <StepServer>"
+            )
         options, commands = P.parse_step(msg)
         with_key, with_info = P.step_flags(options)
-        step_key = P.recv(conn, 4096) if with_key else b""
-        reward, sent, info, frame = 0.0, False, "", b""
-        with self._cond:
-            done = self._done
-            if self._sync and self.world is not None and not done and not step_key:
-                self._commands.extend(commands)
-                self._advance()
-                sent, fresh = True, True
-            else:
-                fresh = self._fresh()
-                if not fresh and not done:
-                    self._cond.wait_for(lambda: self._fresh() or self._done, WAIT_S)
-                    fresh = self._fresh()
-                if not done and fresh and not step_key:
-                    self._commands.extend(commands)
-                    sent = True
-            done = self._done
-            if done or (fresh and sent):
-                w = self.world
-                if w is not None:
-                    reward, w.pending_reward = w.pending_reward, 0.0
-                    if fresh:
-                        frame = self._latest_frame()
-                        if with_info:
-                            info = self._latest_info()
-                        self._delivered = w.tick_count
-            elif fresh:
-                frame = self._latest_frame()
-        out = [frame, P.pack_step_record(reward, done, sent)]
+        step_key = P.recv(conn, 4096).decode("utf-8", "replace") if with_key else ""
+        with self.inst.cond:
+            r = self.inst.step(commands, with_info=with_info, step_key=step_key)
+        out = [r.frame, P.pack_step_record(r.reward, r.done, r.sent)]
         if with_info:
-            out.append(info.encode())
+            out.append(r.info.encode())
         if with_key:
-            out.append(b"")  # turn-based missions are not simulated: no turn key
+            out.append(r.turn_key.encode())
+        P.send(conn, *out)
+
+    def _step_client(self, conn: socket.socket, msg: str) -> None:
+        if not self.inst.minerl:
+            raise P.ProtocolError("<StepClient> is MineRL's; the mission has a 4-field token")
+        options, commands = P.parse_step(msg)
+        with_info = options in (0, 2)
+        with self.inst.cond:
+            r = self.inst.step_sync(commands, with_info=with_info)
+        out = [r.frame, P.pack_step_record(r.reward, r.done, r.sent)]
+        if with_info:
+            out.append(r.info.encode())
         P.send(conn, *out)

@@ -9,21 +9,36 @@ Rewards add up in ``pending_reward`` until the server hands them to a step.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import random
+import uuid
+from typing import Optional
 
 import numpy as np
 
 from actors.minecraft import blocks as B
 from actors.minecraft.malmo.mission import Mission
-from actors.minecraft.sim import interact, worldgen
+from actors.minecraft.sim import drawing, extent, interact, worldgen
 from actors.minecraft.sim.entities import MOBS, ItemEntity, Mob
 from actors.minecraft.sim.physics import JUMP_SPEED, WALK_SPEED, Body, Space, apply_gravity
 from actors.minecraft.sim.player import EXHAUSTION, Player
+from actors.minecraft.sim.rules import AGENT_DIED, RuleState
 
 MOB_RADIUS = 32.0  # animals further than this from the agent are frozen (not simulated)
 LIQUID_DELAY = {B.WATER: 5, B.LAVA: 30}
 LIQUID_REACH = {B.WATER: 7, B.LAVA: 3}
+
+
+def _terrain(mission: Mission, seed: int) -> worldgen.Terrain:
+    """The mission's terrain, sized to what it places (``extent``)."""
+    if mission.flat_generator is not None:
+        layers = worldgen.flat_layers(mission.flat_generator)
+        return worldgen.flat(layers, extent.flat_box(mission, len(layers)))
+    terrain = worldgen.generate(seed)
+    if mission.placement is not None:
+        terrain = worldgen.recentre(terrain, mission.placement[0], mission.placement[2])
+    return worldgen.heighten(terrain, extent.height(mission, 0, terrain.blocks.shape[1]))
 
 
 class World:
@@ -37,10 +52,7 @@ class World:
     def __init__(self, mission: Mission, seed: int) -> None:
         self.mission = mission
         self.seed = mission.seed if mission.seed is not None else seed
-        if mission.flat_generator is not None:
-            terrain = worldgen.flat(mission.flat_generator)
-        else:
-            terrain = worldgen.generate(self.seed)
+        terrain = _terrain(mission, self.seed)
         self.blocks = terrain.blocks
         self.x0, self.z0 = terrain.x0, terrain.z0
         self.space = Space(self.blocks, self.x0, self.z0)
@@ -54,11 +66,15 @@ class World:
         self.pending_reward = 0.0
         self.done = False
         self.end_reason = ""
+        self.quit_codes: list[str] = []
+        self._quits: list[tuple[str, str]] = []
+        self.rules = RuleState(mission.rules, float(mission.ms_per_tick or 50))
         self.liquid_level: dict[tuple[int, int, int], int] = {}
         self.liquid_due: dict[tuple[int, int, int], int] = {}
-        self.touched: set[tuple[str, tuple[int, int, int]]] = set()
         self.ignored_commands = 0
         self.craft_log: list[str] = []
+        self.chat_log: list[str] = []
+        self.recent_commands: list[str] = []
         self.obs_cache: dict[str, object] = {}
         self.time_limit_ticks = (
             math.ceil(mission.time_limit_ms / 50.0) if mission.time_limit_ms is not None else None
@@ -72,7 +88,7 @@ class World:
             spawn = (x, y, z)
         self.player = Player(mission.agent_name, Body(*spawn), yaw=yaw, pitch=pitch)
         for op in mission.drawing:
-            self._draw(op.kind, op.coords, op.type)
+            drawing.draw(self, op)
         for slot, item, qty in mission.start_inventory:
             from actors.minecraft.sim.inventory import Stack
 
@@ -128,24 +144,6 @@ class World:
             self._wake_liquids(x, y, z)
             y += 1
 
-    def _draw(self, kind: str, c: tuple[float, ...], type_: str) -> None:
-        if kind == "block":
-            self.blocks_set_raw(int(c[0]), int(c[1]), int(c[2]), B.block_id(type_))
-        elif kind == "cuboid":
-            bid = B.block_id(type_)
-            lo = [int(min(a, b)) for a, b in zip(c[:3], c[3:], strict=True)]
-            hi = [int(max(a, b)) for a, b in zip(c[:3], c[3:], strict=True)]
-            sx, sy, sz = self.blocks.shape
-            x1, x2 = max(lo[0] - self.x0, 0), min(hi[0] - self.x0 + 1, sx)
-            y1, y2 = max(lo[1], 0), min(hi[1] + 1, sy)
-            z1, z2 = max(lo[2] - self.z0, 0), min(hi[2] - self.z0 + 1, sz)
-            if x1 < x2 and y1 < y2 and z1 < z2:
-                self.blocks[x1:x2, y1:y2, z1:z2] = bid
-        elif kind == "item":
-            self.drop(type_.removeprefix("minecraft:"), 1, c[0], c[1], c[2], delay=0)
-        elif kind == "entity":
-            self.spawn_mob(type_, c[0], c[1], c[2])
-
     def blocks_set_raw(self, x: int, y: int, z: int, block: int) -> None:
         """Set a block without triggering liquids or falling (for decorators)."""
         ix, iz = x - self.x0, z - self.z0
@@ -155,26 +153,33 @@ class World:
 
     # --------------------------------------------------------------- entities
     def next_uid(self) -> int:
-        """A fresh entity id."""
+        """A fresh entity number (0 is the player)."""
         self._uid += 1
         return self._uid
 
-    def drop(self, item: str, count: int, x: float, y: float, z: float, *, delay: int = 10):
-        """Drop an item stack into the world."""
+    def entity_uuid(self, uid: int) -> str:
+        """The entity's id as Malmo reports it: a UUID string, fixed by world seed and
+        entity number (no draw from the world's random stream)."""
+        digest = hashlib.md5(f"{self.seed}:{uid}".encode()).digest()
+        return str(uuid.UUID(bytes=digest, version=4))
+
+    def drop(
+        self, item: str, count: int, x: float, y: float, z: float, *, delay: int = 10,
+        still: bool = False,
+    ) -> None:  # fmt: skip
+        """Drop an item stack into the world (tossed a little, unless ``still``)."""
         if count <= 0 or item in ("", "air"):
             return
         body = Body(x, y, z, half_width=0.125, height=0.25)
-        body.vx = self.rng.uniform(-0.05, 0.05)
-        body.vz = self.rng.uniform(-0.05, 0.05)
-        body.vy = 0.1
+        if not still:
+            body.vx = self.rng.uniform(-0.05, 0.05)
+            body.vz = self.rng.uniform(-0.05, 0.05)
+            body.vy = 0.1
         self.items.append(ItemEntity(self.next_uid(), item, count, body, pickup_delay=delay))
 
     def spawn_mob(self, name: str, x: float, y: float, z: float) -> None:
-        """Spawn an animal (unknown names are ignored, as Malmo ignores unknown entities)."""
-        spec = MOBS.get(name)
-        if spec is None:
-            return
-        hw, h, hp, _ = spec
+        """Spawn an animal (``name`` must be in ``MOBS``; missions are checked first)."""
+        hw, h, hp, _ = MOBS[name]
         body = Body(x, y, z, half_width=hw, height=h)
         self.mobs.append(Mob(self.next_uid(), name, body, hp, ai_timer=self.rng.randint(0, 100)))
 
@@ -189,17 +194,15 @@ class World:
         if self.mission.passage_of_time:
             self.world_time += 1
         p = self.player
+        self.recent_commands, self.chat_log = [], []  # what this tick's observation reports
         for cmd in commands:
             actions.apply(self, cmd)
-            if self.done:
-                return
         c = p.controls
-        h0 = self.mission.handler_for("turn")
-        speed = h0.turn_speed if h0 is not None else 180.0
-        if c.turn:
-            p.yaw = (p.yaw + c.turn * speed / 20.0) % 360.0
+        c.ramp_move()
+        if c.turn:  # Malmo accumulates yaw without wrapping it
+            p.yaw += c.turn * self.turn_speed / 20.0
         if c.pitch:
-            p.pitch = max(-90.0, min(90.0, p.pitch + c.pitch * speed / 20.0))
+            p.pitch = max(-90.0, min(90.0, p.pitch + c.pitch * self.turn_speed / 20.0))
         self._move_player()
         interact.attack_and_use(self)
         self._entities()
@@ -211,15 +214,37 @@ class World:
             in_lava=bool(B.IS_LAVA[feet] or B.IS_LAVA[head]),
             in_water=bool(B.IS_WATER[feet]),
         )
-        self._rewards_and_quits()
+        if self.time_limit_ticks is not None and self.tick_count >= self.time_limit_ticks:
+            self.request_quit("time up", self.mission.server_quit_description)
+        r = self.mission.rules
+        self.rules.tick(self, self._touching() if r.touch or r.quit_touch else [])
         if not p.alive:
-            self.end("player died: " + p.death_cause)
+            self.request_quit("player died: " + p.death_cause, AGENT_DIED)
+        if self._quits:
+            self.end("; ".join(r for r, _ in self._quits), [c for _, c in self._quits if c])
 
-    def end(self, reason: str) -> None:
-        """End the mission (the next step reports done)."""
+    @property
+    def turn_speed(self) -> float:
+        """ContinuousMovementCommands ``turnSpeedDegs`` (degrees per second)."""
+        h = next((h for h in self.mission.handlers if h.kind == "ContinuousMovement"), None)
+        return h.turn_speed if h is not None else 180.0
+
+    def chat(self, sender: str, message: str) -> None:
+        """A chat message, as Minecraft shows it (``<sender> message``)."""
+        self.chat_log.append(f"<{sender}> {message}")
+
+    def request_quit(self, reason: str, code: str = "") -> None:
+        """A quit producer fired: the mission ends at the end of this tick with ``code``."""
+        self._quits.append((reason, code))
+
+    def end(self, reason: str, codes: Optional[list[str]] = None) -> None:
+        """End the mission now (the next step reports done) and pay the mission-end
+        rewards for the quit ``codes``."""
         if not self.done:
             self.done = True
             self.end_reason = reason
+            self.quit_codes = list(codes or [])
+            self.pending_reward += self.rules.final_reward(self.quit_codes)
 
     def _cell_at(self, y: float) -> int:
         b = self.player.body
@@ -285,12 +310,12 @@ class World:
             m.tick(self.space, self.rng, bool(B.LIQUID[feet]))
 
     def collected(self, item: str, count: int) -> None:
-        """Count items gained (picked up or crafted) for rewards and quits."""
-        r = self.mission.collect_rewards.get(item)
-        if r is not None:
-            self.pending_reward += r * count
-        if item in self.mission.quit_collect:
-            self.end(f"collected {item}")
+        """Items gained (picked up, crafted or smelted), for rewards and quits."""
+        self.rules.gained(self, item, count)
+
+    def lost(self, item: str, count: int) -> None:
+        """Items lost (dropped, placed or used up by crafting), for rewards."""
+        self.rules.lost(self, item, count)
 
     # ----------------------------------------------------------------- liquids
     def _wake_liquids(self, x: int, y: int, z: int) -> None:
@@ -333,39 +358,19 @@ class World:
                 if self.get(*nb) == B.AIR:
                     self.liquid_due.setdefault(nb, now + LIQUID_DELAY[kind])
 
-    # ---------------------------------------------------------- rewards, quits
-    def _rewards_and_quits(self) -> None:
-        m = self.mission
-        if self.time_limit_ticks is not None and self.tick_count >= self.time_limit_ticks:
-            self.end("time up")
+    # ---------------------------------------------------------------- touching
+    def _touching(self) -> list[tuple[tuple[int, int, int], str]]:
+        """Blocks the player's box, grown by 0.001 on every side, overlaps (Malmo's
+        ``PositionHelper.getTouchingBlocks``): the floor, walls and anything inside."""
         b = self.player.body
-        if m.touch_rewards or m.quit_touch:
-            cells = self._touching()
-            for cell, bid in cells:
-                name = B.NAMES[bid]
-                for tr in m.touch_rewards:
-                    if name not in tr.types:
-                        continue
-                    key = (name, cell) if tr.behaviour == "oncePerBlock" else (name, (0, 0, 0))
-                    if tr.behaviour == "constant" or key not in self.touched:
-                        self.pending_reward += tr.reward
-                        self.touched.add(key)
-                if name in m.quit_touch:
-                    self.end(f"touched {name}")
-        for x, y, z, tol in m.quit_positions:
-            if (b.x - x) ** 2 + (b.y - y) ** 2 + (b.z - z) ** 2 <= tol * tol:
-                self.end("reached position")
-
-    def _touching(self) -> list[tuple[tuple[int, int, int], int]]:
-        b = self.player.body
-        w = b.half_width
+        w = b.half_width + 0.001
         out = []
-        for x in range(math.floor(b.x - w), math.floor(b.x + w - 1e-6) + 1):
-            for z in range(math.floor(b.z - w), math.floor(b.z + w - 1e-6) + 1):
-                for y in range(math.floor(b.y - 0.01), math.floor(b.y + b.height) + 1):
+        for x in range(math.floor(b.x - w), math.floor(b.x + w) + 1):
+            for z in range(math.floor(b.z - w), math.floor(b.z + w) + 1):
+                for y in range(math.floor(b.y - 0.001), math.floor(b.y + b.height + 0.001) + 1):
                     bid = self.get(x, y, z)
                     if bid != B.AIR:
-                        out.append(((x, y, z), bid))
+                        out.append(((x, y, z), B.NAMES[bid]))
         return out
 
     def surface_y(self, x: int, z: int) -> int:

@@ -3,16 +3,20 @@ with Minecraft 1.11's per-chunk counts and height ranges (diamonds rare, at y 1-
 
 Everything is generated with numpy into one ``uint8`` array indexed ``[x, y, z]``; a
 128×96×128 world takes well under a second. Flat worlds (``FlatWorldGenerator``) use
-Minecraft's superflat layer strings, e.g. ``"3;7,2*3,2;1;"`` (bedrock, 2 dirt, grass).
+Minecraft's superflat layer strings, e.g. ``"3;7,2*3,2;1;"`` (bedrock, 2 dirt, grass),
+in a box sized to the mission (``extent``).
 """
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from actors.minecraft import blocks as B
+from actors.minecraft.sim.extent import Box
 
 SIZE_XZ = 128
 SIZE_Y = 96
@@ -63,9 +67,9 @@ def flat_layers(generator: str) -> list[int]:
     layers: list[int] = []
     for tok in filter(None, (t.strip() for t in spec.split(","))):
         count = 1
-        if "*" in tok:
-            c, tok = tok.split("*", 1)
-            count = int(c)
+        m = re.match(r"(\d+)[*x](.+)$", tok)  # "2*3" (version 3) or "2x3" (older)
+        if m:
+            count, tok = int(m.group(1)), m.group(2)
         if tok.startswith("minecraft:"):
             tok = tok[len("minecraft:") :]
         tok = tok.split(":", 1)[0] if tok[:1].isdigit() else tok
@@ -79,13 +83,35 @@ def flat_layers(generator: str) -> list[int]:
     return layers
 
 
-def flat(generator: str, size_xz: int = SIZE_XZ, size_y: int = 64) -> Terrain:
-    """A superflat world centred on x = z = 0."""
-    layers = flat_layers(generator)[:size_y]
-    arr = np.zeros((size_xz, size_y, size_xz), dtype=np.uint8)
+def flat(layers: list[int], box: Box) -> Terrain:
+    """A superflat world filling ``box`` with ``layers`` (bottom first), spawn at the origin."""
+    arr = np.zeros((box.size_x, box.size_y, box.size_z), dtype=np.uint8)
+    layers = layers[: box.size_y]
     arr[:, : len(layers), :] = np.array(layers, dtype=np.uint8)[None, :, None]
-    h = float(len(layers))
-    return Terrain(arr, -size_xz // 2, -size_xz // 2, (0.5, h, 0.5))
+    return Terrain(arr, box.x0, box.z0, (0.5, float(len(layers)), 0.5))
+
+
+def recentre(terrain: Terrain, x: float, z: float, border: int = 8) -> Terrain:
+    """Move the terrain so it lies under (x, z) when (x, z) is not already inside it."""
+    n = terrain.blocks.shape[0]
+    inside_x = terrain.x0 + border <= x < terrain.x0 + n - border
+    inside_z = terrain.z0 + border <= z < terrain.z0 + n - border
+    if inside_x and inside_z:
+        return terrain
+    dx, dz = math.floor(x) - n // 2 - terrain.x0, math.floor(z) - n // 2 - terrain.z0
+    sx, sy, sz = terrain.spawn
+    mobs = [(name, mx + dx, my, mz + dz) for name, mx, my, mz in terrain.mobs]
+    return Terrain(terrain.blocks, terrain.x0 + dx, terrain.z0 + dz, (sx + dx, sy, sz + dz), mobs)
+
+
+def heighten(terrain: Terrain, size_y: int) -> Terrain:
+    """The terrain with air added on top up to ``size_y`` blocks."""
+    sx, sy, sz = terrain.blocks.shape
+    if size_y <= sy:
+        return terrain
+    arr = np.zeros((sx, size_y, sz), dtype=np.uint8)
+    arr[:, :sy, :] = terrain.blocks
+    return Terrain(arr, terrain.x0, terrain.z0, terrain.spawn, terrain.mobs)
 
 
 def generate(seed: int, size_xz: int = SIZE_XZ, size_y: int = SIZE_Y) -> Terrain:

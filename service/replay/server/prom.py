@@ -4,10 +4,11 @@ a process in tests) and served over HTTP."""
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
-from typing import Optional
+from collections.abc import Callable, Iterator
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, start_http_server
+from prometheus_client.core import CounterMetricFamily, Metric
+from prometheus_client.registry import Collector
 
 from service.replay.server.store import ReplayCore
 from service.replay.server.table import Table
@@ -42,8 +43,31 @@ class ReplayMetrics:
             gauge = Gauge(name, help_text, ["table"], registry=r)
             for table in core.tables.values():
                 gauge.labels(table.name).set_function(functools.partial(read, table))
+        r.register(_DurabilityCollector(core))
 
-    def serve(self, port: int, host: str = "127.0.0.1") -> Optional[int]:
+    def serve(self, port: int, host: str = "127.0.0.1") -> int:
         """Starts the /metrics HTTP endpoint; returns the bound port."""
         server, _ = start_http_server(port, addr=host, registry=self.registry)
         return int(server.server_port)
+
+
+class _DurabilityCollector(Collector):
+    """Counters of the checkpoint folder, read from the core when scraped."""
+
+    def __init__(self, core: ReplayCore) -> None:
+        self._core = core
+
+    def collect(self) -> Iterator[Metric]:
+        d = self._core.durability
+        for name, help_text, value in (
+            ("graft_replay_checkpoints", "Checkpoints written", d.checkpoints),
+            ("graft_replay_checkpoint_failures", "Checkpoints that failed (e.g. disk full); "
+             "the next period retries", d.checkpoint_failures),
+            ("graft_replay_log_append_failures", "Inserts refused because the write-ahead "
+             "log append failed", d.log_append_failures),
+            ("graft_replay_damaged_log_records", "Log records skipped at start-up because "
+             "their checksum failed", d.damaged_log_records),
+            ("graft_replay_damaged_checkpoints", "Checkpoints found unreadable at start-up",
+             d.damaged_checkpoints),
+        ):  # fmt: skip
+            yield CounterMetricFamily(name, help_text, value=value)

@@ -23,6 +23,7 @@ import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine
 from concurrent import futures
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn, Optional, TypeVar
@@ -41,6 +42,7 @@ from service.replay.codec import (
     decode_batch,
     encode_batch,
 )
+from service.replay.server.durability import StorageError
 from service.replay.server.prom import ReplayMetrics
 from service.replay.server.signature import SignatureError
 from service.replay.server.store import CallEnded, ReplayCore, StagedInsert, UnknownTable
@@ -80,6 +82,7 @@ _STATUS_OF = (
     (PayloadTooLarge, grpc.StatusCode.RESOURCE_EXHAUSTED),
     (UnknownTable, grpc.StatusCode.NOT_FOUND),
     ((RateLimitTimeout, CallEnded), grpc.StatusCode.DEADLINE_EXCEEDED),
+    (StorageError, grpc.StatusCode.UNAVAILABLE),  # e.g. a full disk; a resend may succeed
     ((CodecError, SignatureError, ValueError), grpc.StatusCode.INVALID_ARGUMENT),
 )
 
@@ -396,7 +399,10 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
     async def Checkpoint(  # noqa: N802
         self, request: replay_pb2.CheckpointRequest, context: grpc.aio.ServicerContext[Any, Any]
     ) -> replay_pb2.CheckpointResponse:
-        path = await self._run(self.core.checkpoint)
+        try:
+            path = await self._run(self.core.checkpoint)
+        except Exception as error:
+            await self._abort(context, error)
         if path is None:
             await context.abort(
                 grpc.StatusCode.FAILED_PRECONDITION,
@@ -603,7 +609,7 @@ async def _start(
     replay_pb2_grpc.add_ReplayServiceServicer_to_server(servicer, server)
     health_servicer = aio_health.HealthServicer()
     health_pb2_grpc.add_HealthServicer_to_server(health_servicer, server)
-    address = f"{o.host}:{o.port}"
+    address = host_port(o.host, o.port)
     if o.port and (refused := _cannot_bind(o.host, o.port)) is not None:
         servicer.close()
         raise refused
@@ -638,7 +644,7 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
     if o.host not in LOOPBACK_HOSTS and not o.token and not o.insecure:
         raise InsecureBindError(
             f"refusing to bind {o.host}: a non-loopback replay server needs a shared token "
-            "(--token or GRAFT_TOKEN) or an explicit --insecure"
+            "(GRAFT_TOKEN or --token-file) or an explicit --insecure"
         )
     if (o.tls_cert is None) != (o.tls_key is None):
         raise ValueError("TLS needs both a certificate and a key")
@@ -661,6 +667,12 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
     )
 
 
+def host_port(host: str, port: int) -> str:
+    """`host:port`, with an IPv6 literal in brackets (`[::1]:9100`)."""
+    host = host.strip("[]")
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
 def _stop_when_orphaned(parent_pid: int, stop: threading.Event, poll_s: float = 1.0) -> None:
     """Sets `stop` once we are no longer `parent_pid`'s child (it died: we were re-parented).
 
@@ -679,18 +691,23 @@ def serve_forever(
     *,
     ready_file: Optional[str] = None,
     metrics_port: Optional[int] = None,
+    metrics_host: str = "127.0.0.1",
     checkpoint_every_s: float = 0.0,
     grace_s: float = 5.0,
     parent_pid: Optional[int] = None,
 ) -> None:
     """Runs until SIGTERM/SIGINT (or, with `parent_pid`, until that parent has died), then:
-    health NOT_SERVING, final checkpoint, graceful stop."""
+    health NOT_SERVING, final checkpoint, graceful stop.
+
+    The metrics endpoint answers without a token, so it binds `metrics_host` (loopback
+    unless told otherwise), whatever `options.host` is. A failed checkpoint is logged and
+    counted, and the next period tries again; the log keeps every insert meanwhile."""
     running = build_server(core, options)
-    address = f"{options.host}:{running.port}"
+    address = host_port(options.host, running.port)
     extra = ""
     if metrics_port is not None:
-        bound = running.metrics.serve(metrics_port, options.host)
-        extra = f", metrics on http://{options.host}:{bound}/metrics"
+        bound = running.metrics.serve(metrics_port, metrics_host.strip("[]"))
+        extra = f", metrics on http://{host_port(metrics_host, bound)}/metrics"
     print(f"replay server listening on {address}{extra}", flush=True)
     log.info("tables: %s", sorted(core.tables))
     if ready_file:
@@ -703,8 +720,10 @@ def serve_forever(
     if parent_pid is not None:
         threading.Thread(target=_stop_when_orphaned, args=(parent_pid, stop), daemon=True).start()
     while not stop.wait(checkpoint_every_s or None):
-        core.checkpoint()  # periodic; sampling goes on while the file is written
+        with suppress(StorageError):  # logged and counted by the core
+            core.checkpoint()  # periodic; sampling goes on while the file is written
     running.health.enter_graceful_shutdown()
-    core.checkpoint()
+    with suppress(StorageError):
+        core.checkpoint()
     running.server.stop(grace_s).wait()
     core.close()

@@ -225,16 +225,22 @@ class Table:
         *,
         timeout: Optional[float] = None,
         writer: str = "",
+        before_store: Optional[Callable[[], None]] = None,
         rate_limited: bool = True,
     ) -> int:
         """Validates and stores a batch, blocking while the rate limiter says wait; returns
-        items stored. `rate_limited=False` is for replaying a log on restart."""
+        items stored. `before_store` runs under the table lock once the batch is admitted,
+        right before its rows go in, so a write-ahead log sees inserts in exactly the order
+        the table applies them; if it raises, nothing is stored. `rate_limited=False` is
+        for replaying a log on restart."""
         prepared = self.prepare(batch)
         if prepared.n == 0:
             return 0
         with self._cond:
             if rate_limited:
                 self.stats.insert_blocked_s += self._wait(self.insert_admitted, timeout, "insert")
+            if before_store is not None:
+                before_store()
             return self.store(prepared, writer=writer)
 
     def _store(

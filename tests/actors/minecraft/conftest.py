@@ -1,5 +1,8 @@
 """Fixtures: a real world server (in a thread, on a free port) and synchronous clients on
-small flat worlds built from mission XML, so each test draws exactly the scene it needs."""
+small flat worlds built from mission XML, so each test draws exactly the scene it needs.
+
+The servers pace missions like real Malmo (loading, busy replies, frames at their own
+rate, empty info), with delays short enough to keep the tests quick (``FAST``)."""
 
 from __future__ import annotations
 
@@ -11,6 +14,10 @@ import pytest
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.malmo.mission_xml import mission_xml
 from actors.minecraft.sim.server import WorldServer
+from actors.minecraft.sim.timing import Timing
+
+# Real Malmo's behaviour with short delays: 50 ms loading, 20 ms ending, 60 fps.
+FAST = Timing(loading_s=0.05, ending_s=0.02, fps=60.0, wait_s=0.5)
 
 # Bedrock, two dirt, grass: the ground's top face is y=4, the agent stands at y=4.
 FLAT = "3;7,2*3,2;1;"
@@ -19,8 +26,8 @@ GROUND = 4.0
 
 @pytest.fixture
 def server() -> Iterator[WorldServer]:
-    """A world server on a free port (ticks every 20 ms by default)."""
-    with WorldServer(port=0, seed=7, ms_per_tick=20) as s:
+    """A world server on a free port (ticks every 20 ms by default), real timing."""
+    with WorldServer(port=0, seed=7, ms_per_tick=20, timing=FAST) as s:
         yield s
 
 
@@ -35,7 +42,8 @@ def flat_mission(
     grid_radius: int = 2,
     time_limit_ms: Optional[int] = None,
 ) -> str:
-    """A flat-world mission with every handler and the agent at (0.5, 4, 0.5) facing +z."""
+    """A flat-world mission with every handler and the agent at (0.5, 4, 0.5) facing +z;
+    a 16×12 frame with ``video``, else the small frame of an agent without pixels."""
     return mission_xml(
         width=16 if video else None,
         height=12 if video else None,
@@ -52,10 +60,15 @@ def flat_mission(
 
 @pytest.fixture
 def sync_client(server: WorldServer) -> Iterator[Callable[..., MalmoClient]]:
-    """Factory: a synchronous graft client already reset into ``flat_mission(**kw)``."""
+    """Factory: a synchronous graft client already reset into ``flat_mission(**kw)``.
+
+    One Minecraft runs one mission: making a client closes the previous one (which
+    quits its mission), as a real Malmo would stay busy with it otherwise."""
     made: list[MalmoClient] = []
 
     def make(**kw: object) -> MalmoClient:
+        for old in made:
+            old.close()
         c = MalmoClient("127.0.0.1", server.port, synchronous=True, timeout=10)
         c.init(flat_mission(**kw))  # type: ignore[arg-type]
         c.reset()

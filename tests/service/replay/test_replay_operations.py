@@ -12,19 +12,13 @@ from grpc_health.v1 import health_pb2, health_pb2_grpc
 
 from service.replay.client import ReplayClient, Unavailable
 from service.run.replay_process import ReplayProcess
-from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch
+from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch, self_signed_cert
 
 TABLE = [{"name": "t", "max_size": 100, "signature": SCALAR_SIGNATURE}]
 
 
 def test_tls_server_serves_tls_clients_only(tmp_path):
-    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
-    subprocess.run(
-        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
-         "-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1",
-         "-keyout", str(key), "-out", str(cert)],
-        check=True, capture_output=True,
-    )  # fmt: skip
+    cert, key = self_signed_cert(tmp_path)
     with ReplayProcess(TABLE, extra_args=["--tls-cert", str(cert), "--tls-key", str(key)]) as s:
         secure = ReplayClient(s.address, tls_root_cert=str(cert))
         assert secure.insert("t", scalar_batch(range(5))) == 5

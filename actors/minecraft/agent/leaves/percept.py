@@ -147,6 +147,28 @@ class Percept:
         return None
 
 
+def _with_block_cell(los: dict[str, Any], info: Mapping[str, Any]) -> dict[str, Any]:
+    """Add ``blockX/Y/Z``, the block the crosshair is on, to a block LineOfSight.
+
+    Malmo reports only the hit point on the block's face. The face is the coordinate
+    nearest a whole number; along that axis the block lies on the far side of the face
+    in the look direction, along the others it is the one the point lies in.
+    """
+    if los.get("hitType") != "block" or "blockX" in los:
+        return los
+    yaw, pitch = (
+        math.radians(float(info.get("Yaw", 0.0))),
+        math.radians(float(info.get("Pitch", 0.0))),
+    )
+    look = (-math.sin(yaw) * math.cos(pitch), -math.sin(pitch), math.cos(yaw) * math.cos(pitch))
+    point = [float(los[k]) for k in ("x", "y", "z")]
+    face = min(range(3), key=lambda i: abs(point[i] - round(point[i])))
+    cell = [math.floor(v) for v in point]
+    cell[face] = round(point[face]) - (1 if look[face] < 0 else 0)
+    los["blockX"], los["blockY"], los["blockZ"] = cell
+    return los
+
+
 def parse(info: Mapping[str, Any], *, grid: str = "cube", entities: str = "entities") -> Percept:
     """Build a Percept from one step's decoded info JSON."""
     p = Percept(
@@ -160,7 +182,7 @@ def parse(info: Mapping[str, Any], *, grid: str = "cube", entities: str = "entit
         air=int(info.get("Air", 300)),
         tick=int(info.get("TotalTime", 0)),
         selected=int(info.get("currentItemIndex", 0)),
-        los=dict(info.get("LineOfSight", {})),
+        los=_with_block_cell(dict(info.get("LineOfSight", {})), info),
         alive=bool(info.get("IsAlive", True)),
     )
     names = info.get(grid)

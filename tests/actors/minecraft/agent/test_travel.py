@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 from actors.behaviours.backbone import compose_action
-from actors.behaviours.hardcoded import hardcoded_policy
 from actors.minecraft.agent.leaves.percept import RADIUS, SIDE, Percept
 from actors.minecraft.agent.travel_control import (
     JUMP_OFF,
@@ -283,7 +282,19 @@ def test_observation_layout_and_backbone_reads_mu() -> None:
         stuck_fraction=0.25, elapsed=2,
     )  # fmt: skip
     np.testing.assert_allclose(slow[114:117], obs[114:117] / 2, atol=1e-6)
-    assert isinstance(hardcoded_policy(ENV_ID), TravelBackbone)
+    # The presets name the same μ by import string; graft calls it on whole batches.
+    from gymnasium import spaces
+
+    from actors.hardcoded import CallablePolicy, make_hardcoded_policy
+    from service.run.config import load_preset
+
+    box = spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
+    for preset in ("minecraft-backbone", "minecraft-options"):
+        spec = load_preset(preset).hardcoded_policy
+        policy = make_hardcoded_policy(spec, box, spaces.Box(-1.0, 1.0, (4,), np.float32))
+        assert isinstance(policy, CallablePolicy) and policy.batched
+        assert isinstance(policy.policy, TravelBackbone)
+        np.testing.assert_allclose(policy(np.stack([obs, obs])), np.stack([mu, mu]))
 
 
 def test_backbone_action_and_commands() -> None:

@@ -1,5 +1,6 @@
 """The published malmoenv client (0.0.8, unchanged) and graft's client against a real
-``minecraft serve`` process; reconnection after the server goes away."""
+``minecraft serve`` process with real Malmo's timing; reconnection after the server goes
+away."""
 
 from __future__ import annotations
 
@@ -13,11 +14,12 @@ from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.malmo.mission_xml import SAMPLE_PATH, mission_xml, obtain_diamond
 from actors.minecraft.sim.pool import ServerPool
 from actors.minecraft.sim.server import WorldServer
+from tests.actors.minecraft.conftest import FAST
 
 
 @pytest.fixture(scope="module")
 def pool() -> Iterator[ServerPool]:
-    with ServerPool(1, base_port=0, seed=11, ms_per_tick=10) as p:
+    with ServerPool(1, base_port=0, seed=11, ms_per_tick=10, timing=FAST) as p:
         yield p
 
 
@@ -32,10 +34,14 @@ def test_unchanged_malmoenv_client(pool: ServerPool) -> None:
     env.init(MISSION, pool.ports[0], reshape=True)
     obs = env.reset()
     assert obs.shape == (24, 32, 3) and obs.dtype == np.uint8 and obs.any()
-    for a in range(3):
-        obs, reward, done, info = env.step(a)
+    infos = []
+    for a in range(6):
+        obs, reward, done, info = env.step(a % 3)
         assert obs.shape == (24, 32, 3) and not done
-        assert '"TotalTime"' in info and '"cube"' in info
+        infos.append(info)
+    # Frames come faster than ticks: a step may bring no observation (as from Malmo).
+    assert all(i == "" or ('"TotalTime"' in i and '"cube"' in i) for i in infos)
+    assert any(infos)
     env.close()
 
 
@@ -47,7 +53,8 @@ def test_graft_client_same_test(pool: ServerPool) -> None:
     for cmd in ("move 1", "turn 1", "attack 1"):
         r = c.step(cmd)
         assert r.frame.shape == (24, 32, 3) and not r.done
-        assert len(r.info["cube"]) == 15**3
+        assert r.info == {} or len(r.info["cube"]) == 15**3
+    assert len(c.observe().info["cube"]) == 15**3
     r2 = c.reset()  # quits the running episode and starts the next
     assert r2.shape == (24, 32, 3)
     c.close()
@@ -63,7 +70,7 @@ def test_sample_mission_parses_and_runs(pool: ServerPool) -> None:
 
 
 def test_reset_reconnects_after_the_server_restarts() -> None:
-    s = WorldServer(port=0, ms_per_tick=10)
+    s = WorldServer(port=0, ms_per_tick=10, timing=FAST)
     port = s.start()
     c = MalmoClient("127.0.0.1", port, synchronous=True, max_backoff=0.2)
     c.init(mission_xml(width=None, height=None, flat="3;7,2*3,2;1;"))
@@ -73,7 +80,7 @@ def test_reset_reconnects_after_the_server_restarts() -> None:
     with pytest.raises((OSError, ConnectionError)):
         for _ in range(3):
             c.step("move 1")
-    s2 = WorldServer(port=port, ms_per_tick=10)
+    s2 = WorldServer(port=port, ms_per_tick=10, timing=FAST)
     s2.start()
     try:
         c.reset()

@@ -36,35 +36,39 @@ def _counts(info: dict) -> dict[str, int]:
         ({"log": 1}, "planks", True, {"planks": 4}),
         ({"planks": 2}, "stick", True, {"stick": 4}),
         ({"planks": 4}, "crafting_table", True, {"crafting_table": 1}),
-        ({"planks": 3, "stick": 2}, "wooden_pickaxe", False, {"planks": 3, "stick": 2}),
-        ({"planks": 3, "stick": 2, "crafting_table": 1}, "wooden_pickaxe", True,
-         {"wooden_pickaxe": 1, "crafting_table": 1}),
+        # SimpleCraft, as Malmo's: 3x3 recipes need no crafting table, smelting no furnace.
+        ({"planks": 3, "stick": 2}, "wooden_pickaxe", True, {"wooden_pickaxe": 1}),
+        ({"planks": 2, "stick": 2}, "wooden_pickaxe", False, {"planks": 2, "stick": 2}),
         ({"cobblestone": 3, "stick": 2, "crafting_table": 1}, "stone_pickaxe", True,
          {"stone_pickaxe": 1, "crafting_table": 1}),
         ({"cobblestone": 7, "crafting_table": 1}, "furnace", False,
          {"cobblestone": 7, "crafting_table": 1}),
-        ({"cobblestone": 8, "crafting_table": 1}, "furnace", True,
-         {"furnace": 1, "crafting_table": 1}),
-        ({"iron_ore": 1, "coal": 1}, "iron_ingot", False, {"iron_ore": 1, "coal": 1}),
+        ({"cobblestone": 8}, "furnace", True, {"furnace": 1}),
+        ({"iron_ore": 1, "coal": 1}, "iron_ingot", True, {"iron_ingot": 1}),
         ({"iron_ore": 1, "furnace": 1}, "iron_ingot", False, {"iron_ore": 1, "furnace": 1}),
         ({"iron_ore": 1, "furnace": 1, "planks": 1}, "iron_ingot", True,
          {"iron_ingot": 1, "furnace": 1}),
-        ({"iron_ingot": 3, "stick": 2, "crafting_table": 1}, "iron_pickaxe", True,
-         {"iron_pickaxe": 1, "crafting_table": 1}),
+        ({"iron_ingot": 3, "stick": 2}, "iron_pickaxe", True, {"iron_pickaxe": 1}),
     ],
 )  # fmt: skip
 def test_recipes(have: dict, make: str, ok: bool, after: dict) -> None:
     inv = _inv(**have)
-    assert craft(inv, CraftState(), make, table_near=False, furnace_near=False)[0] is ok
+    assert craft(inv, CraftState(), make)[0] is ok
     assert {k: inv.count(k) for k in set(have) | set(after) if inv.count(k)} == after
 
 
 def test_one_coal_smelts_eight() -> None:
     inv, st = _inv(iron_ore=9, coal=1, furnace=1), CraftState()
-    results = [craft(inv, st, "iron_ingot", table_near=False, furnace_near=False)[0]
-               for _ in range(9)]  # fmt: skip
+    results = [craft(inv, st, "iron_ingot")[0] for _ in range(9)]
     assert results == [True] * 8 + [False]
     assert inv.count("iron_ingot") == 8
+
+
+def test_smelting_burns_fuel_from_the_first_slot_up() -> None:
+    # As Malmo: whatever fuel comes first burns, here the sticks before the coal.
+    inv, st = _inv(stick=3, coal=1, iron_ore=1), CraftState()
+    assert craft(inv, st, "iron_ingot") == (True, "", [("iron_ore", 1)])
+    assert (inv.count("stick"), inv.count("coal"), inv.count("iron_ingot")) == (1, 1, 1)
 
 
 @pytest.mark.parametrize(

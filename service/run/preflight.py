@@ -1,0 +1,141 @@
+"""Checks a run passes before anything is written or started: its task's import strings,
+its run folder (new, or a resume that can continue it) and whether its actors fit a local
+Ray instance."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import ray
+import yaml
+
+from actors.env_actor import EnvActor
+from actors.evaluator import Evaluator
+from actors.task import add_import_path
+from learner.checkpoint import latest_checkpoint
+from service.run.config import TrainConfig
+from service.run.validation import ConfigError, check_env_id, resolve_import_string
+
+USES_HARDCODED_POLICY = ("backbone_td3", "pretrain_td3", "options")
+"""The methods that build the preset's hard-coded policy (backbone_td3 unless it has a teacher)."""
+
+
+def check_task(config: TrainConfig, *, policy: Optional[bool] = None) -> None:
+    """Resolves the task's import strings in this process, the run's import path first:
+    ``env_id``, ``obs_wrapper`` and, when `policy` (default: the method builds it),
+    ``hardcoded_policy``.
+
+    Raises:
+        ConfigError: e.g. ``obs_wrapper='mypkg.wrap:Flat' does not resolve: no module named
+            'mypkg' (...)``.
+    """
+    add_import_path(config.import_path)
+    check_env_id(config.env_id)
+    if config.obs_wrapper is not None:
+        resolve_import_string("obs_wrapper", config.obs_wrapper)
+    if policy is None:
+        teacher = config.algorithm == "backbone_td3" and config.backbone.teacher
+        policy = config.algorithm in USES_HARDCODED_POLICY and not teacher
+    if policy and config.hardcoded_policy is not None:
+        resolve_import_string("hardcoded_policy", config.hardcoded_policy)
+
+
+def default_run_dir(config: TrainConfig) -> Path:
+    return Path("runs") / f"{config.preset}-s{config.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def check_run_dir(
+    config: TrainConfig, run_dir: Optional[Path], resume: bool
+) -> tuple[Path, Optional[Path]]:
+    """The run folder and, with `resume`, the checkpoint to continue from; writes nothing.
+
+    Raises:
+        ConfigError: a new run into a folder that holds files, or `resume` without a
+            folder, without a checkpoint, or with another preset than the folder's run.
+    """
+    if not resume:
+        run_dir = Path(run_dir) if run_dir else default_run_dir(config)
+        if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
+            if latest_checkpoint(run_dir / "checkpoints") is not None:
+                raise ConfigError(
+                    f"--run-dir {run_dir} already holds a run; give --resume to continue it, "
+                    "or a new folder"
+                )
+            raise ConfigError(
+                f"--run-dir {run_dir} already exists and holds no checkpoint to resume; "
+                "remove it or give a new folder"
+            )
+        return run_dir, None
+    if run_dir is None:
+        raise ConfigError("--resume needs --run-dir, the folder of the run to continue")
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise ConfigError(f"--resume: --run-dir {run_dir} does not exist")
+    checkpoint = latest_checkpoint(run_dir / "checkpoints")
+    if checkpoint is None:
+        raise ConfigError(
+            f"--resume: {run_dir} has no checkpoint to continue from "
+            f"({run_dir / 'checkpoints'}/ckpt-*.pt)"
+        )
+    recorded = _recorded_preset(run_dir)
+    if recorded is not None and recorded != config.preset:
+        raise ConfigError(
+            f"--resume: {run_dir} was trained with preset {recorded!r}, not "
+            f"{config.preset!r}; resume it with its own preset"
+        )
+    return run_dir, checkpoint
+
+
+def _recorded_preset(run_dir: Path) -> Optional[str]:
+    """The preset recorded in a run folder's config.yaml (None if it has none)."""
+    path = run_dir / "config.yaml"
+    try:
+        data = yaml.safe_load(path.read_text()) if path.is_file() else None
+    except yaml.YAMLError:
+        return None
+    preset = data.get("preset") if isinstance(data, dict) else None
+    return str(preset) if preset is not None else None
+
+
+def ray_cpus(remote: Any) -> float:
+    """CPUs a Ray actor class or task asks for (its decorator's num_cpus; Ray's default 1)."""
+    return float(getattr(remote, "_default_options", {}).get("num_cpus", 1))
+
+
+def run_cpus(config: TrainConfig) -> float:
+    """CPUs the Ray actors of one run ask for: its env actors and its evaluator."""
+    return config.num_actors * ray_cpus(EnvActor) + ray_cpus(Evaluator)
+
+
+def local_cpus() -> float:
+    """CPUs of the local Ray instance (running, or the one `connect_ray('local')` starts)."""
+    if ray.is_initialized():
+        return float(ray.cluster_resources().get("CPU", 0.0))
+    try:
+        from ray._private.utils import get_num_cpus
+
+        return float(get_num_cpus())
+    except Exception:  # the private helper moved: count the cores Ray would count
+        return float(os.cpu_count() or 1)
+
+
+def check_fits_locally(config: TrainConfig, address: str) -> None:
+    """Refuses more actors than a local Ray instance can place: the ones left pending would
+    never insert, and the learner would wait for their share forever.
+
+    Raises:
+        ConfigError: e.g. ``num_actors=100 does not fit ...; at most 7 fit``.
+    """
+    if address != "local":
+        return  # a cluster may grow; Ray reports actors it cannot place
+    have, need, each = local_cpus(), run_cpus(config), ray_cpus(EnvActor)
+    if need > have:
+        most = int((have - ray_cpus(Evaluator)) // each)
+        raise ConfigError(
+            f"num_actors={config.num_actors} does not fit the local Ray instance: the actors "
+            f"({each:g} CPU each) and the evaluator need {need:g} CPUs, it has {have:g}; at "
+            f"most {most} actors fit"
+        )
