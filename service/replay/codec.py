@@ -110,4 +110,11 @@ def _decode_column(name: object, spec: object) -> np.ndarray:
             f"column '{name}' has {len(data)} data bytes, dtype {dtype} and shape "
             f"{tuple(shape)} need {expected}"
         )
-    return np.frombuffer(data, dtype=dtype).reshape(shape)
+    array = np.frombuffer(data, dtype=dtype).reshape(shape)
+    if array.dtype == np.bool_ and array.size:
+        highest = int(array.view(np.uint8).max())
+        if highest > 1:
+            raise CodecError(
+                f"column '{name}' is bool but holds byte {highest:#04x}; booleans are 0 or 1"
+            )
+    return array

@@ -15,6 +15,7 @@ import yaml
 from service.replay.server.servicer import ServerOptions, serve_forever
 from service.replay.server.store import ReplayCore
 from service.replay.server.table_config import make_table
+from service.replay.server.writers import DEFAULT_MAX_WRITERS
 
 
 def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
@@ -57,6 +58,13 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
         "--fsync",
         action="store_true",
         help="fsync every logged insert (survives power loss, slower)",
+    )
+    serve.add_argument(
+        "--max-writers",
+        type=int,
+        default=DEFAULT_MAX_WRITERS,
+        help="writers whose last batch number is remembered for exactly-once resends; "
+        f"past it the least recently written is forgotten (default {DEFAULT_MAX_WRITERS:,})",
     )
     serve.add_argument(
         "--metrics-port", type=int, help="serve Prometheus metrics on this HTTP port"
@@ -129,6 +137,7 @@ def _serve(args: argparse.Namespace) -> None:
             (make_table(spec) for spec in _table_specs(args)),
             checkpoint_dir=args.checkpoint_dir,
             fsync=args.fsync,
+            max_writers=args.max_writers,
         )
         options = ServerOptions(
             host=args.host,

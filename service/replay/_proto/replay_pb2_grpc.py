@@ -67,6 +67,8 @@ class ReplayServiceServicer:
     def Insert(self, request_iterator, context):
         """Streams batches into a table. Batches tagged with (writer_id, sequence)
         are stored at most once: a resent batch the server already holds is dropped.
+        A stream is stored whole when it ends, or not at all (at most 1,024 batches
+        and the message limit in bytes).
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')

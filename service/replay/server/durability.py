@@ -97,28 +97,37 @@ class WriteAheadLog:
 
     def append(self, table: str, writer: str, sequence: int, payload: bytes) -> None:
         """Appends one record, or raises StorageError leaving the segment as it was."""
+        self.append_all([(table, writer, sequence, payload)])
+
+    def append_all(self, records: list[Record]) -> None:
+        """Appends records in one write, all or none: raises StorageError leaving the
+        segment as it was."""
         if self._broken is not None:
             raise StorageError(
                 f"the write-ahead log is unusable until the next checkpoint ({self._broken}); "
                 "nothing was stored"
             )
-        record = msgpack.packb([table, writer, sequence, payload], use_bin_type=True)
-        head = _MAGIC + struct.pack(">II", len(record), zlib.crc32(record))
-        frame = memoryview(head + struct.pack(">I", zlib.crc32(head)) + record)
+        frames = []
+        for table, writer, sequence, payload in records:
+            record = msgpack.packb([table, writer, sequence, payload], use_bin_type=True)
+            head = _MAGIC + struct.pack(">II", len(record), zlib.crc32(record))
+            frames.append(head + struct.pack(">I", zlib.crc32(head)) + record)
+        data = b"".join(frames)
+        frame = memoryview(data)
         try:
             while frame:  # unbuffered: each write goes to the OS, which may take part of it
                 frame = frame[self._file.write(frame) :]
             if self.fsync:
                 os.fsync(self._file.fileno())  # also survives power loss, at a latency cost
         except OSError as error:
-            try:  # cut what part of the record reached the file: it was never acknowledged
+            try:  # cut what part of the records reached the file: they were never acknowledged
                 os.ftruncate(self._file.fileno(), self._end)
             except OSError as again:
                 self._broken = f"cutting a partial record failed: {again}"
             raise StorageError(
                 f"write-ahead log append failed ({error}); nothing was stored"
             ) from error
-        self._end += len(head) + 4 + len(record)
+        self._end += len(data)
 
     def rotate(self) -> int:
         """Starts the next segment; returns its number. Raises StorageError, keeping the

@@ -9,16 +9,18 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import IO, Any, Optional
 
-from service.replay.codec import Batch, decode_batch
+from service.replay.codec import decode_batch
 from service.replay.server import durability
 from service.replay.server.durability import StorageError
-from service.replay.server.table import Table
+from service.replay.server.folder_lock import lock_folder
+from service.replay.server.table import LockBusy, PreparedInsert, Table
+from service.replay.server.writers import DEFAULT_MAX_WRITERS, Writers
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +30,22 @@ class UnknownTable(KeyError):
 
     def __str__(self) -> str:
         return str(self.args[0])
+
+
+class CallEnded(TimeoutError):
+    """The call was cancelled or passed its deadline before its batches could be stored."""
+
+
+@dataclass(frozen=True)
+class StagedInsert:
+    """One batch of an Insert stream, validated and waiting for the stream to end."""
+
+    table: str
+    prepared: PreparedInsert
+    writer: str = ""
+    sequence: int = 0
+    payload: bytes = b""
+    """The encoded batch, as the write-ahead log records it."""
 
 
 @dataclass
@@ -46,8 +64,9 @@ class DurabilityStats:
 class ReplayCore:
     """Holds the tables and, per writer, the highest batch sequence number stored.
 
-    With a `checkpoint_dir`, every insert is logged before it is stored and acknowledged,
-    and the state is restored from that folder on construction.
+    With a `checkpoint_dir` (locked: one server per folder), every insert is logged
+    before it is stored and acknowledged, and the state is restored from that folder
+    on construction.
 
     Raises:
         ValueError: the folder holds data of another table config, or data that cannot
@@ -60,6 +79,7 @@ class ReplayCore:
         *,
         checkpoint_dir: Optional[Path] = None,
         fsync: bool = False,
+        max_writers: int = DEFAULT_MAX_WRITERS,
     ) -> None:
         self.tables: dict[str, Table] = {}
         for table in tables:
@@ -68,21 +88,33 @@ class ReplayCore:
             self.tables[table.name] = table
         if not self.tables:
             raise ValueError("a replay server needs at least one table")
-        self.acked: dict[str, int] = {}
-        self._acked_lock = threading.Lock()  # also orders log appends
+        self.writers = Writers(max_writers)
+        self.fsync = fsync
+        self._acked_lock = threading.Lock()  # orders log appends, stores and acks
         self._checkpoint_lock = threading.Lock()
         self.started = time.monotonic()
         self.durability = DurabilityStats()
         self.checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir else None
         self._wal: Optional[durability.WriteAheadLog] = None
+        self._folder_lock: Optional[IO[str]] = None
         if self.checkpoint_dir is not None:
             self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
-            for path in durability.remove_temporary_files(self.checkpoint_dir):
-                log.warning("removed %s, left half-written by a server that was killed", path)
-            self._check_layout(self.checkpoint_dir)
-            segment = self._restore(self.checkpoint_dir)
-            durability.write_manifest(self.checkpoint_dir, self._layout())
-            self._wal = durability.WriteAheadLog(self.checkpoint_dir, segment, fsync=fsync)
+            # Locked first: the temporary files and the log are ours alone from here on.
+            self._folder_lock = lock_folder(self.checkpoint_dir)
+            try:
+                self._open(self.checkpoint_dir, fsync)
+            except BaseException:
+                self._folder_lock.close()
+                raise
+
+    def _open(self, folder: Path, fsync: bool) -> None:
+        """Cleans, checks and restores the (locked) folder, then starts the log."""
+        for path in durability.remove_temporary_files(folder):
+            log.warning("removed %s, left half-written by a server that was killed", path)
+        self._check_layout(folder)
+        segment = self._restore(folder)
+        durability.write_manifest(folder, self._layout())
+        self._wal = durability.WriteAheadLog(folder, segment, fsync=fsync)
 
     def table(self, name: str) -> Table:
         try:
@@ -92,44 +124,72 @@ class ReplayCore:
                 f"no table named '{name}'; tables are {sorted(self.tables)}"
             ) from None
 
-    def insert(
+    def commit(
         self,
-        table: str,
-        batch: Batch,
+        staged: Sequence[StagedInsert],
         *,
-        writer_id: str = "",
-        sequence: int = 0,
-        timeout: Optional[float] = None,
-        payload: bytes = b"",
-    ) -> Optional[int]:
-        """Stores a batch; returns items stored, or None if it is a duplicate resend.
+        alive: Callable[[], bool] = lambda: True,
+        blocked_s: float = 0.0,
+        blocking: bool = True,
+    ) -> Optional[tuple[int, int]]:
+        """Stores the batches of one Insert stream all together, or none of them.
 
-        A writer numbers its batches 1, 2, 3, ...; the server remembers the highest
-        number stored per writer, so a batch resent after a lost acknowledgement is
-        dropped instead of stored twice. `payload` (the encoded batch) is what the
-        write-ahead log records.
+        Batches already stored (resends: a sequence at or below its writer's high-water
+        mark) are dropped first, under the same locks as the store, so a batch raced by
+        two calls is stored once. The rest are stored only if every table's rate limiter
+        admits an insert now and the call is still `alive()`; all are logged (in one
+        append) before any is stored. `blocked_s` (time already waited) goes into the
+        tables' stats.
+
+        Returns:
+            (items stored, batches dropped as resends), or None while a rate limiter
+            says wait (nothing was stored; try again after a change).
 
         Raises:
-            StorageError: the log append failed; nothing was stored.
+            CallEnded: `alive()` was false when the batches could have been stored.
+            StorageError: the log append failed; nothing was stored (nor logged).
+            LockBusy: `blocking` is False and a lock is held (nothing was stored).
         """
-        target = self.table(table)
-        if writer_id:
-            with self._acked_lock:
-                if sequence <= self.acked.get(writer_id, 0):
-                    return None
-
-        def log_then_store() -> None:  # under the table lock, in the table's insert order
-            with self._acked_lock:
-                if self._wal is not None:
-                    try:
-                        self._wal.append(table, writer_id, sequence, payload)
-                    except StorageError:
-                        self.durability.log_append_failures += 1
-                        raise  # before the rows go in: nothing unacknowledged is served
-                if writer_id:
-                    self.acked[writer_id] = max(sequence, self.acked.get(writer_id, 0))
-
-        return target.insert(batch, timeout=timeout, writer=writer_id, before_store=log_then_store)
+        targets = {s.table: self.table(s.table) for s in staged}
+        with ExitStack() as stack:
+            locks: list[threading.Condition | threading.Lock] = [
+                *(targets[name].lock for name in sorted(targets)),
+                self._acked_lock,
+            ]
+            for lock in locks:
+                if not lock.acquire(blocking=blocking):
+                    raise LockBusy("a table or the writer map")
+                stack.callback(lock.release)
+            fresh: list[StagedInsert] = []
+            high: dict[str, int] = {}
+            for s in staged:
+                if s.writer:
+                    if s.sequence <= max(self.writers.acked(s.writer), high.get(s.writer, 0)):
+                        continue
+                    high[s.writer] = s.sequence
+                fresh.append(s)
+            dropped = len(staged) - len(fresh)
+            used = {s.table for s in fresh}
+            if not all(targets[name].insert_admitted() for name in used):
+                return None
+            if fresh and not alive():
+                raise CallEnded(
+                    "the call was cancelled or passed its deadline before the rate "
+                    "limiter admitted it; nothing was stored"
+                )
+            if self._wal is not None and fresh:
+                records = [(s.table, s.writer, s.sequence, s.payload) for s in fresh]
+                try:
+                    self._wal.append_all(records)
+                except StorageError:
+                    self.durability.log_append_failures += 1
+                    raise  # before the rows go in: nothing unacknowledged is served
+            stored = sum(targets[s.table].store(s.prepared, writer=s.writer) for s in fresh)
+            for writer, sequence in high.items():
+                self.writers.ack(writer, sequence)
+            for name in used:
+                targets[name].stats.insert_blocked_s += blocked_s
+        return stored, dropped
 
     def checkpoint(self) -> Optional[Path]:
         """Snapshots all tables consistently, then writes them without blocking samples.
@@ -147,7 +207,7 @@ class ReplayCore:
                         stack.enter_context(self.tables[name].lock)
                     stack.enter_context(self._acked_lock)
                     snapshots = {name: t.snapshot() for name, t in self.tables.items()}
-                    acked = dict(self.acked)
+                    acked = self.writers.snapshot()
                     segment = self._wal.rotate()
                 # Locks released: inserts and samples go on while the file is written.
                 path = durability.write_checkpoint(self.checkpoint_dir, snapshots, acked, segment)
@@ -280,7 +340,7 @@ class ReplayCore:
                     self.tables[name].restore(state)
                 else:
                     log.warning("checkpoint has table '%s', which is not configured", name)
-            self.acked = found.acked
+            self.writers.restore(found.acked)
         replayed = 0
         for number in segments:
             path = durability.segment_path(folder, number)
@@ -288,11 +348,11 @@ class ReplayCore:
             for table, writer, sequence, payload in durability.read_segment(path, damage):
                 if table not in self.tables:
                     continue
-                if writer and sequence <= self.acked.get(writer, 0):
+                if writer and sequence <= self.writers.acked(writer):
                     continue
                 self.tables[table].insert(decode_batch(payload), writer=writer, rate_limited=False)
                 if writer:
-                    self.acked[writer] = sequence
+                    self.writers.ack(writer, sequence)
                 replayed += 1
             if damage.records:
                 log.warning(
@@ -310,3 +370,5 @@ class ReplayCore:
     def close(self) -> None:
         if self._wal is not None:
             self._wal.close()
+        if self._folder_lock is not None:
+            self._folder_lock.close()  # releases the folder

@@ -30,6 +30,20 @@ class RateLimitTimeout(TimeoutError):
     """The rate limiter (or the wait for a complete window) outlasted the call's timeout."""
 
 
+class LockBusy(Exception):
+    """A non-blocking attempt found a lock held; retry where blocking is fine."""
+
+
+@dataclass(frozen=True)
+class PreparedInsert:
+    """A batch checked against the table's signature, ready to `store`."""
+
+    batch: Batch
+    n: int
+    priority: Optional[np.ndarray]
+    stream: np.ndarray
+
+
 @dataclass
 class TableStats:
     """Counters a table reports through Info and metrics."""
@@ -41,7 +55,7 @@ class TableStats:
 
 
 class Table:
-    """One named table; thread-safe (inserts and samples come from many RPC threads)."""
+    """One named table; thread-safe (inserts and samples come from many worker threads)."""
 
     def __init__(
         self,
@@ -82,6 +96,7 @@ class Table:
         self._ends = [c for c in ("terminated", "truncated") if c in signature.columns]
         self._rng = np.random.default_rng(seed)
         self._cond = threading.Condition()
+        self._watchers: list[Callable[[], None]] = []
 
     def _check_configuration(self) -> None:
         where = f"table '{self.name}'"
@@ -132,6 +147,26 @@ class Table:
             "rate_limiter": self.rate_limiter.describe(),
         }
 
+    def watch(self, callback: Callable[[], None]) -> None:
+        """Calls `callback` (under the table lock: it must be quick) after every change
+        that may admit a waiting insert or sample. The asynchronous server waits this way."""
+        self._watchers.append(callback)
+
+    def unwatch(self, callback: Callable[[], None]) -> None:
+        self._watchers.remove(callback)
+
+    def _changed(self) -> None:
+        self._cond.notify_all()
+        for callback in self._watchers:
+            callback()
+
+    def not_admitted(self, what: str, timeout: float) -> RateLimitTimeout:
+        """The error for a `what` ("insert", "sample") that waited `timeout` seconds in vain."""
+        return RateLimitTimeout(
+            f"table '{self.name}': {what} not admitted within {timeout:.3g} s "
+            f"(size {self.size}, {self.rate_limiter.describe()})"
+        )
+
     def _wait(self, admitted: Callable[[], bool], timeout: Optional[float], what: str) -> float:
         """Sleeps on the condition (lock released) until `admitted()`; returns seconds waited."""
         if admitted():
@@ -141,10 +176,7 @@ class Table:
         while not admitted():
             remaining = None if deadline is None else deadline - time.monotonic()
             if remaining is not None and remaining <= 0:
-                raise RateLimitTimeout(
-                    f"table '{self.name}': {what} not admitted within {timeout:.3g} s "
-                    f"(size {self.size}, {self.rate_limiter.describe()})"
-                )
+                raise self.not_admitted(what, timeout or 0.0)
             self._cond.wait(1.0 if remaining is None else min(remaining, 1.0))
         return time.monotonic() - start
 
@@ -166,6 +198,27 @@ class Table:
             raise SignatureError(f"column '_stream' must be integer with shape ({n},)")
         return priority, stream.astype(np.int64)
 
+    def prepare(self, batch: Batch) -> PreparedInsert:
+        """Validates a batch against the signature and the reserved columns (no lock taken)."""
+        n = self.signature.validate(batch, extra=RESERVED_INSERT_COLUMNS)
+        priority, stream = self._reserved(batch, n)
+        return PreparedInsert(batch, n, priority, stream)
+
+    def insert_admitted(self) -> bool:
+        """Whether the rate limiter admits an insert now; the caller holds `lock`."""
+        s = self.stats
+        return self.rate_limiter.insert_allowed(inserts=s.inserts, samples=s.samples)
+
+    def store(self, prepared: PreparedInsert, *, writer: str = "") -> int:
+        """Stores a prepared batch (evicting per the remover), without asking the rate
+        limiter; the caller holds `lock` and has asked it. Returns items stored."""
+        if prepared.n == 0:
+            return 0
+        self._store(prepared.batch, prepared.n, prepared.priority, prepared.stream, writer)
+        self.stats.inserts += prepared.n
+        self._changed()
+        return prepared.n
+
     def insert(
         self,
         batch: Batch,
@@ -175,31 +228,20 @@ class Table:
         before_store: Optional[Callable[[], None]] = None,
         rate_limited: bool = True,
     ) -> int:
-        """Validates and stores a batch (evicting per the remover); returns items stored.
-
-        `before_store` runs under the table lock once the batch is admitted, right before
-        its rows go in, so a write-ahead log sees inserts in exactly the order the table
-        applies them; if it raises, nothing is stored.
-        `rate_limited=False` is for replaying a log on restart.
-        """
-        n = self.signature.validate(batch, extra=RESERVED_INSERT_COLUMNS)
-        priority, stream = self._reserved(batch, n)
-        if n == 0:
+        """Validates and stores a batch, blocking while the rate limiter says wait; returns
+        items stored. `before_store` runs under the table lock once the batch is admitted,
+        right before its rows go in, so a write-ahead log sees inserts in exactly the order
+        the table applies them; if it raises, nothing is stored. `rate_limited=False` is
+        for replaying a log on restart."""
+        prepared = self.prepare(batch)
+        if prepared.n == 0:
             return 0
         with self._cond:
-            s = self.stats
             if rate_limited:
-                s.insert_blocked_s += self._wait(
-                    lambda: self.rate_limiter.insert_allowed(inserts=s.inserts, samples=s.samples),
-                    timeout,
-                    "insert",
-                )
+                self.stats.insert_blocked_s += self._wait(self.insert_admitted, timeout, "insert")
             if before_store is not None:
                 before_store()
-            self._store(batch, n, priority, stream, writer)
-            s.inserts += n
-            self._cond.notify_all()
-        return n
+            return self.store(prepared, writer=writer)
 
     def _store(
         self,
@@ -275,48 +317,103 @@ class Table:
             rows, probabilities = self.sampler.sample(self.slots, self._rng, batch_size)
         return None
 
+    def sampled_bytes(self, batch_size: int, sequence_length: int = 1) -> int:
+        """Bytes of the columns a sample of `batch_size` items returns: data and `_key` per
+        step, `_probability` and `_weight` per item (the encoded payload adds a little)."""
+        per_item = sequence_length * (self.signature.item_bytes + 8) + 8 + 8
+        return batch_size * per_item
+
+    def check_sample(self, batch_size: int, sequence_length: int) -> None:
+        """Refuses a sample request this table can never serve, before anything is drawn."""
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        if not 1 <= sequence_length <= self.max_sequence_length:
+            raise ValueError(
+                f"sequence_length {sequence_length} is outside [1, {self.max_sequence_length}] "
+                f"(table '{self.name}' max_sequence_length)"
+            )
+
+    def _try_draw(self, batch_size: int, k: int) -> Optional[tuple[np.ndarray, np.ndarray]]:
+        """Start rows (windows) and probabilities if the rate limiter admits a sample now and
+        enough complete windows were found; the caller holds `lock`."""
+        s = self.stats
+        if not self.rate_limiter.sample_allowed(
+            size=self.size, inserts=s.inserts, samples=s.samples
+        ):
+            return None
+        return self._draw(batch_size, k) if self.size else None
+
+    def _take(
+        self, drawn: tuple[np.ndarray, np.ndarray], batch_size: int, k: int
+    ) -> tuple[Batch, int]:
+        """Gathers drawn windows and counts them as sampled; the caller holds `lock`.
+        Returns the columns and the table size to weigh them by."""
+        window_rows, _ = drawn
+        out = self._gather(window_rows, k)
+        self._count_samples(window_rows[:, 0])
+        self.stats.samples += batch_size
+        self._changed()
+        return out, max(self.size, 1)
+
+    def _weigh(self, out: Batch, probabilities: np.ndarray, size: int) -> Batch:
+        """Adds `_weight` and `_probability` (outside the lock)."""
+        if isinstance(self.sampler, Prioritized):
+            out["_weight"] = self.sampler.importance_weights(probabilities, size)
+        else:
+            out["_weight"] = np.ones(len(probabilities), dtype=np.float32)
+        out["_probability"] = probabilities
+        return out
+
+    def try_sample(
+        self,
+        batch_size: int,
+        *,
+        sequence_length: int = 1,
+        blocked_s: float = 0.0,
+        blocking: bool = True,
+    ) -> Optional[Batch]:
+        """One attempt at `sample`: the batch if the rate limiter admits it now, else None
+        (never waits on the limiter). `blocked_s` is the time the caller already waited,
+        for the stats.
+
+        Raises:
+            LockBusy: `blocking` is False and the table lock is held.
+        """
+        self.check_sample(batch_size, sequence_length)
+        if not self._cond.acquire(blocking=blocking):
+            raise LockBusy(f"table '{self.name}'")
+        try:
+            drawn = self._try_draw(batch_size, sequence_length)
+            if drawn is None:
+                return None
+            self.stats.sample_blocked_s += blocked_s
+            out, size = self._take(drawn, batch_size, sequence_length)
+        finally:
+            self._cond.release()
+        return self._weigh(out, drawn[1], size)
+
     def sample(
         self, batch_size: int, *, sequence_length: int = 1, timeout: Optional[float] = None
     ) -> Batch:
-        """Draws `batch_size` items (windows of `sequence_length` steps if > 1).
+        """Draws `batch_size` items (windows of `sequence_length` steps if > 1), blocking
+        while the rate limiter says wait.
 
         Returns the data columns (shaped [B, ...] or [B, k, ...]) plus `_key`, the
         sampling `_probability` of each (start) item, and its importance `_weight`.
         """
-        if batch_size < 1:
-            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
         k = sequence_length
-        if not 1 <= k <= self.max_sequence_length:
-            raise ValueError(
-                f"sequence_length {k} is outside [1, {self.max_sequence_length}] "
-                f"(table '{self.name}' max_sequence_length)"
-            )
-        drawn: list[Any] = []
+        self.check_sample(batch_size, k)
+        drawn: list[tuple[np.ndarray, np.ndarray]] = []
 
         def admitted() -> bool:
-            s = self.stats
-            if not self.rate_limiter.sample_allowed(
-                size=self.size, inserts=s.inserts, samples=s.samples
-            ):
-                return False
-            found = self._draw(batch_size, k) if self.size else None
+            found = self._try_draw(batch_size, k)
             drawn[:] = [found] if found is not None else []
             return bool(drawn)
 
         with self._cond:
             self.stats.sample_blocked_s += self._wait(admitted, timeout, "sample")
-            window_rows, probabilities = drawn[0]
-            out = self._gather(window_rows, k)
-            self._count_samples(window_rows[:, 0])
-            self.stats.samples += batch_size
-            size = max(self.size, 1)
-            self._cond.notify_all()
-        if isinstance(self.sampler, Prioritized):
-            out["_weight"] = self.sampler.importance_weights(probabilities, size)
-        else:
-            out["_weight"] = np.ones(batch_size, dtype=np.float32)
-        out["_probability"] = probabilities
-        return out
+            out, size = self._take(drawn[0], batch_size, k)
+        return self._weigh(out, drawn[0][1], size)
 
     def _gather(self, window_rows: np.ndarray, k: int) -> Batch:
         flat = window_rows.reshape(-1) if k > 1 else window_rows[:, 0]
@@ -351,7 +448,7 @@ class Table:
         with self._cond:
             live = self.slots.live(keys)
             self.sampler.set(self.slots.rows_of(keys[live]), priorities[live])
-            self._cond.notify_all()
+            self._changed()
         return int(live.sum())
 
     # ------------------------------------------------------------- checkpoint
