@@ -118,7 +118,7 @@ def local_cpus() -> float:
         from ray._private.utils import get_num_cpus
 
         return float(get_num_cpus())
-    except Exception:  # the private helper moved: count the cores Ray would count
+    except (ImportError, AttributeError):  # not in this Ray version: the machine's cores
         return float(os.cpu_count() or 1)
 
 
