@@ -111,6 +111,12 @@ class Ledger:
         }
 
 
+def progress(what: str, ledger: Ledger) -> None:
+    with ledger.lock:
+        acked, errors = sum(len(a) for a in ledger.acked), len(ledger.errors)
+    print(f"    {what}: {acked:,} items acknowledged, {errors} writer errors", flush=True)
+
+
 def run_writers(
     address: str, ledger: Ledger, stop: threading.Event, *, n: int, pause_s: float
 ) -> list[threading.Thread]:
@@ -149,7 +155,7 @@ def kill_restart(cycles: int) -> dict[str, Any]:
         current = server([table(limiter)], folder, port=port, extra=extra)
         ledger, stop = Ledger(), threading.Event()
         writers = run_writers(current.address, ledger, stop, n=4, pause_s=0.005)
-        for _ in range(cycles):
+        for cycle in range(cycles):
             # Each cycle kills a server the writers are busy with: they reconnected and
             # wrote again since the last restart.
             ledger.wait_for_acks(4)
@@ -157,6 +163,7 @@ def kill_restart(cycles: int) -> dict[str, Any]:
             current.kill()
             current.stop()
             current = server([table(limiter)], folder, port=port, extra=extra)
+            progress(f"kill {cycle + 1}/{cycles}", ledger)
         time.sleep(0.5)
         stop.set()
         for w in writers:
@@ -250,10 +257,11 @@ def dropped_connections(cycles: int) -> dict[str, Any]:
         sampler.start()
         writers = run_writers(f"127.0.0.1:{proxy.port}", ledger, stop, n=4, pause_s=0.0)
         cut = 0
-        for _ in range(cycles):
+        for cycle in range(cycles):
             ledger.wait_for_acks(1)
             time.sleep(random.uniform(0.3, 0.8))
             cut += proxy.cut_all()
+            progress(f"cut {cycle + 1}/{cycles}", ledger)
         time.sleep(1.0)
         stop.set()
         for w in writers:
@@ -331,7 +339,12 @@ def idle_streams(seconds: float, *, streams: int = 64, writers: int = 16) -> dic
         health = health_pb2_grpc.HealthStub(grpc.insecure_channel(s.address))
         checks: list[bool] = []
         end = time.monotonic() + seconds + 5.0  # the writer processes take a while to start
+        next_report = time.monotonic() + 10.0
         while time.monotonic() < end:
+            if time.monotonic() >= next_report:
+                next_report += 10.0
+                print(f"    {sum(checks)}/{len(checks)} health checks answered, "
+                      f"{end - time.monotonic():.0f} s left", flush=True)  # fmt: skip
             try:
                 health.Check(health_pb2.HealthCheckRequest(), timeout=2.0)
                 checks.append(True)
