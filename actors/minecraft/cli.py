@@ -13,6 +13,7 @@ from typing import Optional
 import numpy as np
 
 from actors.minecraft.malmo import protocol as P
+from actors.minecraft.sim.limits import DEFAULT_LIMITS, Limits
 from actors.minecraft.sim.timing import IDEAL, WAIT_S, Timing
 
 
@@ -27,17 +28,28 @@ def _timing(args: argparse.Namespace) -> Timing:
         raise SystemExit(f"graft minecraft serve: {e}") from None
 
 
+def _limits(args: argparse.Namespace) -> Limits:
+    try:
+        return Limits(
+            max_frame_pixels=args.max_frame_pixels, max_grid_cells=args.max_grid_cells,
+            max_message_bytes=args.max_message_bytes, max_connections=args.max_connections,
+            idle_timeout_s=args.idle_timeout_s,
+        )  # fmt: skip
+    except ValueError as e:
+        raise SystemExit(f"graft minecraft serve: {e}") from None
+
+
 def _serve(args: argparse.Namespace) -> int:
     from actors.minecraft.sim.server import WorldServer
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     if args.instances < 1:
         raise SystemExit(f"graft minecraft serve: --instances must be >= 1, got {args.instances}")
-    timing = _timing(args)
+    timing, limits = _timing(args), _limits(args)
     # Several instances in one process: a multi-agent mission's roles join each other.
     servers = [
         WorldServer(args.host, args.port + i if args.port else 0, seed=args.seed + i,
-                    ms_per_tick=args.ms_per_tick, timing=timing)
+                    ms_per_tick=args.ms_per_tick, timing=timing, limits=limits)
         for i in range(args.instances)
     ]  # fmt: skip
     for server in servers:
@@ -154,6 +166,17 @@ def add_minecraft_commands(subparsers: argparse._SubParsersAction) -> None:
         default=WAIT_S,
         help="longest wait of a Peek or step for a frame (Malmo: 3 s)",
     )
+    d = DEFAULT_LIMITS
+    limit_flags: list[tuple[str, type, object, str]] = [
+        ("--max-frame-pixels", int, d.max_frame_pixels, "largest VideoProducer Width×Height"),
+        ("--max-grid-cells", int, d.max_grid_cells, "most ObservationFromGrid cells a mission"),
+        ("--max-message-bytes", int, d.max_message_bytes, "longest request message"),
+        ("--max-connections", int, d.max_connections, "most open connections"),
+        ("--idle-timeout-s", float, d.idle_timeout_s, "seconds before a silent connection "
+         "is closed"),
+    ]  # fmt: skip
+    for flag, kind, default, what in limit_flags:
+        serve.add_argument(flag, type=kind, default=default, help=f"{what} (default {default})")
     serve.set_defaults(func=_serve)
     view = sub.add_parser("view", help="save PNG frames of a short episode")
     view.add_argument("--seed", type=int, default=0, help="world seed")

@@ -9,6 +9,7 @@ does not implement instead of ignoring them.
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 import zlib
 from dataclasses import dataclass, field
@@ -212,7 +213,13 @@ def _num(e: ET.Element, attr: str, default: Optional[float] = None) -> float:
         if default is None:
             raise MissionError(f"<{_tag(e)}> needs attribute {attr!r}")
         return default
-    return float(raw)
+    try:
+        v = float(raw)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v):
+        raise MissionError(f"<{_tag(e)}> {attr}={raw!r} is not a finite number")
+    return v
 
 
 def _text(e: Optional[ET.Element], name: str) -> Optional[str]:
@@ -395,7 +402,10 @@ def _agent_handlers(ah: Optional[ET.Element], kw: dict[str, object]) -> None:
             if flag is not None:
                 kw[flag] = True
     kw["handlers"] = tuple(handlers)
-    kw["rules"] = parse_rules(ah)
+    try:
+        kw["rules"] = parse_rules(ah)
+    except ValueError as e:
+        raise MissionError(str(e)) from None
 
 
 _FLAGS = {

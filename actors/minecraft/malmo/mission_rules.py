@@ -8,6 +8,7 @@ tolerance 0.5...). What triggers each one, and when, is the simulator's business
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from typing import Optional
@@ -146,7 +147,15 @@ def _tag(e: ET.Element) -> str:
 
 def _f(e: ET.Element, attr: str, default: float = 0.0) -> float:
     raw = e.get(attr)
-    return default if raw is None else float(raw)
+    if raw is None:
+        return default
+    try:
+        v = float(raw)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v):
+        raise ValueError(f"<{_tag(e)}> {attr}={raw!r} is not a finite number")
+    return v
 
 
 def _types(e: ET.Element) -> frozenset[str]:
@@ -159,7 +168,11 @@ def _bool(e: ET.Element, attr: str, default: bool) -> bool:
 
 
 def parse_rules(agent_handlers: ET.Element) -> Rules:
-    """The reward and quit producers among an ``<AgentHandlers>``'s children."""
+    """The reward and quit producers among an ``<AgentHandlers>``'s children.
+
+    Raises:
+        ValueError: a number that is not finite, naming the element and attribute.
+    """
     kw: dict[str, object] = {}
     for h in agent_handlers:
         t, kids = _tag(h), list(h)

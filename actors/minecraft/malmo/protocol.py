@@ -29,7 +29,8 @@ VERSION = "0.37.0"
 HELLO = f"<MalmoEnv{VERSION}/>"
 HELLO_PREFIX = "<MalmoEnv"
 MAX_HELLO = len(HELLO_PREFIX) + 8  # Malmo refuses longer hellos
-MAX_MESSAGE = 16 * 1024 * 1024  # requests larger than this are refused
+MAX_MESSAGE = 16 * 1024 * 1024  # the longest reply a client reads (frames included)
+CHUNK = 1 << 16  # the most read from a socket at once
 DEFAULT_PORT = 9000
 
 _LEN = struct.Struct("!I")
@@ -60,22 +61,21 @@ def send(sock: socket.socket, *payloads: bytes) -> None:
 
 
 def recv_exact(sock: socket.socket, n: int) -> bytes:
-    """Read exactly ``n`` bytes.
+    """Read exactly ``n`` bytes, holding only those that have arrived (a peer that
+    announces a long message and sends nothing costs ``CHUNK`` bytes, not ``n``).
 
     Raises:
         ConnectionClosed: the peer closed the connection first.
     """
-    if n == 0:
-        return b""
-    buf = bytearray(n)
-    view = memoryview(buf)
+    chunks: list[bytes] = []
     got = 0
     while got < n:
-        k = sock.recv_into(view[got:], n - got)
-        if k == 0:
+        chunk = sock.recv(min(n - got, CHUNK))
+        if not chunk:
             raise ConnectionClosed(f"connection closed after {got} of {n} bytes")
-        got += k
-    return bytes(buf)
+        chunks.append(chunk)
+        got += len(chunk)
+    return chunks[0] if len(chunks) == 1 else b"".join(chunks)
 
 
 def recv(sock: socket.socket, max_len: int = MAX_MESSAGE) -> bytes:
@@ -97,7 +97,13 @@ def pack_int(value: int) -> bytes:
 
 
 def unpack_int(payload: bytes) -> int:
-    """Decode an int32 payload."""
+    """Decode an int32 payload.
+
+    Raises:
+        ProtocolError: not 4 bytes (the server's ``error: ...`` refusal is quoted).
+    """
+    if payload.startswith(b"error: "):
+        raise ProtocolError(payload.decode("utf-8", "replace"))
     if len(payload) != 4:
         raise ProtocolError(f"expected a 4-byte int, got {len(payload)} bytes")
     return _INT.unpack(payload)[0]

@@ -9,6 +9,7 @@ phrase saying what is wrong (``"is not an integer"``).
 from __future__ import annotations
 
 import difflib
+import math
 import re
 from collections.abc import Callable, Iterable
 from typing import Optional
@@ -35,13 +36,17 @@ def int_range(lo: Optional[float] = None, hi: Optional[float] = None) -> Check:
 
 
 def decimal_range(lo: Optional[float] = None, hi: Optional[float] = None) -> Check:
-    """``xs:decimal`` (no exponent), optionally restricted to [lo, hi]."""
+    """``xs:decimal`` (no exponent), optionally restricted to [lo, hi]. A decimal too
+    long for a double (it would read as infinity) is refused: nothing simulates it."""
 
     def check(v: str) -> Optional[str]:
         v = v.strip()
         if not _DECIMAL.match(v):
             return "is not a decimal number"
-        return _in_range(float(v), lo, hi)
+        x = float(v)
+        if not math.isfinite(x):
+            return "is not a finite number (beyond a double's range)"
+        return _in_range(x, lo, hi)
 
     return check
 

@@ -76,6 +76,8 @@ class Instance:
         self._frame: tuple[tuple[int, int], bytes] = ((-1, -1), b"")
         self._info: tuple[int, str] = (-1, "")
         self.missions_started = 0
+        self.failed = False  # the simulator raised on this mission: never draw or observe it
+        self.missions_failed = 0
 
     # ------------------------------------------------------------------ phases
     @property
@@ -120,6 +122,7 @@ class Instance:
         self.frames_taken = self.info_taken = -1
         self.turn_key = self.last_turn_key = ""
         self._frame, self._info = ((-1, -1), b""), (-1, "")
+        self.failed = False
         self.generation += 1
         self.missions_started += 1
         self.cond.notify_all()
@@ -149,6 +152,18 @@ class Instance:
             self.session.end(self.world.end_reason)
         log.info("mission ended at tick %d: %s", self.world.tick_count, self.world.end_reason)
         self.cond.notify_all()
+
+    def fail(self, error: Exception) -> None:
+        """The simulator raised on this mission: end it (only it; the next mission runs
+        as usual) with the error as its end reason (call under ``cond``). Its world is
+        not ticked, drawn or observed again: steps answer done with the last frame."""
+        log.error("mission failed: %s", error, exc_info=error)
+        if self.failed or self.world is None:
+            return
+        self.failed = True
+        self.missions_failed += 1
+        if self.phase in (LOADING, RUNNING):
+            self._end(f"error: the simulator failed: {type(error).__name__}: {error}")
 
     def end_now(self, reason: str) -> None:
         """End the mission at once (``<Exit>``)."""
@@ -258,7 +273,7 @@ class Instance:
         if w is None or not self._video():
             return b""
         key = (index, w.tick_count)
-        if self._frame[0] != key:
+        if self._frame[0] != key and not self.failed:
             m = w.mission
             self._frame = (key, render(w, m.width, m.height, depth=m.want_depth))
         return self._frame[1]
@@ -267,7 +282,7 @@ class Instance:
     def _observation(self) -> str:
         w = self.world
         assert w is not None
-        if self._info[0] != w.tick_count:
+        if self._info[0] != w.tick_count and not self.failed:
             text = info_json(w)
             turn = self.session.turn_of(self.role) if self.turn_handlers and self.session else None
             if turn is not None:

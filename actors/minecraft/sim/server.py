@@ -10,7 +10,11 @@ It speaks Malmo's dialect to a 4-field token and MineRL's (``<StepClient>`` and
 Multi-agent missions join across servers of one process (``session.py``).
 
 Protocol errors (bad hello, oversized or unknown messages, the other dialect's steps)
-close that one connection with a logged reason, as Malmo does; the server keeps serving.
+close that one connection with a logged reason, as Malmo does, after an ``error: ...``
+message saying why; the server keeps serving. What one client may cost the server
+(frame size, grid volume, message size, connections, idle time) is capped by
+``limits.Limits``. A mission the simulator raises on ends with an ``error: ...`` reason
+(``<Status/>``'s ``end_reason``); the instance runs the next mission as usual.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from actors.minecraft.malmo.roles import RoleMission, role_mission
 from actors.minecraft.sim import session as S
 from actors.minecraft.sim import support
 from actors.minecraft.sim.instance import LOADING, RUNNING, Instance
+from actors.minecraft.sim.limits import DEFAULT_LIMITS, Limits
 from actors.minecraft.sim.timing import REAL, Timing
 from actors.minecraft.sim.world import World
 
@@ -45,15 +50,18 @@ class WorldServer:
             unless the mission or the token names one.
         ms_per_tick: tick period when the mission has no ModSettings/MsPerTick.
         timing: real Malmo's pacing (the default) or ``Timing(ideal=True)``.
+        limits: what one client may cost the server (frames, grids, messages,
+            connections, idle time).
     """
 
     def __init__(
         self, host: str = "127.0.0.1", port: int = P.DEFAULT_PORT, *, seed: int = 0,
-        ms_per_tick: int = 50, timing: Timing = REAL,
+        ms_per_tick: int = 50, timing: Timing = REAL, limits: Limits = DEFAULT_LIMITS,
     ) -> None:  # fmt: skip
         if ms_per_tick <= 0:
             raise ValueError(f"ms_per_tick must be positive, got {ms_per_tick}")
         self.host, self.seed, self.default_ms, self.timing = host, seed, ms_per_tick, timing
+        self.limits = limits
         self._requested_port = port
         self.port = 0
         self.inst = Instance(timing, ms_per_tick)
@@ -64,6 +72,7 @@ class WorldServer:
         self._session: Optional[S.Session] = None
         self.protocol_errors = 0
         self.busy_replies = 0
+        self.refused_connections = 0
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> int:
@@ -141,7 +150,10 @@ class WorldServer:
                 continue
             with inst.cond:
                 if inst.generation == generation and inst.phase == RUNNING and not inst.sync:
-                    inst.advance()
+                    try:
+                        inst.advance()
+                    except Exception as e:  # one mission's failure must not stop this thread
+                        inst.fail(e)
             # Real time: a late tick is not made up by a burst of ticks.
             next_t = max(next_t + period, now)
 
@@ -155,31 +167,75 @@ class WorldServer:
                 return
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             with self.inst.cond:
-                cid = self._next_conn
-                self._next_conn += 1
-                self._conns[cid] = conn
+                full = len(self._conns) >= self.limits.max_connections
+                if not full:
+                    cid = self._next_conn
+                    self._next_conn += 1
+                    self._conns[cid] = conn
+            if full:
+                self.refused_connections += 1
+                log.warning("refusing a connection: %d open", self.limits.max_connections)
+                self._refuse(
+                    conn,
+                    f"the server has {self.limits.max_connections} connections open, its "
+                    "limit (--max-connections)",
+                )
+                continue
+            conn.settimeout(self.limits.idle_timeout_s)
             threading.Thread(
                 target=self._serve_conn, args=(cid, conn), name=f"mc-conn-{cid}", daemon=True
             ).start()
 
+    @staticmethod
+    def _refuse(conn: socket.socket, reason: str) -> None:
+        """Send ``error: reason`` (best effort; the peer may not be reading) and close."""
+        try:
+            conn.settimeout(1.0)
+            P.send(conn, f"error: {reason}".encode())
+            conn.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        conn.close()
+
+    def _recv(self, conn: socket.socket) -> bytes:
+        """One request, read as its bytes arrive, at most ``max_message_bytes``."""
+        try:
+            return P.recv(conn, self.limits.max_message_bytes)
+        except P.ProtocolError as e:
+            raise P.ProtocolError(f"{e} (--max-message-bytes)") from None
+
     def _serve_conn(self, cid: int, conn: socket.socket) -> None:
+        error = ""
         try:
             hello = P.recv(conn, P.MAX_HELLO)
             if not hello.decode("utf-8", "replace").startswith(P.HELLO_PREFIX + P.VERSION):
                 raise P.ProtocolError(f"bad hello {hello[:40]!r}, expected {P.HELLO!r}")
             while not self._stopped.is_set():
-                self._dispatch(cid, conn, P.recv(conn).decode("utf-8", "replace"))
+                self._dispatch(cid, conn, self._recv(conn).decode("utf-8", "replace"))
         except P.ProtocolError as e:
             self.protocol_errors += 1
             log.warning("closing connection %d: %s", cid, e)
+            error = str(e)
+        except TimeoutError:
+            log.info("closing connection %d: idle", cid)
+            error = f"idle for {self.limits.idle_timeout_s:g} s (--idle-timeout-s); closing"
         except (OSError, ConnectionError):
             pass
+        except Exception as e:  # a simulator failure ends this connection's mission only
+            with self.inst.cond:
+                if self.inst.owner == cid:
+                    self.inst.fail(e)
+                else:
+                    log.error("closing connection %d: %s", cid, e, exc_info=e)
+            error = f"the simulator failed: {type(e).__name__}: {e}"
         finally:
             with self.inst.cond:
                 self._conns.pop(cid, None)
                 if self.inst.owner == cid and self.inst.phase in (LOADING, RUNNING):
                     log.info("mission owner disconnected; quitting the mission")
                     self.inst.request_quit()
+            if error:
+                self._refuse(conn, error)
             conn.close()
 
     def _dispatch(self, cid: int, conn: socket.socket, msg: str) -> None:
@@ -245,12 +301,15 @@ class WorldServer:
                 "ignored_commands": w.ignored_commands if w is not None else 0,
                 "protocol_errors": self.protocol_errors,
                 "missions_started": inst.missions_started,
+                "missions_failed": inst.missions_failed,
                 "busy_replies": self.busy_replies,
+                "connections": len(self._conns),
+                "refused_connections": self.refused_connections,
             }
 
     # ------------------------------------------------------------ mission init
     def _mission_init(self, cid: int, conn: socket.socket, xml: str) -> None:
-        token_text = P.recv(conn).decode("utf-8", "replace")
+        token_text = self._recv(conn).decode("utf-8", "replace")
         try:
             token = P.Token.parse(token_text)
         except (P.ProtocolError, ValueError) as e:
@@ -260,6 +319,7 @@ class WorldServer:
             role = role_mission(xml, token.role)
             parse_mission(xml, role=token.role)  # Malmo's schema rules on the whole MissionInit
             mission = parse_mission(role.xml)
+            self.limits.check(mission)  # before anything is built or drawn
             for warning in support.check(mission):  # refuses what the simulator lacks
                 log.warning("mission approximated: %s", warning)
             if token.minerl and not token.synchronous:
@@ -277,10 +337,15 @@ class WorldServer:
             return
         if token.seed is not None:
             mission = dataclasses.replace(mission, seed=token.seed)
-        if token.role == 0:
-            ok, reason = self._init_role0(cid, token, role, mission)
-        else:
-            ok, reason = self._join(cid, token, role, mission)
+        try:
+            if token.role == 0:
+                ok, reason = self._init_role0(cid, token, role, mission)
+            else:
+                ok, reason = self._join(cid, token, role, mission)
+        except Exception as e:  # building this mission's world failed: refuse it alone
+            log.error("refusing mission: the simulator failed: %s", e, exc_info=e)
+            self._reply_init(conn, False, f"error: the simulator failed: {e}", minerl=token.minerl)
+            return
         if not ok:
             self.busy_replies += 1
         self._reply_init(conn, ok, reason, minerl=token.minerl)

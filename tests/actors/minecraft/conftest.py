@@ -6,13 +6,22 @@ rate, empty info), with delays short enough to keep the tests quick (``FAST``)."
 
 from __future__ import annotations
 
+import json
+import socket
+import subprocess
+import sys
+import tempfile
 from collections.abc import Callable, Iterator
-from typing import Optional
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Optional
 
 import pytest
 
+from actors.minecraft.malmo import protocol as P
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.malmo.mission_xml import mission_xml
+from actors.minecraft.sim.pool import timing_flags
 from actors.minecraft.sim.server import WorldServer
 from actors.minecraft.sim.timing import Timing
 
@@ -22,6 +31,56 @@ FAST = Timing(loading_s=0.05, ending_s=0.02, fps=60.0, wait_s=0.5)
 # Bedrock, two dirt, grass: the ground's top face is y=4, the agent stands at y=4.
 FLAT = "3;7,2*3,2;1;"
 GROUND = 4.0
+
+
+@contextmanager
+def served(*flags: str, instances: int = 1) -> Iterator[tuple[subprocess.Popen[bytes], list[int]]]:
+    """A ``graft minecraft serve`` process (``FAST`` timing, free ports) and its ports;
+    its log goes to a temporary file, quoted when it fails to start."""
+    cmd = [
+        sys.executable, "-m", "actors.minecraft.cli", "minecraft", "serve", "--port", "0",
+        "--instances", str(instances), *timing_flags(FAST), *flags,
+    ]  # fmt: skip
+    root = str(Path(__file__).resolve().parents[3])
+    with tempfile.TemporaryFile() as log:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, cwd=root)
+        try:
+            assert proc.stdout is not None
+            ports = []
+            for _ in range(instances):
+                line = proc.stdout.readline().decode()
+                if not line:
+                    log.seek(0)
+                    raise RuntimeError(f"{cmd} exited: {log.read().decode()[-2000:]}")
+                ports.append(int(line.rsplit(":", 1)[1]))
+            yield proc, ports
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def connect(port: int, timeout: float = 10.0) -> socket.socket:
+    """A MalmoEnv connection (hello sent) to a server on loopback."""
+    s = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    P.send(s, P.HELLO.encode())
+    return s
+
+
+def status(port: int) -> dict[str, Any]:
+    """A server's ``<Status/>``, on a connection of its own."""
+    with connect(port) as s:
+        P.send(s, b"<Status/>")
+        return dict(json.loads(P.recv(s)))
+
+
+def mission_init(s: socket.socket, xml: str, token: str = "exp:0:1:1") -> tuple[int, str]:
+    """Malmo's MissionInit on ``s``: (ok, the turn key or the refusal's reason)."""
+    P.send(s, P.mission_init_xml(xml, "exp").encode(), token.encode())
+    return P.unpack_int(P.recv(s)), P.recv(s).decode()
 
 
 @pytest.fixture
