@@ -36,7 +36,9 @@ def _limits(args: argparse.Namespace) -> Limits:
             idle_timeout_s=args.idle_timeout_s,
         )  # fmt: skip
     except ValueError as e:
-        raise SystemExit(f"graft minecraft serve: {e}") from None
+        field = str(e).split()[0]  # each message starts with the field: name its flag
+        flag = "--" + field.replace("_", "-")
+        raise SystemExit(f"graft minecraft serve: {str(e).replace(field, flag, 1)}") from None
 
 
 def _serve(args: argparse.Namespace) -> int:

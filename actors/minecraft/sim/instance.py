@@ -183,15 +183,20 @@ class Instance:
 
     # ------------------------------------------------------------------ ticking
     def advance(self) -> None:
-        """One tick under ``cond``: apply queued commands, tick, publish."""
+        """One tick under ``cond``: apply queued commands, tick, publish. A tick that
+        raises ends the mission (``fail``) instead of raising."""
         w = self.world
         assert w is not None and self.phase == RUNNING
         if self.quit:
             self._end("quit")
             return
         cmds, self.commands = self.commands, []
-        w.tick(self._unlock_turns(cmds) if self.turn_handlers else cmds)
-        self._update_turn_key()
+        try:
+            w.tick(self._unlock_turns(cmds) if self.turn_handlers else cmds)
+            self._update_turn_key()
+        except Exception as e:  # ends this mission only; the instance goes on
+            self.fail(e)
+            return
         if w.done:
             self._end(w.end_reason)
         self.cond.notify_all()

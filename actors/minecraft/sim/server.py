@@ -150,10 +150,7 @@ class WorldServer:
                 continue
             with inst.cond:
                 if inst.generation == generation and inst.phase == RUNNING and not inst.sync:
-                    try:
-                        inst.advance()
-                    except Exception as e:  # one mission's failure must not stop this thread
-                        inst.fail(e)
+                    inst.advance()  # a mission that fails in its tick ends; this thread goes on
             # Real time: a late tick is not made up by a burst of ticks.
             next_t = max(next_t + period, now)
 
@@ -316,39 +313,43 @@ class WorldServer:
             self._reply_init(conn, False, f"error: {e}", minerl=len(token_text.split(":")) > 4)
             return
         try:
-            role = role_mission(xml, token.role)
-            parse_mission(xml, role=token.role)  # Malmo's schema rules on the whole MissionInit
-            mission = parse_mission(role.xml)
-            self.limits.check(mission)  # before anything is built or drawn
-            for warning in support.check(mission):  # refuses what the simulator lacks
-                log.warning("mission approximated: %s", warning)
-            if token.minerl and not token.synchronous:
-                raise MissionError("MineRL's asynchronous mode answers no steps; use synchronous")
-            if token.agent_count != role.agent_count:
-                raise MissionError(
-                    f"the token says {token.agent_count} agent(s), the mission has "
-                    f"{role.agent_count} AgentSection(s)"
-                )
-            if token.role > 0 and role.server_port == 0:
-                raise MissionError(f"role {token.role} needs a MinecraftServerConnection")
+            ok, reason = self._start_mission(cid, token, xml)
+            if not ok:
+                self.busy_replies += 1
         except MissionError as e:
             log.warning("refusing mission: %s", e)
-            self._reply_init(conn, False, f"error: {e}", minerl=token.minerl)
-            return
+            ok, reason = False, f"error: {e}"
+        except Exception as e:  # the simulator failed on this mission: refuse it alone
+            log.error("refusing mission: the simulator failed: %s", e, exc_info=e)
+            ok, reason = False, f"error: the simulator failed: {type(e).__name__}: {e}"
+        self._reply_init(conn, ok, reason, minerl=token.minerl)
+
+    def _start_mission(self, cid: int, token: P.Token, xml: str) -> tuple[bool, str]:
+        """Check the mission, then start it or join it: (ok, the busy reason).
+
+        Raises:
+            MissionError: the mission cannot be used (the reply names why).
+        """
+        role = role_mission(xml, token.role)
+        parse_mission(xml, role=token.role)  # Malmo's schema rules on the whole MissionInit
+        mission = parse_mission(role.xml)
+        self.limits.check(mission)  # before anything is built or drawn
+        for warning in support.check(mission):  # refuses what the simulator lacks
+            log.warning("mission approximated: %s", warning)
+        if token.minerl and not token.synchronous:
+            raise MissionError("MineRL's asynchronous mode answers no steps; use synchronous")
+        if token.agent_count != role.agent_count:
+            raise MissionError(
+                f"the token says {token.agent_count} agent(s), the mission has "
+                f"{role.agent_count} AgentSection(s)"
+            )
+        if token.role > 0 and role.server_port == 0:
+            raise MissionError(f"role {token.role} needs a MinecraftServerConnection")
         if token.seed is not None:
             mission = dataclasses.replace(mission, seed=token.seed)
-        try:
-            if token.role == 0:
-                ok, reason = self._init_role0(cid, token, role, mission)
-            else:
-                ok, reason = self._join(cid, token, role, mission)
-        except Exception as e:  # building this mission's world failed: refuse it alone
-            log.error("refusing mission: the simulator failed: %s", e, exc_info=e)
-            self._reply_init(conn, False, f"error: the simulator failed: {e}", minerl=token.minerl)
-            return
-        if not ok:
-            self.busy_replies += 1
-        self._reply_init(conn, ok, reason, minerl=token.minerl)
+        if token.role == 0:
+            return self._init_role0(cid, token, role, mission)
+        return self._join(cid, token, role, mission)
 
     @staticmethod
     def _reply_init(conn: socket.socket, ok: bool, reason: str, *, minerl: bool) -> None:

@@ -83,16 +83,20 @@ def test_numbers_that_are_not_finite_are_refused_naming_the_attribute(
         assert mission_init(s, BASE) == (1, "")
 
 
-def test_a_mission_the_simulator_fails_on_ends_alone_and_the_server_goes_on() -> None:
+@pytest.mark.parametrize("synchronous", [False, True], ids=["malmo", "minerl"])
+def test_a_mission_the_simulator_fails_on_ends_alone_and_the_server_goes_on(
+    synchronous: bool,
+) -> None:
     # Malmo accumulates yaw without wrapping it: at 1.7e308 degrees/s the yaw passes a
     # double's range within a few ticks of turning, and the simulator's trigonometry
-    # raises. That one mission must end; the tick thread and the other instance go on.
+    # raises. That one mission must end; the instance runs its next mission and the
+    # other instance goes on.
     turning = with_attr(BASE, "ContinuousMovementCommands", "turnSpeedDegs", NEAR_MAX)
     with served(instances=2) as (_, [port, other_port]):
         other = MalmoClient("127.0.0.1", other_port, timeout=10)
         other.init(BASE)
         other.reset()
-        bad = MalmoClient("127.0.0.1", port, timeout=10)
+        bad = MalmoClient("127.0.0.1", port, timeout=10, synchronous=synchronous)
         bad.init(turning)
         bad.reset()
         for _ in range(500):
