@@ -7,6 +7,9 @@
 3. 64 idle sample streams + 16 writers: inserts and health checks answered within a
    5 s / 2 s deadline, insert latency.
 4. Server RSS growth over scenarios 2 and 3 (one server process each).
+5. A Minecraft world server (``minecraft serve``, default limits) under 300 idle
+   connections, 16 connections announcing a 4 MiB message and sending 1 byte, and a
+   2000x2000 VideoProducer mission: its threads, RSS and replies.
 
 Every table is audited the same way: the server is stopped gracefully, restarted on its
 folder with a plain min-size limiter, and read whole. Loopback only.
@@ -21,6 +24,8 @@ import multiprocessing as mp
 import random
 import socket
 import struct
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -373,6 +378,70 @@ def idle_streams(seconds: float, *, streams: int = 64, writers: int = 16) -> dic
     }
 
 
+# ----------------------------------------------------- 5. a world server's limits
+
+
+def proc_status(pid: int, key: str) -> int:
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+    raise RuntimeError(f"no {key}")
+
+
+def world_server_limits(idle: int = 300, announcing: int = 16) -> dict[str, Any]:
+    from actors.minecraft.malmo import protocol as P
+    from actors.minecraft.malmo.mission_xml import mission_xml
+
+    def connect(port: int) -> socket.socket:
+        s = socket.create_connection(("127.0.0.1", port), timeout=30)
+        P.send(s, P.HELLO.encode())
+        return s
+
+    cmd = [sys.executable, "-m", "actors.minecraft.cli", "minecraft", "serve", "--port", "0"]
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=root)
+    try:
+        assert proc.stdout is not None
+        port = int(proc.stdout.readline().decode().rsplit(":", 1)[1])
+        threads, rss = proc_status(proc.pid, "Threads"), proc_status(proc.pid, "VmRSS")
+        socks = [connect(port) for _ in range(idle)]
+        refused = 0
+        for s in socks:  # the refused ones get one error message and are closed at once
+            s.settimeout(0.5)
+            try:
+                refused += s.recv(1 << 16)[4:].startswith(b"error: ")
+            except TimeoutError:
+                pass
+        out: dict[str, Any] = {
+            "idle refused": refused, "idle threads": proc_status(proc.pid, "Threads") - threads,
+            "idle rss": (proc_status(proc.pid, "VmRSS") - rss) / 1024,
+        }  # fmt: skip
+        for s in socks:
+            s.close()
+        time.sleep(1.0)
+        rss = proc_status(proc.pid, "VmRSS")
+        slow = [connect(port) for _ in range(announcing)]
+        for s in slow:
+            s.sendall((4 << 20).to_bytes(4, "big") + b"<")
+        time.sleep(1.0)
+        out["announcing rss"] = (proc_status(proc.pid, "VmRSS") - rss) / 1024
+        for s in slow:
+            s.close()
+        peak = proc_status(proc.pid, "VmHWM")
+        with connect(port) as s:
+            start = time.perf_counter()
+            xml = P.mission_init_xml(mission_xml(width=2000, height=2000), "chaos")
+            P.send(s, xml.encode(), b"chaos:0:1:1")
+            ok, reason = P.unpack_int(P.recv(s)), P.recv(s).decode()
+            out["frame reply"] = (ok, reason, 1e3 * (time.perf_counter() - start))
+        out["frame peak"] = (proc_status(proc.pid, "VmHWM") - peak) / 1024
+        return out
+    finally:
+        proc.terminate()
+        proc.wait(30)
+
+
 def timed(what: str, run: Callable[[], dict[str, Any]]) -> dict[str, Any]:
     print(f"... {what}", flush=True)
     start = time.perf_counter()
@@ -397,6 +466,8 @@ def main() -> None:
     )
     idle = timed(f"64 idle sample streams + 16 writers for {load_s:.0f} s",
                  lambda: idle_streams(load_s))  # fmt: skip
+    world = timed("a world server: 300 idle connections, 16 announcing 4 MiB, a 2000x2000 "
+                  "frame", world_server_limits)  # fmt: skip
 
     print()
     print("| fault | cycles | acked items | lost | doubled | stored, not acked | writer errors |")
@@ -423,6 +494,15 @@ def main() -> None:
             f"server RSS over {name}: {start:.0f} -> {end:.0f} MiB ({end - start:+.1f} MiB "
             f"in {r['wall s']:.0f} s)"
         )
+    ok, reason, ms = world["frame reply"]
+    print()
+    print(
+        f"world server: 300 idle connections -> {world['idle refused']} refused at once, "
+        f"+{world['idle threads']} threads, {world['idle rss']:+.1f} MiB RSS; 16 connections "
+        f"announcing 4 MiB -> {world['announcing rss']:+.1f} MiB RSS; a 2000x2000 "
+        f"VideoProducer -> answered {ok} in {ms:.0f} ms, peak RSS "
+        f"{world['frame peak']:+.1f} MiB: {reason}"
+    )
 
 
 if __name__ == "__main__":
