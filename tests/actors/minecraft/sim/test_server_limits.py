@@ -8,7 +8,9 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+
+import pytest
 
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.malmo.mission_xml import mission_xml
@@ -56,52 +58,62 @@ def _reply_then_closed(s: socket.socket) -> str:
     return data[4:].decode()
 
 
-def test_frames_and_grids_over_the_limits_are_refused_before_anything_is_built() -> None:
+@pytest.fixture(scope="module")
+def default_server() -> Iterator[tuple[int, int]]:
+    """(pid, port) of a server process with the default limits."""
+    with served() as (proc, [port]):
+        yield proc.pid, port
+
+
+def test_frames_and_grids_over_the_limits_are_refused_before_anything_is_built(
+    default_server: tuple[int, int],
+) -> None:
     huge_frame = mission_xml(width=2000, height=2000, flat=FLAT)
     huge_grid = flat_mission(grid_radius=80)  # 161³ cells
-    with served() as (proc, [port]):
-        peak = proc_status(proc.pid, "VmHWM")
-        with connect(port) as s:
-            ok, reason = mission_init(s, huge_frame)
-            assert ok == 0 and "<VideoProducer> 2000x2000" in reason
-            assert f"at most {DEFAULT_LIMITS.max_frame_pixels:,} (--max-frame-pixels)" in reason
-            ok, reason = mission_init(s, huge_grid, "exp:0:2:1")
-            assert ok == 0 and "<ObservationFromGrid> has 4,173,281 cells" in reason
-            assert "--max-grid-cells" in reason
-            assert mission_init(s, flat_mission(video=True), "exp:0:3:1") == (1, "")
-        # Nothing was drawn or built for the refused missions: the peak RSS barely moved
-        # (one 2000x2000 frame alone is 12 MB; drawing it took over 1 GB).
-        assert proc_status(proc.pid, "VmHWM") - peak < 40 * 1024
+    pid, port = default_server
+    peak = proc_status(pid, "VmHWM")
+    with connect(port) as s:
+        ok, reason = mission_init(s, huge_frame)
+        assert ok == 0 and "<VideoProducer> 2000x2000" in reason
+        assert f"at most {DEFAULT_LIMITS.max_frame_pixels:,} (--max-frame-pixels)" in reason
+        ok, reason = mission_init(s, huge_grid, "exp:0:2:1")
+        assert ok == 0 and "<ObservationFromGrid> has 4,173,281 cells" in reason
+        assert "--max-grid-cells" in reason
+        assert mission_init(s, flat_mission(video=True), "exp:0:3:1") == (1, "")
+    # Nothing was drawn or built for the refused missions: the peak RSS barely moved
+    # (one 2000x2000 frame alone is 12 MB, and drawing it needs many times that).
+    assert proc_status(pid, "VmHWM") - peak < 40 * 1024
 
 
-def test_a_long_message_is_held_only_as_its_bytes_arrive_and_capped() -> None:
+def test_a_long_message_is_held_only_as_its_bytes_arrive_and_capped(
+    default_server: tuple[int, int],
+) -> None:
     cap, n = DEFAULT_LIMITS.max_message_bytes, 16
-    with served() as (proc, [port]):
-        rss = proc_status(proc.pid, "VmRSS")
-        # Each announces a message of the largest allowed size and sends one byte of it.
-        slow = [connect(port) for _ in range(n)]
-        for s in slow:
-            s.sendall(cap.to_bytes(4, "big") + b"<")
-        _wait_for("the connections are served", lambda: status(port)["connections"] > n)
-        status(port)  # one more round trip: every connection's thread is reading by now
-        grown = proc_status(proc.pid, "VmRSS") - rss
-        assert grown < n * cap // 1024 // 4, f"{grown} kB for {n} announced {cap // MIB} MiB"
+    pid, port = default_server
+    rss = proc_status(pid, "VmRSS")
+    # Each announces a message of the largest allowed size and sends one byte of it.
+    slow = [connect(port) for _ in range(n)]
+    for s in slow:
+        s.sendall(cap.to_bytes(4, "big") + b"<")
+    _wait_for("the connections are served", lambda: status(port)["connections"] > n)
+    status(port)  # one more round trip: every connection's thread is reading by now
+    grown = proc_status(pid, "VmRSS") - rss
+    assert grown < n * cap // 1024 // 4, f"{grown} kB for {n} announced {cap // MIB} MiB"
 
-        # A message at the cap is served (an Echo of it comes back whole) ...
-        with connect(port) as s:
-            body = b"<Echo" + b" " * (cap - 5)
-            P.send(s, body)
-            assert P.recv(s, 2 * cap) == b"<Echo>" + body + b"</Echo>"
-        # ... one byte longer is refused, unread, with the limit named.
-        with connect(port) as s:
-            s.sendall((cap + 1).to_bytes(4, "big"))
-            reply = _reply_then_closed(s)
-        assert reply == (
-            f"error: message of {cap + 1} bytes exceeds the limit of {cap} bytes "
-            "(--max-message-bytes)"
-        )
-        for s in slow:
-            s.close()
+    # A message at the cap is served (an Echo of it comes back whole) ...
+    with connect(port) as s:
+        body = b"<Echo" + b" " * (cap - 5)
+        P.send(s, body)
+        assert P.recv(s, 2 * cap) == b"<Echo>" + body + b"</Echo>"
+    # ... one byte longer is refused, unread, with the limit named.
+    with connect(port) as s:
+        s.sendall((cap + 1).to_bytes(4, "big"))
+        reply = _reply_then_closed(s)
+    assert reply == (
+        f"error: message of {cap + 1} bytes exceeds the limit of {cap} bytes (--max-message-bytes)"
+    )
+    for s in slow:
+        s.close()
 
 
 def test_connections_are_capped_and_idle_ones_closed() -> None:
