@@ -19,7 +19,7 @@ from learner.dqn.config import DQNConfig
 from learner.options.config import OptionsConfig
 from learner.pretrain.config import PretrainConfig
 from learner.td3.config import TD3Config
-from service.run.placement import LearnerPlacement, Placement, ReplayPlacement
+from service.run.placement import ActorPlacement, LearnerPlacement, ReplaySettings
 from service.run.validation import ConfigError, coerce, unknown_fields, yaml_error
 
 ALGORITHMS = ("td3", "ddqn", "backbone_td3", "pretrain_td3", "options")
@@ -29,10 +29,10 @@ SECTIONS = {
     "backbone": BackboneConfig,
     "pretrain": PretrainConfig,
     "options": OptionsConfig,
-    "actors": Placement,
-    "evaluator": Placement,
+    "actors": ActorPlacement,
+    "evaluator": ActorPlacement,
     "learner": LearnerPlacement,
-    "replay": ReplayPlacement,
+    "replay": ReplaySettings,
 }
 
 
@@ -99,13 +99,13 @@ class TrainConfig:
     """Demonstrations and pre-training losses (pretrain_td3)."""
     options: OptionsConfig = field(default_factory=OptionsConfig)
     """Option length and Retrace λ (options)."""
-    actors: Placement = field(default_factory=Placement)
+    actors: ActorPlacement = field(default_factory=ActorPlacement)
     """What each env actor reserves, where it may run, how often it is restarted."""
-    evaluator: Placement = field(default_factory=Placement)
+    evaluator: ActorPlacement = field(default_factory=ActorPlacement)
     """What the evaluator reserves, where it may run, how often it is restarted."""
     learner: LearnerPlacement = field(default_factory=LearnerPlacement)
     """What the learner reserves where it runs as a Ray task (``ray://`` addresses)."""
-    replay: ReplayPlacement = field(default_factory=ReplayPlacement)
+    replay: ReplaySettings = field(default_factory=ReplaySettings)
     """The replay server's port, checkpoint interval and restarts."""
 
     def __post_init__(self) -> None:

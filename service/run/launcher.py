@@ -168,8 +168,30 @@ def connect_ray(address: str) -> bool:
             address="local", include_dashboard=False, log_to_driver=False, configure_logging=False
         )
         return True
+    _use_token_auth(address)
     ray.init(address=address, log_to_driver=False)
     return False
+
+
+def _use_token_auth(address: str) -> None:
+    """Joins a cluster at HOST:PORT with Ray's token auth when this machine holds a token.
+
+    Ray turns token auth on by itself only for 'auto'; with an explicit address a
+    cluster whose nodes require the token (RAY_AUTH_MODE=token) would refuse us after
+    many retries. An explicit RAY_AUTH_MODE (e.g. 'disabled') is left as it is.
+    """
+    if address.startswith("ray://") or "RAY_AUTH_MODE" in os.environ:
+        return
+    token_file = os.environ.get("RAY_AUTH_TOKEN_PATH") or str(Path.home() / ".ray" / "auth_token")
+    if os.environ.get("RAY_AUTH_TOKEN") or Path(token_file).is_file():
+        try:  # sets RAY_AUTH_MODE=token and reloads Ray's cached config, as 'auto' does
+            from ray._private.authentication.authentication_token_setup import (
+                _enable_token_auth,
+            )
+        except ImportError:  # another Ray version: its config reads the variable at start
+            os.environ["RAY_AUTH_MODE"] = "token"
+        else:
+            _enable_token_auth()
 
 
 def resolve_address(given: Optional[str]) -> tuple[str, Optional[str]]:

@@ -5,7 +5,7 @@ actors can be placed on the cluster before any of them starts.
     actors:    {num_cpus: 0.25, resources: {minecraft: 1}, label_selector: {zone: gpu-a}}
     evaluator: {num_cpus: 0.25}
     learner:   {num_gpus: 1}            # the learner's Ray task (ray:// runs)
-    replay:    {port: 9100}             # fixed for firewalls; 0 picks a free one
+    replay:    {port: 9100}             # the server's port, fixed for firewalls
 
 A role that cannot be placed would wait forever for a node (Ray keeps such actors
 pending without a word), so `check_placement` refuses the run in one line that names
@@ -33,8 +33,6 @@ class Placement:
     ``ray start --resources '{"minecraft": 4}'``."""
     label_selector: dict[str, str] = field(default_factory=dict)
     """Node labels the role's nodes must carry (``ray start --labels zone=a``)."""
-    max_restarts: int = 10
-    """How often the role's processes may be restarted after dying before the run fails."""
 
     def __post_init__(self) -> None:
         for name in ("num_cpus", "num_gpus"):
@@ -54,8 +52,6 @@ class Placement:
             raise ValueError(
                 f"label_selector={self.label_selector!r} must map label names to values"
             )
-        if self.max_restarts < 0:
-            raise ValueError(f"max_restarts={self.max_restarts} must be >= 0")
 
     def demand(self) -> dict[str, float]:
         """The Ray resources one process of the role reserves."""
@@ -75,32 +71,47 @@ class Placement:
 
 
 @dataclass(frozen=True)
-class LearnerPlacement(Placement):
-    """The learner: this process for local and ``auto`` runs, a Ray task on the cluster
-    (placed by these fields) when the run is driven through ``ray://``."""
+class ActorPlacement(Placement):
+    """A role of Ray actors that are replaced when they die (env actors, the evaluator)."""
 
-    num_cpus: float = 1.0
-    """CPUs reserved by the learner's Ray task."""
+    max_restarts: int = 10
+    """How often the role's actors may be replaced after dying before the run fails."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.max_restarts < 0:
+            raise ValueError(f"max_restarts={self.max_restarts} must be >= 0")
 
 
 @dataclass(frozen=True)
-class ReplayPlacement(Placement):
+class LearnerPlacement(Placement):
+    """The learner (with the replay server it starts): the `graft train` process itself,
+    except for ``ray://`` addresses, where it runs as a Ray task placed by these fields
+    (on the head node unless ``resources`` or ``label_selector`` say otherwise)."""
+
+    num_cpus: float = 0.0
+    """CPUs the learner's task reserves (0: a head node started with no CPUs takes it)."""
+
+
+@dataclass(frozen=True)
+class ReplaySettings:
     """The replay server: a child of the learner's process, restarted from its checkpoint
     folder when it dies."""
 
-    num_cpus: float = 0.0
-    """CPUs reserved (only for the Ray actor that hosts it in ``ray://`` runs)."""
     port: int = 0
     """Port the server listens on (0: a free one; fix it where a firewall needs to know)."""
     checkpoint_every_s: float = 30.0
     """Seconds between the server's checkpoints (its log keeps every insert between them)."""
+    max_restarts: int = 10
+    """How often the server may be restarted after dying before the run fails."""
 
     def __post_init__(self) -> None:
-        super().__post_init__()
         if not 0 <= self.port < 65536:
             raise ValueError(f"port={self.port} must lie in [0, 65535] (0: a free port)")
         if self.checkpoint_every_s <= 0:
             raise ValueError(f"checkpoint_every_s={self.checkpoint_every_s} must be > 0")
+        if self.max_restarts < 0:
+            raise ValueError(f"max_restarts={self.max_restarts} must be >= 0")
 
 
 @dataclass(frozen=True)
