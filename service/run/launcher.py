@@ -278,6 +278,10 @@ def train(
     Raises:
         ConfigError: a bad value, a refused run folder or resume, in one line.
     """
+    if address.startswith("ray://"):  # outside the cluster: the run goes into it
+        from service.run.on_cluster import train_on_cluster
+
+        return train_on_cluster(config, address=address, run_dir=run_dir, resume=resume)
     run_dir, checkpoint = check_run_dir(config, run_dir, resume)
     check_fits_locally(config, address)
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server

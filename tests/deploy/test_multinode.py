@@ -49,7 +49,9 @@ class NamespaceCluster:
         pid = os.getpid()
         self.bridge = f"gb{pid}"
         self.namespaces = [f"gn{pid}n{i}" for i in range(workers + 1)]
-        self.addresses = [f"10.{200 + pid % 50}.{pid // 50 % 250}.{i + 1}" for i in range(workers + 1)]
+        self.addresses = [
+            f"10.{200 + pid % 50}.{pid // 50 % 250}.{i + 1}" for i in range(workers + 1)
+        ]
         self.temp_dir = f"/tmp/graft-ray-{pid}"
         self.head = f"{self.addresses[0]}:6379"
 
@@ -89,18 +91,34 @@ class NamespaceCluster:
         script = str(ROOT / "deploy" / "ray-node.sh")
         head = [script, "head", "--ip", self.addresses[0], "--num-cpus", "0",
                 "--temp-dir", self.temp_dir]  # fmt: skip
-        self._check(self.exec(self.namespaces[0], head, stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True))  # fmt: skip
+        self._start(self.namespaces[0], head)
         for ns, address in zip(self.namespaces[1:], self.addresses[1:], strict=True):
             worker = [script, "worker", "--head", self.head, "--ip", address, "--num-cpus", "2",
                       "--labels", "graft-node=worker", "--temp-dir", self.temp_dir]  # fmt: skip
-            self._check(self.exec(ns, worker, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True))  # fmt: skip
+            self._start(ns, worker)
 
-    @staticmethod
-    def _check(process: subprocess.Popen) -> None:
-        out, _ = process.communicate(timeout=300)
-        assert process.returncode == 0, out
+    def _start(self, ns: str, argv: list[str], attempts: int = 5) -> None:
+        """Starts a node; again (its namespace emptied first) if Ray's fixed 30 s wait for
+        its raylet ran out on a loaded machine."""
+        for attempt in range(attempts):
+            process = self.exec(ns, argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True)  # fmt: skip
+            out, _ = process.communicate(timeout=300)
+            if process.returncode == 0:
+                return
+            assert "timed out during startup" in out and attempt < attempts - 1, out
+            self._kill(self.pids(ns))
+
+    def _kill(self, pids: list[int]) -> None:
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            for pid in pids:
+                try:
+                    os.kill(pid, sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and any(Path(f"/proc/{p}").exists() for p in pids):
+                time.sleep(0.2)
 
     def pids(self, ns: str) -> list[int]:
         result = subprocess.run(["ip", "netns", "pids", ns], capture_output=True, text=True)
@@ -112,16 +130,7 @@ class NamespaceCluster:
 
     def tear_down(self) -> None:
         """Every process in the namespaces (by pid), then the namespaces and the bridge."""
-        for sig in (signal.SIGTERM, signal.SIGKILL):
-            pids = [p for ns in self.namespaces for p in self.pids(ns)]
-            for pid in pids:
-                try:
-                    os.kill(pid, sig)
-                except ProcessLookupError:
-                    pass
-            deadline = time.monotonic() + 10
-            while time.monotonic() < deadline and any(self.pids(ns) for ns in self.namespaces):
-                time.sleep(0.2)
+        self._kill([p for ns in self.namespaces for p in self.pids(ns)])
         for ns in self.namespaces:
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
         subprocess.run(["ip", "link", "del", self.bridge], capture_output=True)
