@@ -103,7 +103,7 @@ class NamespaceCluster:
         # Ray waits a fixed 30 s for a new raylet to register; on a machine loaded by other
         # jobs that runs out, so the nodes' control processes get a slightly higher priority.
         for attempt in range(attempts):
-            process = self.exec(ns, ["nice", "-n", "-5", *argv], stdout=subprocess.PIPE,
+            process = self.exec(ns, ["nice", "-n", "-10", *argv], stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True)  # fmt: skip
             out, _ = process.communicate(timeout=300)
             if process.returncode == 0:
