@@ -81,6 +81,9 @@ class NamespaceCluster:
             "PATH": f"{BIN}:{os.environ.get('PATH', '')}",
             "PYTHONPATH": str(ROOT),
             "RAY": str(BIN / "ray"),
+            # A raylet gives its agents 30 s to start by default; on a machine loaded by
+            # other jobs their Python start-up takes longer.
+            "RAY_agent_register_timeout_ms": "180000",
         }
 
     def exec(self, ns: str, argv: list[str], **kwargs: object) -> subprocess.Popen:
