@@ -12,16 +12,18 @@ its episodes as ``eval/<name>`` beside the return.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Optional
 
 import gymnasium as gym
 import numpy as np
 import ray
 import torch
 from ray import ObjectRef
+from ray.exceptions import RayActorError
 
 from actors.policies import UniformRandomPolicy
 from actors.task import EnvSpec
@@ -212,17 +214,75 @@ class Evaluator:
 
 
 class RemoteEvaluator:
-    """The learner's `Evaluator` (service/core.py): an `Evaluator` Ray actor runs the episodes."""
+    """The learner's `Evaluator` (service/core.py): an `Evaluator` Ray actor runs the episodes.
 
-    def __init__(self, *, env: EnvSpec, behaviour: Behaviour, seed: int) -> None:
+    An evaluator that dies is replaced by a new one (up to `max_restarts` times) and the
+    evaluations it held are started again there: episodes are seeded, so the result is
+    the same. `restarts` counts the replacements; `on_restart` hears of each in one line.
+    """
+
+    def __init__(
+        self,
+        *,
+        env: EnvSpec,
+        behaviour: Behaviour,
+        seed: int,
+        options: Optional[dict[str, Any]] = None,
+        max_restarts: int = 0,
+        on_restart: Optional[Callable[[str], None]] = None,
+    ) -> None:
+        self._args = {"env": env, "behaviour": behaviour, "seed": seed}
+        self._options = dict(options or {})
+        self.max_restarts, self.restarts = max_restarts, 0
+        self._on_restart = on_restart
+        self._lock = threading.Lock()
+        self._actor = self._start()
+
+    def _start(self) -> Any:
         # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
-        self._actor = Evaluator.remote(  # type: ignore[attr-defined]
-            env=env, behaviour=behaviour, seed=seed
-        )
+        return Evaluator.options(**self._options).remote(**self._args)  # type: ignore[attr-defined]
 
     def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
         """Starts the episodes in the actor and returns at once."""
-        ref: ObjectRef[Evaluation] = self._actor.evaluate.remote(
-            weights, episodes=episodes, tag=tag
-        )
-        return ref.future()
+        result: Future[Evaluation] = Future()
+        self._submit(weights, episodes, tag, result)
+        return result
+
+    def _submit(
+        self, weights: Weights, episodes: int, tag: EvalTag, result: Future[Evaluation]
+    ) -> None:
+        actor = self._actor
+        ref: ObjectRef[Evaluation] = actor.evaluate.remote(weights, episodes=episodes, tag=tag)
+
+        def done(future: Future[Evaluation]) -> None:
+            try:
+                result.set_result(future.result())
+            except RayActorError as error:
+                try:
+                    self._replace(actor, error)
+                    self._submit(weights, episodes, tag, result)
+                except BaseException as failed:
+                    result.set_exception(failed)
+            except BaseException as error:
+                result.set_exception(error)
+
+        ref.future().add_done_callback(done)
+
+    def _replace(self, dead: Any, error: RayActorError) -> None:
+        """A new evaluator for `dead`, unless another evaluation already replaced it."""
+        with self._lock:
+            if self._actor is not dead:
+                return
+            if self.restarts >= self.max_restarts:
+                raise RuntimeError(
+                    f"the evaluator died after {self.restarts} restarts "
+                    f"(evaluator.max_restarts={self.max_restarts}): {error}"
+                ) from error
+            self.restarts += 1
+            ray.kill(dead)
+            self._actor = self._start()
+        if self._on_restart is not None:
+            first = str(error).strip().splitlines()[0] if str(error).strip() else "died"
+            self._on_restart(
+                f"evaluator died ({first}); restarted it (evaluator restart {self.restarts})"
+            )

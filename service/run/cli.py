@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import signal
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn, Optional
@@ -22,6 +23,8 @@ DEFAULT_PRESET = "pendulum-td3"
 
 INTERRUPTED = 130
 """Exit status after Ctrl-C (128 + SIGINT), as shells report it."""
+TERMINATED = 143
+"""Exit status after SIGTERM (128 + SIGTERM), which stops a run as Ctrl-C does."""
 
 
 class UsageError(SystemExit):
@@ -82,6 +85,7 @@ def _train(args: argparse.Namespace) -> None:
     except ConfigError as error:
         raise UsageError("train", str(error)) from None
     address = _address("train", args.address)
+    terminated = _stop_on_sigterm()
     try:
         result = train(
             config,
@@ -94,19 +98,21 @@ def _train(args: argparse.Namespace) -> None:
         raise UsageError("train", str(error)) from None
     except KeyboardInterrupt:
         print(
-            "graft train: interrupted while starting, before any update; no checkpoint written",
+            f"graft train: {'terminated' if terminated else 'interrupted'} while starting, "
+            "before any update; no checkpoint written",
             file=sys.stderr,
         )
-        raise SystemExit(INTERRUPTED) from None
+        raise SystemExit(TERMINATED if terminated else INTERRUPTED) from None
     s = result.summary
     if result.interrupted:
         checkpoint = latest_checkpoint(result.run_dir / "checkpoints")
         print(
-            f"graft train: interrupted at {s['env_steps']} env steps; checkpoint {checkpoint}, "
+            f"graft train: {'terminated' if terminated else 'interrupted'} at "
+            f"{s['env_steps']} env steps; checkpoint {checkpoint}, "
             f"summary {result.run_dir / 'summary.json'}",
             file=sys.stderr,
         )
-        raise SystemExit(INTERRUPTED)
+        raise SystemExit(TERMINATED if terminated else INTERRUPTED)
     print(f"\nrun folder: {result.run_dir}")
     print(
         f"final evaluation return: {s['final_eval_return_mean']:.1f} ± "
@@ -119,6 +125,21 @@ def _train(args: argparse.Namespace) -> None:
     )
     print(f"actors adopted weight versions up to {s['actor_last_version']}")
     print(f"learning curve: {result.run_dir / 'learning_curve.png'}")
+
+
+def _stop_on_sigterm() -> list[int]:
+    """Makes SIGTERM stop `graft train` as Ctrl-C does (final checkpoint, summary, the
+    replay server and Ray stopped); the returned list is non-empty once it came. A
+    second SIGTERM is ignored while the run saves and stops (SIGKILL still ends it)."""
+    received: list[int] = []
+
+    def on_sigterm(signum: int, _frame: object) -> None:
+        received.append(signum)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_sigterm)
+    return received
 
 
 def _train_config(args: argparse.Namespace) -> TrainConfig:

@@ -19,6 +19,7 @@ from learner.dqn.config import DQNConfig
 from learner.options.config import OptionsConfig
 from learner.pretrain.config import PretrainConfig
 from learner.td3.config import TD3Config
+from service.run.placement import ActorPlacement, LearnerPlacement, ReplaySettings
 from service.run.validation import ConfigError, coerce, unknown_fields, yaml_error
 
 ALGORITHMS = ("td3", "ddqn", "backbone_td3", "pretrain_td3", "options")
@@ -28,6 +29,10 @@ SECTIONS = {
     "backbone": BackboneConfig,
     "pretrain": PretrainConfig,
     "options": OptionsConfig,
+    "actors": ActorPlacement,
+    "evaluator": ActorPlacement,
+    "learner": LearnerPlacement,
+    "replay": ReplaySettings,
 }
 
 
@@ -94,6 +99,14 @@ class TrainConfig:
     """Demonstrations and pre-training losses (pretrain_td3)."""
     options: OptionsConfig = field(default_factory=OptionsConfig)
     """Option length and Retrace λ (options)."""
+    actors: ActorPlacement = field(default_factory=ActorPlacement)
+    """What each env actor reserves, where it may run, how often it is restarted."""
+    evaluator: ActorPlacement = field(default_factory=ActorPlacement)
+    """What the evaluator reserves, where it may run, how often it is restarted."""
+    learner: LearnerPlacement = field(default_factory=LearnerPlacement)
+    """What the learner reserves where it runs as a Ray task (``ray://`` addresses)."""
+    replay: ReplaySettings = field(default_factory=ReplaySettings)
+    """The replay server's port, checkpoint interval and restarts."""
 
     def __post_init__(self) -> None:
         for name in (

@@ -17,7 +17,9 @@ import dataclasses
 import json
 import os
 import secrets
+import shutil
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -27,6 +29,7 @@ from typing import Any, Optional
 
 import ray
 import torch
+from ray.exceptions import RayActorError
 from tqdm import tqdm
 
 from actors.env_actor import EnvActor, Segment
@@ -39,10 +42,10 @@ from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
 from service.run.config import TrainConfig
-from service.run.preflight import check_fits_locally, check_run_dir, check_task
+from service.run.preflight import check_cluster, check_fits_locally, check_run_dir, check_task
 from service.run.provenance import config_record
 from service.run.registry import make_builder
-from service.run.replay_process import ReplayProcess
+from service.run.supervision import ActorFleet, SupervisedReplay, Supervisor
 from service.run.validation import ConfigError
 from service.weights import BroadcastPublisher
 
@@ -128,6 +131,13 @@ def _resumed_phases(phases: list[Phase], state: LoopState, config: TrainConfig) 
     ]
 
 
+RETRIES_ACROSS_RESTART = 40
+"""Retries of a replay call that finds no server (backoff up to 2 s: over a minute), so
+actors and the learner wait out a replay server's restart."""
+
+ACTOR_FINISH_S = 60.0
+"""How long actors may take to send their last batches once the learner is done."""
+
 PENDING_INSERTS = 8
 """Insert batches an actor may queue for a table that never holds inserts back."""
 
@@ -158,8 +168,30 @@ def connect_ray(address: str) -> bool:
             address="local", include_dashboard=False, log_to_driver=False, configure_logging=False
         )
         return True
+    _use_token_auth(address)
     ray.init(address=address, log_to_driver=False)
     return False
+
+
+def _use_token_auth(address: str) -> None:
+    """Joins a cluster at HOST:PORT with Ray's token auth when this machine holds a token.
+
+    Ray turns token auth on by itself only for 'auto'; with an explicit address a
+    cluster whose nodes require the token (RAY_AUTH_MODE=token) would refuse us after
+    many retries. An explicit RAY_AUTH_MODE (e.g. 'disabled') is left as it is.
+    """
+    if address.startswith("ray://") or "RAY_AUTH_MODE" in os.environ:
+        return
+    token_file = os.environ.get("RAY_AUTH_TOKEN_PATH") or str(Path.home() / ".ray" / "auth_token")
+    if os.environ.get("RAY_AUTH_TOKEN") or Path(token_file).is_file():
+        try:  # sets RAY_AUTH_MODE=token and reloads Ray's cached config, as 'auto' does
+            from ray._private.authentication.authentication_token_setup import (
+                _enable_token_auth,
+            )
+        except ImportError:  # another Ray version: its config reads the variable at start
+            os.environ["RAY_AUTH_MODE"] = "token"
+        else:
+            _enable_token_auth()
 
 
 def resolve_address(given: Optional[str]) -> tuple[str, Optional[str]]:
@@ -246,6 +278,10 @@ def train(
     Raises:
         ConfigError: a bad value, a refused run folder or resume, in one line.
     """
+    if address.startswith("ray://"):  # outside the cluster: the run goes into it
+        from service.run.on_cluster import train_on_cluster
+
+        return train_on_cluster(config, address=address, run_dir=run_dir, resume=resume)
     run_dir, checkpoint = check_run_dir(config, run_dir, resume)
     check_fits_locally(config, address)
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
@@ -261,39 +297,70 @@ def train(
     if checkpoint is not None:
         print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
     started_ray = connect_ray(address)
-    # Beyond one machine the replay server must listen on the network: then it needs a token.
-    host = "127.0.0.1" if address == "local" else "0.0.0.0"
-    token = None if address == "local" else secrets.token_urlsafe(24)
-    actors: list[Any] = []  # Ray handles: their `.remote` methods exist only at run time
-    replay: Optional[ReplayProcess] = None
+    actors: Optional[ActorFleet] = None
+    replay: Optional[SupervisedReplay] = None
+    supervisor: Optional[Supervisor] = None
     interrupted, release_sigint = False, _no_op
     try:
-        replay = ReplayProcess(tables, host=host, token=token, log_path=run_dir / "replay.log")
+        check_cluster(config, address)
+        # Beyond one machine the replay server must listen on the network: then it needs
+        # a token.
+        host = "127.0.0.1" if address == "local" else "0.0.0.0"
+        token = None if address == "local" else secrets.token_urlsafe(24)
+        replay_dir = run_dir / "replay"
+        if checkpoint is not None and replay_dir.exists():
+            shutil.rmtree(replay_dir)  # the resumed run refills a fresh table (see _resumed_phases)
+        replay = SupervisedReplay(
+            tables,
+            host=host,
+            port=config.replay.port,
+            token=token,
+            checkpoint_dir=replay_dir,
+            checkpoint_every_s=config.replay.checkpoint_every_s,
+            log_path=run_dir / "replay.log",
+            max_restarts=config.replay.max_restarts,
+        )
         connect_to = replay.address
         if host == "0.0.0.0":
-            connect_to = f"{ray.util.get_node_ip_address()}:{replay.address.rsplit(':', 1)[1]}"
-        client = ReplayClient(connect_to, token=token)
+            connect_to = f"{ray.util.get_node_ip_address()}:{replay.port}"
+        # Resends keep their sequence numbers, so retrying through a restart doubles nothing.
+        client = ReplayClient(connect_to, token=token, max_retries=RETRIES_ACROSS_RESTART)
         publisher = BroadcastPublisher()
+        notes: list[str] = []
+        say = _say_and_keep(notes, progress)
         evaluator = RemoteEvaluator(
             env=config.env_spec(),
             behaviour=builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
+            options=config.evaluator.ray_options(),
+            max_restarts=config.evaluator.max_restarts,
+            on_restart=say,
         )
         resumed_env_steps = state.env_steps
-        segments = _segments(phases, config.num_actors)
-        for i in range(config.num_actors):
+
+        def make_actor(i: int, incarnation: int) -> Any:
             # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
-            actor = EnvActor.remote(  # type: ignore[attr-defined]
+            options = EnvActor.options(  # type: ignore[attr-defined]
+                **config.actors.ray_options(), max_concurrency=2
+            )
+            return options.remote(
                 env=config.env_spec(),
                 num_envs=config.envs_per_actor,
-                seed=config.seed * 1000 + i * config.envs_per_actor,
+                # A replacement explores from other seeds than the actor it replaces.
+                seed=config.seed * 1000 + i * config.envs_per_actor + 100_000 * incarnation,
                 replay=client,
                 weights=publisher.subscriber(),
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
             )
-            actors.append(actor)
-        runs = [a.run.remote(segments) for a in actors]
+
+        actors = ActorFleet(
+            make_actor,
+            _segments(phases, config.num_actors),
+            config.num_actors,
+            max_restarts=config.actors.max_restarts,
+        )
+        supervisor = Supervisor(replay, actors, say)
         logger = MetricsLogger(run_dir)
 
         def open_stream(phase: Phase) -> SampleStream:
@@ -316,8 +383,12 @@ def train(
             dynamic_ncols=True,
         )
 
+        faults = _FaultLog(logger, supervisor, evaluator)
+
         def on_progress(s: LoopState) -> None:
+            supervisor.raise_error()
             if s.updates % 100 == 0:
+                faults.log(s)
                 bar.update(s.updates - bar.n)
                 last = s.evaluations[-1]["mean"] if s.evaluations else float("nan")
                 bar.set_postfix(env_steps=s.env_steps, eval_return=f"{last:.0f}", version=s.version)
@@ -333,13 +404,17 @@ def train(
             settings=settings,
             state=state,
             on_progress=on_progress,
-            watchdog=lambda: _check_actors(runs),
+            watchdog=lambda: _watch(supervisor, actors, faults, loop.state),
         )
         try:
             final = loop.run()
             bar.update(final.updates - bar.n)
             publisher.stop()
-            actor_reports = ray.get(runs, timeout=120)
+            supervisor.stop()
+            supervisor.raise_error()
+            actor_reports, leftovers = actors.reports(timeout_s=ACTOR_FINISH_S)
+            for line in leftovers:
+                say(line)
             # The learner may stop before it sees the actors' last inserts: count them directly.
             final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)
         except KeyboardInterrupt:  # Ctrl-C: stop here and keep what was learned
@@ -350,6 +425,7 @@ def train(
             release_sigint = _hold_sigint()
             bar.close()
         loop.checkpoint()  # with the env-step count a resume continues from
+        faults.log(final, always=True)
         _log_behaviour_stats(logger, actor_reports, config.num_actors, resumed_env_steps)
         logger.close()
         summary = _summarise(config, final, actor_reports, time.perf_counter() - start)
@@ -362,8 +438,10 @@ def train(
             reference=REFERENCE_LEVELS.get(config.env_id),
         )
     finally:
-        for actor in actors:
-            ray.kill(actor)
+        if supervisor is not None:
+            supervisor.stop()
+        if actors is not None:
+            actors.kill()
         if replay is not None:
             replay.stop()
         if started_ray:
@@ -389,15 +467,58 @@ def _hold_sigint() -> Callable[[], None]:
 
 
 def _check_actors(runs: list[Any]) -> None:
-    """Raises the error of an actor that died; the learner would otherwise wait forever."""
+    """Raises the error of an actor that failed; the learner would otherwise wait forever.
+    An actor that died (its process or node gone) is the supervisor's to replace."""
     finished, _ = ray.wait(runs, num_returns=len(runs), timeout=0)
     for ref in finished:
-        ray.get(ref)  # re-raises the actor's exception, with its traceback
+        try:
+            ray.get(ref)  # re-raises the actor's exception, with its traceback
+        except RayActorError:
+            return  # being replaced: its share is not done
     if len(finished) == len(runs):
         raise RuntimeError(
             "every actor finished, but the learner is still waiting for sampled batches: "
             "the rate limiter and the update budget disagree (see replay.log)"
         )
+
+
+def _say_and_keep(notes: list[str], progress: bool) -> Callable[[str], None]:
+    """A `note` that prints a fault line at once (above the progress bar) and keeps it."""
+
+    def say(line: str) -> None:
+        notes.append(line)
+        message = f"graft train: {line}"
+        if progress:
+            tqdm.write(message, file=sys.stderr)
+        else:
+            print(message, file=sys.stderr, flush=True)
+
+    return say
+
+
+class _FaultLog:
+    """Logs the restart counters (`faults/...`) with the learner's metrics when they change."""
+
+    def __init__(self, logger: MetricsLogger, supervisor: Supervisor, evaluator: Any) -> None:
+        self.logger, self.supervisor, self.evaluator = logger, supervisor, evaluator
+        self._last: dict[str, float] = {}
+
+    def log(self, s: LoopState, *, always: bool = False) -> None:
+        counters = {
+            **self.supervisor.counters(),
+            "faults/evaluator_restarts": self.evaluator.restarts,
+        }
+        if always or counters != self._last:
+            self.logger.log(counters, env_steps=s.env_steps, updates=s.updates)
+            self._last = counters
+
+
+def _watch(supervisor: Supervisor, fleet: ActorFleet, faults: _FaultLog, s: LoopState) -> None:
+    """The learner waits for a batch: a fault the supervisor could not mend, or actors that
+    all finished while the learner still waits, end the run with their reason."""
+    supervisor.raise_error()
+    faults.log(s)
+    _check_actors(fleet.runs)
 
 
 def _window(phase: Phase) -> dict[str, int]:

@@ -1,6 +1,6 @@
 """Checks a run passes before anything is written or started: its task's import strings,
-its run folder (new, or a resume that can continue it) and whether its actors fit a local
-Ray instance."""
+its run folder (new, or a resume that can continue it) and whether its actors can be placed
+on a local Ray instance or the cluster."""
 
 from __future__ import annotations
 
@@ -12,11 +12,10 @@ from typing import Any, Optional
 import ray
 import yaml
 
-from actors.env_actor import EnvActor
-from actors.evaluator import Evaluator
 from actors.task import add_import_path
 from learner.checkpoint import latest_checkpoint
 from service.run.config import TrainConfig
+from service.run.placement import Node, Placement, check_placement, cluster_nodes
 from service.run.validation import ConfigError, check_env_id, resolve_import_string
 
 USES_HARDCODED_POLICY = ("backbone_td3", "pretrain_td3", "options")
@@ -105,9 +104,14 @@ def ray_cpus(remote: Any) -> float:
     return float(getattr(remote, "_default_options", {}).get("num_cpus", 1))
 
 
+def run_roles(config: TrainConfig) -> list[tuple[str, Placement, int]]:
+    """The Ray actors of one run, in placing order: its evaluator, then its env actors."""
+    return [("evaluator", config.evaluator, 1), ("actors", config.actors, config.num_actors)]
+
+
 def run_cpus(config: TrainConfig) -> float:
     """CPUs the Ray actors of one run ask for: its env actors and its evaluator."""
-    return config.num_actors * ray_cpus(EnvActor) + ray_cpus(Evaluator)
+    return sum(p.num_cpus * n for _, p, n in run_roles(config))
 
 
 def local_cpus() -> float:
@@ -123,19 +127,31 @@ def local_cpus() -> float:
 
 
 def check_fits_locally(config: TrainConfig, address: str) -> None:
-    """Refuses more actors than a local Ray instance can place: the ones left pending would
-    never insert, and the learner would wait for their share forever.
+    """Refuses, before Ray starts, a run whose actors a new local Ray instance cannot
+    place: the ones left pending would never insert, and the learner would wait forever.
 
     Raises:
-        ConfigError: e.g. ``num_actors=100 does not fit ...; at most 7 fit``.
+        ConfigError: e.g. ``actors: 100 × (0.25 CPU) do not fit the local Ray instance
+            (2 CPU on 1 eligible node(s)); only 7 fit. Use --actors 7, ...``.
     """
     if address != "local":
-        return  # a cluster may grow; Ray reports actors it cannot place
-    have, need, each = local_cpus(), run_cpus(config), ray_cpus(EnvActor)
-    if need > have:
-        most = int((have - ray_cpus(Evaluator)) // each)
-        raise ConfigError(
-            f"num_actors={config.num_actors} does not fit the local Ray instance: the actors "
-            f"({each:g} CPU each) and the evaluator need {need:g} CPUs, it has {have:g}; at "
-            f"most {most} actors fit"
-        )
+        return  # checked once connected (`check_cluster`)
+    import torch
+
+    node = Node("local", {"CPU": local_cpus(), "GPU": float(torch.cuda.device_count())})
+    problem = check_placement(run_roles(config), [node], where="the local Ray instance")
+    if problem is not None:
+        raise ConfigError(problem)
+
+
+def check_cluster(config: TrainConfig, address: str) -> None:
+    """Refuses a run whose actors the connected cluster cannot place (its nodes' total
+    resources and labels), in one line naming what is missing.
+
+    Raises:
+        ConfigError: e.g. ``actors.label_selector={'zone': 'b'} matches no node ...``.
+    """
+    where = "the local Ray instance" if address == "local" else f"the Ray cluster at {address}"
+    problem = check_placement(run_roles(config), cluster_nodes(), where=where)
+    if problem is not None:
+        raise ConfigError(problem)

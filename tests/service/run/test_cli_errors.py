@@ -195,10 +195,11 @@ def test_unknown_key_in_a_preset_file_names_the_file(tmp_path, capsys) -> None:
 
 def test_more_actors_than_local_ray_can_place(capsys) -> None:
     have = local_cpus()  # 0.25 CPU per actor and for the evaluator
+    fit = int((have - 0.25) // 0.25)
     assert _refused([*TRAIN, "--actors", "100", "--address", "local"], capsys) == (
-        "graft train: num_actors=100 does not fit the local Ray instance: the actors (0.25 "
-        f"CPU each) and the evaluator need 25.25 CPUs, it has {have:g}; at most "
-        f"{int((have - 0.25) // 0.25)} actors fit"
+        f"graft train: actors: 100 × (0.25 CPU) do not fit the local Ray instance ({have:g} "
+        f"CPU on 1 eligible node(s)); only {fit} fit. Use --actors {fit}, lower "
+        "actors.num_cpus (--set actors.num_cpus=...), or add nodes"
     )
 
 

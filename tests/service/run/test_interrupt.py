@@ -1,4 +1,5 @@
-"""Ctrl-C on `graft train`: a final checkpoint and summary, one line, and no process left.
+"""Ctrl-C (or SIGTERM) on `graft train`: a final checkpoint and summary, one line, and no
+process left.
 
 A real `graft train` subprocess with its own local Ray instance and replay server; the test
 signals only that process (and, if the test itself fails, kills what that process started).
@@ -13,6 +14,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import pytest
 
 from learner.checkpoint import latest_checkpoint, load_checkpoint
 
@@ -67,7 +70,14 @@ def _wait_until_gone(pids: set[int], limit_s: float = 120.0) -> set[int]:
     return alive
 
 
-def test_ctrl_c_checkpoints_summarises_and_leaves_no_process(tmp_path) -> None:
+@pytest.mark.parametrize(
+    "sig, status, word",
+    [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")],
+    ids=["ctrl-c", "sigterm"],
+)
+def test_a_stop_signal_checkpoints_summarises_and_leaves_no_process(
+    tmp_path, sig, status, word
+) -> None:
     run_dir = tmp_path / "run"
     # RAY_ADDRESS names no cluster: `--address local` must start its own Ray regardless.
     env = {**os.environ, "PYTHONPATH": str(ROOT), "RAY_ADDRESS": "127.0.0.1:9"}
@@ -94,22 +104,22 @@ def test_ctrl_c_checkpoints_summarises_and_leaves_no_process(tmp_path) -> None:
         raylets = {p for p in started if "raylet" in _cmdline(p)}
         assert len(replay) == 1 and raylets, {p: _cmdline(p) for p in started}
 
-        process.send_signal(signal.SIGINT)
+        process.send_signal(sig)
         _, err = process.communicate(timeout=300)
     finally:
         if process.poll() is None:  # the test failed: leave nothing behind
             process.kill()
             process.wait()
-        for pid in _wait_until_gone(started, limit_s=0.0 if process.returncode == 130 else 5.0):
+        for pid in _wait_until_gone(started, limit_s=0.0 if process.returncode == status else 5.0):
             os.kill(pid, signal.SIGKILL)
 
     summary = json.loads((run_dir / "summary.json").read_text())
     checkpoint = latest_checkpoint(run_dir / "checkpoints")
     steps = summary["env_steps"]
-    assert process.returncode == 130, err
+    assert process.returncode == status, err
     assert "Traceback" not in err, err
     assert (
-        f"graft train: interrupted at {steps} env steps; checkpoint {checkpoint}, "
+        f"graft train: {word} at {steps} env steps; checkpoint {checkpoint}, "
         f"summary {run_dir / 'summary.json'}"
     ) in err.splitlines(), err
     assert "RAY_ADDRESS" not in err  # --address local was given: nothing to say

@@ -1,0 +1,90 @@
+"""Runs a training run inside a Ray cluster reached through Ray Client (``ray://HOST:10001``).
+
+Through Ray Client this process is outside the cluster: a replay server started here would
+listen behind the client machine's loopback or firewall, where the actors cannot reach it.
+So the whole run (learner, replay server, supervision) runs as one Ray task on the head
+node (or where the preset's ``learner`` section places it) with ``address='auto'``, exactly
+as `graft train --address auto` would run there; this process waits for its result. The
+run folder is written on that node.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Optional
+
+import ray
+from ray.exceptions import RayTaskError
+
+from service.run.config import TrainConfig
+from service.run.placement import LearnerPlacement, check_placement, cluster_nodes
+from service.run.validation import ConfigError
+
+if TYPE_CHECKING:
+    from service.run.launcher import RunResult
+
+HEAD_NODE = "node:__internal_head__"
+"""The resource only Ray's head node carries."""
+
+
+def learner_options(placement: LearnerPlacement) -> dict[str, Any]:
+    """The learner task's Ray options: the preset's, pinned to the head node when the
+    preset names neither resources nor labels for it."""
+    options = placement.ray_options()
+    if not placement.resources and not placement.label_selector:
+        options["resources"] = {HEAD_NODE: 0.001}
+    return options
+
+
+def _run_there(
+    config: TrainConfig, run_dir: Optional[str], resume: bool, address: str
+) -> tuple[RunResult, str]:
+    """The Ray task: the run, on the node Ray placed it, joined to its cluster."""
+    from service.run.launcher import train
+
+    folder = Path(run_dir).expanduser() if run_dir else None
+    if folder is not None and not folder.is_absolute():
+        folder = Path.home() / folder  # a Ray worker's working folder is Ray's own
+    result = train(config, address="auto", run_dir=folder, resume=resume, progress=False)
+    return result, ray.util.get_node_ip_address()
+
+
+def train_on_cluster(
+    config: TrainConfig, *, address: str, run_dir: Optional[Path], resume: bool
+) -> RunResult:
+    """Runs `config` as a Ray task in the cluster at `address` (``ray://...``).
+
+    Raises:
+        ConfigError: the learner cannot be placed, or the run refuses a value there.
+    """
+    from service.run.launcher import connect_ray
+
+    connect_ray(address)
+    try:
+        options = learner_options(config.learner)
+        placed = LearnerPlacement(
+            num_cpus=options["num_cpus"],
+            num_gpus=options["num_gpus"],
+            resources=options["resources"],
+            label_selector=options.get("label_selector", {}),
+        )
+        problem = check_placement(
+            [("learner", placed, 1)], cluster_nodes(), where=f"the Ray cluster at {address}"
+        )
+        if problem is not None:
+            raise ConfigError(problem)
+        task = ray.remote(_run_there).options(**options)
+        ref = task.remote(config, str(run_dir) if run_dir else None, resume, address)
+        try:
+            result, node = ray.get(ref)
+        except KeyboardInterrupt:  # Ctrl-C here stops the run there, which saves and stops
+            ray.cancel(ref)
+            result, node = ray.get(ref)
+        except RayTaskError as error:
+            if isinstance(error.cause, ConfigError):
+                raise ConfigError(str(error.cause)) from None
+            raise
+        print(f"the run ran on {node}; its folder is there: {result.run_dir}")
+        return result
+    finally:
+        ray.shutdown()

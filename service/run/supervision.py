@@ -1,0 +1,290 @@
+"""Keeping a run alive through faults: the replay server restarted from its checkpoint
+folder, dead env actors replaced by new ones that take over the rest of their share.
+
+A `Supervisor` thread checks both twice a second while the learner trains. Every
+restart is said in one line (`note`) and counted (`faults/replay_restarts`,
+`faults/actor_restarts`); the launcher logs the counters with the learner's metrics.
+Exactly-once inserts keep the data right across a replay restart: an actor resends an
+unacknowledged batch with the same (writer, sequence) and the restored server drops
+what its log already holds.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Optional
+
+import ray
+from ray.exceptions import RayActorError
+
+from actors.env_actor import Segment
+from service.run.replay_process import ReplayProcess
+
+CHECK_EVERY_S = 0.5
+"""How often the supervisor looks at the replay server and the actors."""
+
+
+class TooManyRestarts(RuntimeError):
+    """A role died more often than its ``max_restarts`` allows."""
+
+
+class SupervisedReplay:
+    """The run's replay server; `check()` restarts it on the same port and checkpoint
+    folder when it has died, so clients reconnect to the address they know."""
+
+    def __init__(
+        self,
+        tables: list[dict[str, Any]],
+        *,
+        host: str,
+        port: int,
+        token: Optional[str],
+        checkpoint_dir: Path,
+        checkpoint_every_s: float,
+        log_path: Path,
+        max_restarts: int,
+    ) -> None:
+        self._tables, self._host, self._token = tables, host, token
+        self._log_path, self.max_restarts = log_path, max_restarts
+        self._args = [
+            "--checkpoint-dir",
+            str(checkpoint_dir),
+            "--checkpoint-every-s",
+            str(checkpoint_every_s),
+        ]
+        self.restarts = 0
+        self.process = self._start(port)
+        self.address = self.process.address
+        self.port = int(self.address.rsplit(":", 1)[1])
+
+    def _start(self, port: int) -> ReplayProcess:
+        return ReplayProcess(
+            self._tables,
+            host=self._host,
+            port=port,
+            token=self._token,
+            log_path=self._log_path,
+            extra_args=self._args,
+        )
+
+    def check(self) -> Optional[str]:
+        """Restarts a dead server; returns the line saying so (None if it is alive).
+
+        Raises:
+            TooManyRestarts: it died more than `max_restarts` times.
+        """
+        code = self.process.process.poll()
+        if code is None:
+            return None
+        self.process.stop()  # reaps it and cleans up its start-up files
+        if self.restarts >= self.max_restarts:
+            raise TooManyRestarts(
+                f"the replay server died (exit code {code}) after {self.restarts} restarts "
+                f"(replay.max_restarts={self.max_restarts}); see {self._log_path}"
+            )
+        self.restarts += 1
+        self.process = self._start(self.port)
+        return (
+            f"replay server died (exit code {code}); restarted from its checkpoint folder "
+            f"on port {self.port} (restart {self.restarts})"
+        )
+
+    def stop(self) -> None:
+        self.process.stop()
+
+
+def remaining_segments(segments: Sequence[Segment], done: int) -> list[Segment]:
+    """What is left of `segments` once their first `done` steps are stored (in order)."""
+    left = []
+    for segment in segments:
+        taken = min(done, segment.steps)
+        done -= taken
+        if segment.steps > taken:
+            warmup = max(segment.warmup_steps - taken, 0)
+            left.append(replace(segment, steps=segment.steps - taken, warmup_steps=warmup))
+    return left
+
+
+@dataclass
+class _Slot:
+    """One actor's share: its current incarnation and what earlier ones stored."""
+
+    actor: Any
+    run: Any  # the ObjectRef of its `run` call
+    segments: list[Segment]
+    stored_before: int = 0
+    """Items earlier incarnations stored (the share left for this one excludes them)."""
+    stored: int = 0
+    """Items this incarnation reported stored (its last `report()`)."""
+    report: Any = None  # a pending `report()` ObjectRef
+    incarnation: int = 0
+
+
+class ActorFleet:
+    """The run's env actors; a dead one is replaced by a new actor that takes over the
+    rest of its share (what its predecessor stored is known from its reports, polled
+    by `check()`; at most the batch in flight at its death is acted again).
+
+    Args:
+        make_actor: (actor index, incarnation) -> a started actor handle.
+        segments: each actor's share.
+        count: how many actors.
+        max_restarts: restarts allowed over all actors.
+    """
+
+    def __init__(
+        self,
+        make_actor: Callable[[int, int], Any],
+        segments: list[Segment],
+        count: int,
+        *,
+        max_restarts: int,
+    ) -> None:
+        self._make, self.max_restarts, self.restarts = make_actor, max_restarts, 0
+        self.slots = []
+        for i in range(count):
+            actor = make_actor(i, 0)
+            self.slots.append(_Slot(actor, actor.run.remote(segments), list(segments)))
+
+    @property
+    def runs(self) -> list[Any]:
+        return [s.run for s in self.slots]
+
+    def check(self) -> list[str]:
+        """Polls progress, replaces dead actors; returns a line per restart.
+
+        Raises:
+            TooManyRestarts: actors died more than `max_restarts` times.
+            Exception: an actor's own error (its env failed): that is no fault to retry.
+        """
+        notes = []
+        for i, slot in enumerate(self.slots):
+            if slot.report is not None and ray.wait([slot.report], timeout=0)[0]:
+                try:
+                    slot.stored = int(ray.get(slot.report)["replay/inserted"])
+                except RayActorError:
+                    pass  # its run call tells how it died
+                slot.report = None
+            if slot.report is None:
+                slot.report = slot.actor.report.remote()
+            if not ray.wait([slot.run], timeout=0)[0]:
+                continue
+            try:
+                ray.get(slot.run)
+                continue  # finished its share
+            except RayActorError as error:
+                notes.append(self._replace(i, slot, error))
+        return notes
+
+    def _replace(self, i: int, slot: _Slot, error: RayActorError) -> str:
+        if self.restarts >= self.max_restarts:
+            raise TooManyRestarts(
+                f"env actor {i} died after {self.restarts} actor restarts "
+                f"(actors.max_restarts={self.max_restarts}): {_first_line(error)}"
+            )
+        self.restarts += 1
+        ray.kill(slot.actor)
+        slot.stored_before += slot.stored
+        slot.segments = remaining_segments(slot.segments, slot.stored)
+        slot.stored, slot.report, slot.incarnation = 0, None, slot.incarnation + 1
+        slot.actor = self._make(i, slot.incarnation)
+        slot.run = slot.actor.run.remote(slot.segments)
+        left = sum(s.steps for s in slot.segments)
+        return (
+            f"env actor {i} died ({_first_line(error)}); restarted it with {left:,} env "
+            f"steps of its share left (actor restart {self.restarts})"
+        )
+
+    def reports(self, timeout_s: float) -> tuple[list[dict[str, Any]], list[str]]:
+        """Every actor's final report (what earlier incarnations stored added to its
+        ``env_steps``) once the learner is done, and a line per actor that had to be stopped.
+
+        An actor still running after `timeout_s` waits on an insert the finished learner
+        will never admit (after a replay restart the table counts fewer samples than the
+        learner took, so its rate limiter holds the last inserts): it is stopped, and its
+        report is what it said it had stored.
+        """
+        ready, _ = ray.wait(self.runs, num_returns=len(self.runs), timeout=timeout_s)
+        done = {ref.hex() for ref in ready}
+        reports, notes = [], []
+        for i, slot in enumerate(self.slots):
+            report: Optional[dict[str, Any]] = None
+            if slot.run.hex() in done:
+                try:
+                    report = ray.get(slot.run)
+                except RayActorError:
+                    pass
+            if report is None:
+                try:
+                    slot.stored = int(
+                        ray.get(slot.actor.report.remote(), timeout=10)["replay/inserted"]
+                    )
+                except (RayActorError, ray.exceptions.GetTimeoutError):
+                    pass
+                ray.kill(slot.actor)
+                report = {"env_steps": slot.stored, "versions_seen": []}
+                notes.append(
+                    f"env actor {i} was still inserting after the learner finished; stopped "
+                    f"it with {slot.stored_before + slot.stored:,} env steps of its share stored"
+                )
+            report["env_steps"] += slot.stored_before
+            reports.append(report)
+        return reports, notes
+
+    def kill(self) -> None:
+        for slot in self.slots:
+            ray.kill(slot.actor)
+
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
+
+
+class Supervisor:
+    """A thread checking the replay server and the actors every `CHECK_EVERY_S`.
+
+    `note` is called with each restart's line (from the thread). An error the thread
+    cannot recover from is kept and raised by `raise_error()` on the learner's thread.
+    """
+
+    def __init__(
+        self,
+        replay: SupervisedReplay,
+        fleet: ActorFleet,
+        note: Callable[[str], None],
+    ) -> None:
+        self.replay, self.fleet, self._note = replay, fleet, note
+        self.error: Optional[BaseException] = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="supervisor", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(CHECK_EVERY_S):
+            try:
+                line = self.replay.check()
+                if line:
+                    self._note(line)
+                for line in self.fleet.check():
+                    self._note(line)
+            except BaseException as error:  # raised on the learner's thread
+                self.error = error
+                return
+
+    def raise_error(self) -> None:
+        if self.error is not None:
+            raise self.error
+
+    def counters(self) -> dict[str, float]:
+        return {
+            "faults/replay_restarts": self.replay.restarts,
+            "faults/actor_restarts": self.fleet.restarts,
+        }
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()

@@ -1,0 +1,58 @@
+"""deploy/'s YAML files parse, and the commands in them name things that exist."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import yaml
+
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
+
+
+def test_cluster_yaml_copies_the_token_and_starts_nodes_with_the_script() -> None:
+    config = yaml.safe_load((DEPLOY / "cluster.yaml").read_text())
+    assert config["file_mounts"]["/home/ubuntu/.ray/auth_token"] == "~/.ray/auth_token"
+    starts = config["head_start_ray_commands"] + config["worker_start_ray_commands"]
+    assert sum("deploy/ray-node.sh" in c for c in starts) == 2
+    assert not any("token" in c and "auth_token" not in c and "RAY_AUTH_MODE" not in c
+                   for c in starts)  # fmt: skip
+
+
+def test_kuberay_rayjob_mounts_the_token_secret_on_every_pod() -> None:
+    (job,) = yaml.safe_load_all((DEPLOY / "kuberay.yaml").read_text())
+    assert (job["apiVersion"], job["kind"]) == ("ray.io/v1", "RayJob")
+    assert job["spec"]["entrypoint"].startswith("graft train --preset pendulum-td3")
+    spec = job["spec"]["rayClusterSpec"]
+    pods = [spec["headGroupSpec"]["template"]["spec"]] + [
+        g["template"]["spec"] for g in spec["workerGroupSpecs"]
+    ]
+    for pod in pods:
+        (container,) = pod["containers"]
+        env = {e["name"]: e["value"] for e in container["env"]}
+        assert env["RAY_AUTH_MODE"] == "token"
+        mounts = {m["name"]: m["mountPath"] for m in container["volumeMounts"]}
+        assert env["RAY_AUTH_TOKEN_PATH"].startswith(mounts["ray-token"])
+        assert pod["volumes"][0]["secret"]["secretName"] == "graft-ray-token"
+    assert spec["headGroupSpec"]["rayStartParams"]["num-cpus"] == "0"
+
+
+def test_the_node_script_refuses_a_missing_role_in_one_line() -> None:
+    result = subprocess.run(
+        ["bash", str(DEPLOY / "ray-node.sh")], capture_output=True, text=True, check=False
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "ray-node.sh: give a role: head, worker or copy-token (see the top of this file)"
+    ]
+    syntax = subprocess.run(["bash", "-n", str(DEPLOY / "ray-node.sh")], capture_output=True)
+    assert syntax.returncode == 0, syntax.stderr
+
+
+def test_the_dockerfile_installs_cpu_torch_and_bakes_in_no_token() -> None:
+    text = (DEPLOY / "Dockerfile").read_text()
+    assert "download.pytorch.org/whl/cpu" in text
+    assert "auth_token" not in text.replace("# Ray's token", "")
+    for line in text.splitlines():
+        if line.startswith("COPY ") and not line.startswith("COPY pyproject"):
+            assert (DEPLOY.parent / line.split()[1]).exists(), line

@@ -1,0 +1,46 @@
+"""A replay server started by `ReplayProcess` does not outlive its parent, even a SIGKILLed one."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[3]
+PARENT = """
+from service.run.replay_process import ReplayProcess
+from tests.conftest import PENDULUM_SIGNATURE
+server = ReplayProcess([{"name": "t", "max_size": 10, "signature": PENDULUM_SIGNATURE}])
+print(server.process.pid, flush=True)
+input()
+"""
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+def test_the_replay_server_stops_when_its_parent_is_killed() -> None:
+    parent = subprocess.Popen(
+        [sys.executable, "-c", PARENT], cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    server = int(parent.stdout.readline())  # type: ignore[union-attr]
+    try:
+        assert _running(server)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 60  # a hang guard: it notices within about a second
+        while _running(server) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _running(server)
+    finally:
+        if _running(server):
+            os.kill(server, signal.SIGKILL)
