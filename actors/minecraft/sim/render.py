@@ -26,6 +26,7 @@ ENTITY_COLOURS = {
     "Sheep": (220, 220, 215),
     "Rabbit": (150, 120, 90),
 }
+PLAYER_COLOUR = (60, 90, 200)  # another agent of the mission
 _SHADE = np.array([0.8, 1.0, 0.65], dtype=np.float32)  # x faces, top faces, z faces
 
 
@@ -160,6 +161,7 @@ def _draw_entities(world, eye, f, r, up, width, height, img, dist) -> None:
     tx = ty * width / height
     things = [(m.body, ENTITY_COLOURS.get(m.name, (200, 200, 200))) for m in world.mobs]
     things += [(it.body, (240, 240, 80)) for it in world.items]
+    things += [(o.body, PLAYER_COLOUR) for o in world.others]
     view = img.reshape(height, width, 3)
     dview = dist.reshape(height, width)
     for body, colour in things:
