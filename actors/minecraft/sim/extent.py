@@ -57,13 +57,16 @@ def anchors(mission: Mission) -> list[tuple[float, float, float]]:
     return pts
 
 
-def flat_box(mission: Mission, layers: int) -> Box:
-    """The box of a flat world with ``layers`` ground layers.
+def flat_box(
+    mission: Mission, layers: int, also: tuple[tuple[float, float, float], ...] = ()
+) -> Box:
+    """The box of a flat world with ``layers`` ground layers, holding the points ``also``
+    too (the other agents' placements).
 
     Raises:
         ValueError: the mission spans more than ``MAX_SIZE_XZ`` blocks.
     """
-    pts = anchors(mission)
+    pts = anchors(mission) + list(also)
     lo_x = min([-MIN_HALF] + [math.floor(p[0]) - MARGIN for p in pts])
     hi_x = max([MIN_HALF] + [math.floor(p[0]) + 1 + MARGIN for p in pts])
     lo_z = min([-MIN_HALF] + [math.floor(p[2]) - MARGIN for p in pts])
@@ -73,12 +76,16 @@ def flat_box(mission: Mission, layers: int) -> Box:
             f"the mission places things {hi_x - lo_x - 2 * MARGIN} x {hi_z - lo_z - 2 * MARGIN} "
             f"blocks apart; the simulator's worlds are at most {MAX_SIZE_XZ - 2 * MARGIN} wide"
         )
-    return Box(lo_x, lo_z, hi_x - lo_x, hi_z - lo_z, height(mission, layers))
+    return Box(lo_x, lo_z, hi_x - lo_x, hi_z - lo_z, height(mission, layers, also=also))
 
 
-def height(mission: Mission, ground: int, minimum: int = 64) -> int:
-    """World height: the ground, everything placed and some air above, at most 256."""
-    top = max([ground] + [math.floor(p[1]) + 1 for p in anchors(mission)])
+def height(
+    mission: Mission, ground: int, minimum: int = 64,
+    also: tuple[tuple[float, float, float], ...] = (),
+) -> int:  # fmt: skip
+    """World height: the ground, everything placed (and ``also``) and some air above, at
+    most 256."""
+    top = max([ground] + [math.floor(p[1]) + 1 for p in anchors(mission) + list(also)])
     return min(BUILD_HEIGHT, max(minimum, top + HEADROOM))
 
 

@@ -192,7 +192,8 @@ class Instance:
             return
         cmds, self.commands = self.commands, []
         try:
-            w.tick(self._unlock_turns(cmds) if self.turn_handlers else cmds)
+            with w.lock:  # the mission's agents tick one at a time in their shared world
+                w.tick(self._unlock_turns(cmds) if self.turn_handlers else cmds)
             self._update_turn_key()
         except Exception as e:  # ends this mission only; the instance goes on
             self.fail(e)
@@ -280,7 +281,8 @@ class Instance:
         key = (index, w.tick_count)
         if self._frame[0] != key and not self.failed:
             m = w.mission
-            self._frame = (key, render(w, m.width, m.height, depth=m.want_depth))
+            with w.lock:
+                self._frame = (key, render(w, m.width, m.height, depth=m.want_depth))
         return self._frame[1]
 
     # ------------------------------------------------------------------ info
@@ -288,7 +290,8 @@ class Instance:
         w = self.world
         assert w is not None
         if self._info[0] != w.tick_count and not self.failed:
-            text = info_json(w)
+            with w.lock:
+                text = info_json(w)
             turn = self.session.turn_of(self.role) if self.turn_handlers and self.session else None
             if turn is not None:
                 extra = f'"turn_number":{turn[0]},"turn_key":"{turn[1]}"'

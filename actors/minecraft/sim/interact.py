@@ -143,7 +143,7 @@ def use(world: World, *, hold: bool) -> None:
     x, y, z = (a + n for a, n in zip(hit.cell, hit.normal, strict=True))
     if B.SOLID[world.get(x, y, z)] or world.get(x, y, z) == B.BEDROCK:
         return
-    for body in [p.body] + [m.body for m in world.mobs]:
+    for body in [p.body] + [o.body for o in world.others] + [m.body for m in world.mobs]:
         w = body.half_width
         if (x < body.x + w and x + 1 > body.x - w and z < body.z + w and z + 1 > body.z - w
                 and y < body.y + body.height and y + 1 > body.y):  # fmt: skip

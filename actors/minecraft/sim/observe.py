@@ -109,7 +109,8 @@ def _slots(world: World, prefix: str, n: int) -> dict[str, object]:
 
 
 def nearby(world: World, xr: float, yr: float, zr: float) -> list[dict[str, object]]:
-    """Entities strictly inside a box around the agent (the agent itself first)."""
+    """Entities strictly inside a box around the agent: the agent itself first, then the
+    mission's other agents, animals and items."""
     p, b = world.player, world.player.body
 
     def near(e: object) -> bool:
@@ -117,9 +118,17 @@ def nearby(world: World, xr: float, yr: float, zr: float) -> list[dict[str, obje
 
     out: list[dict[str, object]] = [
         {"yaw": p.yaw, "x": b.x, "y": b.y, "z": b.z, "pitch": p.pitch,
-         "id": world.entity_uuid(0), "motionX": b.vx, "motionY": b.vy, "motionZ": b.vz,
-         "life": p.health, "name": p.name}
+         "id": world.entity_uuid(world.player_uid), "motionX": b.vx, "motionY": b.vy,
+         "motionZ": b.vz, "life": p.health, "name": p.name}
     ]  # fmt: skip
+    for w in world.agents:  # the other agents of the mission, as Malmo lists players
+        o, ob = w.player, w.player.body
+        if w is not world and near(ob):
+            out.append(
+                {"yaw": o.yaw, "x": ob.x, "y": ob.y, "z": ob.z, "pitch": o.pitch,
+                 "id": world.entity_uuid(w.player_uid), "motionX": ob.vx, "motionY": ob.vy,
+                 "motionZ": ob.vz, "life": o.health, "name": o.name}
+            )  # fmt: skip
     for m in world.mobs:
         mb = m.body
         if near(mb):

@@ -9,6 +9,7 @@ Rows are returned bottom-up, the OpenGL order in which Malmo sends frames (malmo
 from __future__ import annotations
 
 import math
+import threading
 from functools import lru_cache
 
 import numpy as np
@@ -26,6 +27,7 @@ ENTITY_COLOURS = {
     "Sheep": (220, 220, 215),
     "Rabbit": (150, 120, 90),
 }
+PLAYER_COLOUR = (60, 90, 200)  # another agent of the mission
 _SHADE = np.array([0.8, 1.0, 0.65], dtype=np.float32)  # x faces, top faces, z faces
 
 
@@ -84,22 +86,26 @@ _PALETTE[: len(B.COLOURS)] = B.COLOURS
 _PALETTE[BOUNDARY] = SKY
 
 
-class _Padded:
-    """A padded copy of the world (one border cell of ``BOUNDARY``), reused per size."""
+class _Padded(threading.local):
+    """A padded copy of the world (one border cell of ``BOUNDARY``), reused per size and
+    per thread (world servers of one process render in their own threads)."""
 
-    buf: np.ndarray = np.zeros(0, dtype=np.uint8)
+    def __init__(self) -> None:
+        self.buf: np.ndarray = np.zeros(0, dtype=np.uint8)
 
-    @classmethod
-    def of(cls, blocks: np.ndarray) -> np.ndarray:
+    def of(self, blocks: np.ndarray) -> np.ndarray:
         shape = tuple(n + 2 for n in blocks.shape)
-        if cls.buf.shape != shape:
-            cls.buf = np.full(shape, BOUNDARY, dtype=np.uint8)
-        cls.buf[1:-1, 1:-1, 1:-1] = blocks
-        return cls.buf
+        if self.buf.shape != shape:
+            self.buf = np.full(shape, BOUNDARY, dtype=np.uint8)
+        self.buf[1:-1, 1:-1, 1:-1] = blocks
+        return self.buf
+
+
+_PADDED = _Padded()
 
 
 def _march(world: World, eye: np.ndarray, d: np.ndarray, img: np.ndarray, dist: np.ndarray):
-    pad = _Padded.of(world.blocks)
+    pad = _PADDED.of(world.blocks)
     px, py, pz = pad.shape
     flat_blocks = pad.reshape(-1)
     n = d.shape[0]
@@ -160,6 +166,7 @@ def _draw_entities(world, eye, f, r, up, width, height, img, dist) -> None:
     tx = ty * width / height
     things = [(m.body, ENTITY_COLOURS.get(m.name, (200, 200, 200))) for m in world.mobs]
     things += [(it.body, (240, 240, 80)) for it in world.items]
+    things += [(o.body, PLAYER_COLOUR) for o in world.others]
     view = img.reshape(height, width, 3)
     dview = dist.reshape(height, width)
     for body, colour in things:

@@ -26,16 +26,19 @@ AGENT_DIED = "MALMO_AGENT_DIED"  # Malmo's quit code when the player dies
 def trapped(world: World) -> list[tuple[str, tuple[int, int]]]:
     """Mobs that cannot step away, as Malmo's RewardForCatchingMob sees it: at the
     agent's height, with no north/south/east/west neighbour that is air and free of a
-    player. Returns (mob name, (x, z) cell) pairs."""
+    player (any agent of the mission). Returns (mob name, (x, z) cell) pairs."""
     b = world.player.body
-    player_cell = (math.floor(b.x), math.floor(b.y), math.floor(b.z))
+    players = {
+        (math.floor(a.x), math.floor(a.y), math.floor(a.z))
+        for a in (w.player.body for w in world.agents)
+    }
     out = []
     for m in world.mobs:
         x, y, z = (int(v) for v in (m.body.x, m.body.y, m.body.z))  # Java's (int) casts
         if y != int(b.y):
             continue
         free = any(
-            world.get(x + dx, y, z + dz) == B.AIR and (x + dx, y, z + dz) != player_cell
+            world.get(x + dx, y, z + dz) == B.AIR and (x + dx, y, z + dz) not in players
             for dx, dz in ((1, 0), (-1, 0), (0, 1), (0, -1))
         )
         if not free:

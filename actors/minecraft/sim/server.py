@@ -345,10 +345,16 @@ class WorldServer:
             )
         if token.role > 0 and role.server_port == 0:
             raise MissionError(f"role {token.role} needs a MinecraftServerConnection")
+        # Role 0's world must hold every agent's start.
+        also = tuple(
+            p[:3]
+            for k in range(1, role.agent_count if token.role == 0 else 1)
+            if (p := parse_mission(role_mission(xml, k).xml).placement) is not None
+        )
         if token.seed is not None:
             mission = dataclasses.replace(mission, seed=token.seed)
         if token.role == 0:
-            return self._init_role0(cid, token, role, mission)
+            return self._init_role0(cid, token, role, mission, also)
         return self._join(cid, token, role, mission)
 
     @staticmethod
@@ -366,8 +372,9 @@ class WorldServer:
             return self.inst.claim(time.monotonic())
 
     def _init_role0(
-        self, cid: int, token: P.Token, role: RoleMission, mission: Mission
-    ) -> tuple[bool, str]:
+        self, cid: int, token: P.Token, role: RoleMission, mission: Mission,
+        also: tuple[tuple[float, float, float], ...],
+    ) -> tuple[bool, str]:  # fmt: skip
         inst = self.inst
         with inst.cond:
             inst.tokens.pop(f"{token.exp_uid}:0:{token.reset - 1}", None)
@@ -377,9 +384,10 @@ class WorldServer:
             reason = self._free()
             if reason is None:
                 seed = (self.seed * 1_000_003 + token.reset) & 0x7FFFFFFF
-                world = World(mission, seed)  # built outside the lock: terrain takes a while
+                # Built outside the lock: terrain takes a while.
+                world = World(mission, seed, also=also)
                 session = S.Session(self.port, token.exp_uid, token.reset, role.agent_count,
-                                    world.seed)  # fmt: skip
+                                    world)  # fmt: skip
                 session.join(0, role.turn_position)
                 with inst.cond:
                     reason = inst.claim(time.monotonic())
@@ -429,7 +437,11 @@ class WorldServer:
         reason = self._free()
         if reason is not None:
             return False, reason
-        world = World(mission, session.seed)
+        host = session.world
+        if mission.placement is not None and not _inside(host, mission.placement):
+            return False, f"error: role {token.role} starts outside role 0's world"
+        with host.lock:
+            world = World(mission, host.seed, share=host)
         session.join(token.role, role.turn_position)
         with self.inst.cond:
             self.inst.start(
@@ -484,3 +496,10 @@ class WorldServer:
         if with_info:
             out.append(r.info.encode())
         P.send(conn, *out)
+
+
+def _inside(world: World, placement: tuple[float, ...]) -> bool:
+    """The point lies within the world's block box."""
+    sx, sy, sz = world.blocks.shape
+    x, _, z = placement[:3]
+    return world.x0 <= x < world.x0 + sx and world.z0 <= z < world.z0 + sz

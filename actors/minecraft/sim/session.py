@@ -10,9 +10,10 @@ gets a fresh key.
 
 Here a ``Session`` is that integrated server, registered under role 0's port; the other
 instances find it in this process's registry. Each role plays ``malmo.roles.role_mission``,
-the mission with only its own AgentSection, in its own copy of the world built from the
-same seed and drawing: agents share the clock, the turn schedule and the mission's end,
-but do not see or change each other's world.
+the mission with only its own AgentSection, in role 0's world: a role > 0 builds its
+``World`` on the host's (``World(share=...)``), so the agents see and change the same
+blocks, items and animals and see each other; they share the turn schedule and the
+mission's end. Each agent's Minecraft ticks on its own clock at the mission's rate.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from __future__ import annotations
 import random
 import threading
 from typing import Optional
+
+from actors.minecraft.sim.world import World
 
 _KEY_LETTERS = "abcdefghijklmnopqrstuvwxyz"
 
@@ -32,12 +35,12 @@ class Session:
         exp_uid: the experiment id of the tokens.
         reset: the reset count of the tokens.
         agent_count: agents in the mission.
-        seed: the world seed every role's copy of the world is built from.
+        world: role 0's world, which the other roles join.
     """
 
-    def __init__(self, port: int, exp_uid: str, reset: int, agent_count: int, seed: int) -> None:
+    def __init__(self, port: int, exp_uid: str, reset: int, agent_count: int, world: World) -> None:
         self.port, self.exp_uid, self.reset = port, exp_uid, reset
-        self.agent_count, self.seed = agent_count, seed
+        self.agent_count, self.world = agent_count, world
         self._lock = threading.Lock()
         self._joined: set[int] = {0}
         self._loaded: set[int] = set()

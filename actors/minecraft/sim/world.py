@@ -1,6 +1,13 @@
 """The simulated world: voxels, the agent, items and animals, and one ``tick()`` of 50 ms
 of game time.
 
+The agents of one multi-agent mission play in one world: the first agent's ``World``
+(the host, Malmo's integrated server) owns the blocks, liquids, items and animals, and
+each other agent's ``World`` (built with ``share=host``) holds only its own player,
+mission, rules and clock on top of them. The host's tick moves the items, animals and
+liquids; every agent's tick moves its own player and picks up items. Agents tick under
+the host's ``lock``, so one sees the others' changes whole.
+
 A tick applies the commands queued since the last tick (``actions.apply``), then turns,
 moves and collides the agent, mines or uses, moves items and animals, picks up items,
 spreads liquids, runs the survival rules and finally the mission's rewards and quits.
@@ -12,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import math
 import random
+import threading
 import uuid
 from typing import Optional
 
@@ -30,47 +38,46 @@ LIQUID_DELAY = {B.WATER: 5, B.LAVA: 30}
 LIQUID_REACH = {B.WATER: 7, B.LAVA: 3}
 
 
-def _terrain(mission: Mission, seed: int) -> worldgen.Terrain:
-    """The mission's terrain, sized to what it places (``extent``)."""
+def _terrain(
+    mission: Mission, seed: int, also: tuple[tuple[float, float, float], ...]
+) -> worldgen.Terrain:
+    """The mission's terrain, sized to what it places (``extent``) and to the points
+    ``also`` (the other agents' placements)."""
     if mission.flat_generator is not None:
         layers = worldgen.flat_layers(mission.flat_generator)
-        return worldgen.flat(layers, extent.flat_box(mission, len(layers)))
+        return worldgen.flat(layers, extent.flat_box(mission, len(layers), also))
     terrain = worldgen.generate(seed)
     if mission.placement is not None:
         terrain = worldgen.recentre(terrain, mission.placement[0], mission.placement[2])
-    return worldgen.heighten(terrain, extent.height(mission, 0, terrain.blocks.shape[1]))
+    return worldgen.heighten(terrain, extent.height(mission, 0, terrain.blocks.shape[1], also=also))
 
 
 class World:
     """One mission's world.
 
     Args:
-        mission: the parsed mission.
+        mission: the parsed mission (one agent's part of it).
         seed: world seed (used when the mission does not give one).
+        share: the host agent's world, for another agent of the same mission: this
+            world then plays on the host's blocks, items and animals (its terrain, seed
+            and drawing are the host's) instead of building its own.
+        also: more points the terrain must contain (the other agents' placements).
     """
 
-    def __init__(self, mission: Mission, seed: int) -> None:
+    def __init__(
+        self, mission: Mission, seed: int, *, share: Optional[World] = None,
+        also: tuple[tuple[float, float, float], ...] = (),
+    ) -> None:  # fmt: skip
         self.mission = mission
-        self.seed = mission.seed if mission.seed is not None else seed
-        terrain = _terrain(mission, self.seed)
-        self.blocks = terrain.blocks
-        self.x0, self.z0 = terrain.x0, terrain.z0
-        self.space = Space(self.blocks, self.x0, self.z0)
-        self.rng = random.Random(self.seed)
+        self.host: World = self if share is None else share.host
         self.tick_count = 0
-        self.version = 0  # bumped on every block change (observation caches key on it)
         self.world_time = mission.start_time
-        self.items: list[ItemEntity] = []
-        self.mobs: list[Mob] = []
-        self._uid = 0
         self.pending_reward = 0.0
         self.done = False
         self.end_reason = ""
         self.quit_codes: list[str] = []
         self._quits: list[tuple[str, str]] = []
         self.rules = RuleState(mission.rules, float(mission.ms_per_tick or 50))
-        self.liquid_level: dict[tuple[int, int, int], int] = {}
-        self.liquid_due: dict[tuple[int, int, int], int] = {}
         self.ignored_commands = 0
         self.craft_log: list[str] = []
         self.chat_log: list[str] = []
@@ -79,16 +86,43 @@ class World:
         self.time_limit_ticks = (
             math.ceil(mission.time_limit_ms / 50.0) if mission.time_limit_ms is not None else None
         )
-        for name, x, y, z in terrain.mobs:
-            self.spawn_mob(name, x, y, z)
-        spawn = terrain.spawn
+        if share is None:
+            self.seed = mission.seed if mission.seed is not None else seed
+            self.rng = random.Random(self.seed)
+            terrain = _terrain(mission, self.seed, also)
+            self.blocks = terrain.blocks
+            self.x0, self.z0 = terrain.x0, terrain.z0
+            self.space = Space(self.blocks, self.x0, self.z0)
+            self.lock = threading.RLock()
+            self.agents: list[World] = [self]  # every agent's world, the host first
+            self.liquid_level: dict[tuple[int, int, int], int] = {}
+            self.liquid_due: dict[tuple[int, int, int], int] = {}
+            self._version = 0  # bumped on every block change (observation caches key on it)
+            self._items: list[ItemEntity] = []
+            self._mobs: list[Mob] = []
+            self._uid = 0
+            self.player_uid = 0
+            for name, x, y, z in terrain.mobs:
+                self.spawn_mob(name, x, y, z)
+            spawn = terrain.spawn
+        else:
+            h = self.host
+            self.seed, self.blocks, self.x0, self.z0 = h.seed, h.blocks, h.x0, h.z0
+            self.space, self.lock, self.agents = h.space, h.lock, h.agents
+            self.liquid_level, self.liquid_due = h.liquid_level, h.liquid_due
+            self.player_uid = h.next_uid()
+            self.rng = random.Random(self.seed * 1_000_003 + self.player_uid)
+            h.agents.append(self)
+            b = h.player.body
+            spawn = (b.x, b.y, b.z)  # no placement: next to the host's agent
         yaw = pitch = 0.0
         if mission.placement is not None:
             x, y, z, yaw, pitch = mission.placement
             spawn = (x, y, z)
-        self.player = Player(mission.agent_name, Body(*spawn), yaw=yaw, pitch=pitch)
-        for op in mission.drawing:
-            drawing.draw(self, op)
+        self.player: Player = Player(mission.agent_name, Body(*spawn), yaw=yaw, pitch=pitch)
+        if share is None:
+            for op in mission.drawing:
+                drawing.draw(self, op)
         for slot, item, qty in mission.start_inventory:
             from actors.minecraft.sim.inventory import Stack
 
@@ -103,6 +137,39 @@ class World:
             spawn[1],
             spawn[2] + 0.3,
         )
+
+    # ------------------------------------------------------ shared with the host
+    @property
+    def version(self) -> int:
+        """Block changes so far (observation caches key on it)."""
+        return self.host._version
+
+    @version.setter
+    def version(self, value: int) -> None:
+        self.host._version = value
+
+    @property
+    def items(self) -> list[ItemEntity]:
+        """Dropped items lying in the world."""
+        return self.host._items
+
+    @items.setter
+    def items(self, value: list[ItemEntity]) -> None:
+        self.host._items = value
+
+    @property
+    def mobs(self) -> list[Mob]:
+        """Animals in the world."""
+        return self.host._mobs
+
+    @mobs.setter
+    def mobs(self, value: list[Mob]) -> None:
+        self.host._mobs = value
+
+    @property
+    def others(self) -> list[Player]:
+        """The other agents' players in this world."""
+        return [w.player for w in self.agents if w is not self]
 
     # ----------------------------------------------------------------- blocks
     def get(self, x: int, y: int, z: int) -> int:
@@ -153,9 +220,9 @@ class World:
 
     # --------------------------------------------------------------- entities
     def next_uid(self) -> int:
-        """A fresh entity number (0 is the player)."""
-        self._uid += 1
-        return self._uid
+        """A fresh entity number (0 is the host's player)."""
+        self.host._uid += 1
+        return self.host._uid
 
     def entity_uuid(self, uid: int) -> str:
         """The entity's id as Malmo reports it: a UUID string, fixed by world seed and
@@ -206,7 +273,7 @@ class World:
         self._move_player()
         interact.attack_and_use(self)
         self._entities()
-        if self.liquid_due:
+        if self.liquid_due and self.host is self:
             self._liquids()
         feet, head = self._cell_at(p.body.y + 0.1), self._cell_at(p.eye[1])
         p.vitals_tick(
@@ -283,15 +350,18 @@ class World:
 
     # --------------------------------------------------------------- entities
     def _entities(self) -> None:
+        # The host moves the shared items and animals; every agent picks up for itself.
         p = self.player
         b = p.body
-        if self.items:
-            keep = []
-            for it in self.items:
+        host = self.host is self
+        items = self.items
+        if items:
+            for it in items:
                 ib = it.body
-                feet = self.get(math.floor(ib.x), math.floor(ib.y), math.floor(ib.z))
-                it.tick(self.space, bool(B.LIQUID[feet]))
-                if (it.pickup_delay == 0 and abs(ib.x - b.x) < 1.3 + 0.125
+                if host:
+                    feet = self.get(math.floor(ib.x), math.floor(ib.y), math.floor(ib.z))
+                    it.tick(self.space, bool(B.LIQUID[feet]))
+                if (it.count > 0 and it.pickup_delay == 0 and abs(ib.x - b.x) < 1.3 + 0.125
                         and abs(ib.z - b.z) < 1.3 + 0.125
                         and b.y - 0.5 - 0.25 < ib.y < b.y + b.height + 0.5):  # fmt: skip
                     left = p.inventory.add(it.item, it.count)
@@ -299,13 +369,17 @@ class World:
                     if got:
                         self.collected(it.item, got)
                     it.count = left
-                if it.count > 0 and it.age < 6000 and ib.y > -10:
-                    keep.append(it)
-            self.items = keep
+            self.items = [it for it in items if it.count > 0 and it.age < 6000 and it.body.y > -10]
+        if not host:
+            return
+        near = [w.player.body for w in self.agents]
         for m in self.mobs:
             mb = m.body
-            if abs(mb.x - b.x) > MOB_RADIUS or abs(mb.z - b.z) > MOB_RADIUS:
-                continue
+            for a in near:
+                if abs(mb.x - a.x) <= MOB_RADIUS and abs(mb.z - a.z) <= MOB_RADIUS:
+                    break
+            else:
+                continue  # far from every agent: frozen
             feet = self.get(math.floor(mb.x), math.floor(mb.y + 0.1), math.floor(mb.z))
             m.tick(self.space, self.rng, bool(B.LIQUID[feet]))
 

@@ -17,7 +17,6 @@ import json
 import socket
 import subprocess
 import sys
-import threading
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -39,7 +38,6 @@ TWO_AGENTS = (MISSIONS / "two_agents_turns.xml").read_text()
 # Loading outlasts a Peek's wait, so the first Peek really is empty; ending outlasts a
 # client's quit-then-MissionInit, so the busy reply really happens.
 SLOW_START = Timing(loading_s=0.4, ending_s=1.0, fps=60.0, wait_s=0.15)
-QUICK = Timing(loading_s=0.05, ending_s=0.05, fps=60.0, wait_s=0.3)
 
 
 def _malmoenv():  # type: ignore[no-untyped-def]
@@ -182,35 +180,6 @@ def test_graft_client_gives_up_on_a_busy_minecraft_with_the_reason() -> None:
 
 
 # ------------------------------------------------------------------ two agents, turns
-@pytest.fixture
-def two_servers() -> Iterator[list[WorldServer]]:
-    servers = [WorldServer(port=0, seed=9, timing=QUICK) for _ in range(2)]
-    for s in servers:
-        s.start()
-    yield servers
-    for s in servers:
-        s.stop()
-
-
-def _in_threads(*fns: Callable[[], None]) -> None:
-    errors: list[BaseException] = []
-
-    def run(fn: Callable[[], None]) -> None:
-        try:
-            fn()
-        except BaseException as e:  # reported below, with the thread's traceback
-            errors.append(e)
-
-    threads = [threading.Thread(target=run, args=(f,), daemon=True) for f in fns]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(120)
-    assert not any(t.is_alive() for t in threads), "an agent is still waiting for its turn"
-    if errors:
-        raise errors[0]
-
-
 def _z(server: WorldServer) -> float:
     w = server.inst.world
     assert w is not None
@@ -220,7 +189,9 @@ def _z(server: WorldServer) -> float:
 TURNS = 3
 
 
-def test_two_graft_clients_take_turns(two_servers: list[WorldServer]) -> None:
+def test_two_graft_clients_take_turns(
+    two_servers: list[WorldServer], run_together: Callable[..., None]
+) -> None:
     head = ("127.0.0.1", two_servers[0].port)
     clients = [
         MalmoClient("127.0.0.1", s.port, role=k, exp_uid="duo", head=head, timeout=10)
@@ -243,7 +214,7 @@ def test_two_graft_clients_take_turns(two_servers: list[WorldServer]) -> None:
 
         return run
 
-    _in_threads(play(0), play(1))
+    run_together(play(0), play(1))
     # Role 0's next turn comes only once role 1's last move ran.
     assert clients[0].step("turn 1").sent
     # Each agent moved exactly TURNS blocks: every move ran with its turn key, once.
@@ -256,7 +227,9 @@ def test_two_graft_clients_take_turns(two_servers: list[WorldServer]) -> None:
         c.close()
 
 
-def test_two_malmoenv_clients_take_turns(two_servers: list[WorldServer]) -> None:
+def test_two_malmoenv_clients_take_turns(
+    two_servers: list[WorldServer], run_together: Callable[..., None]
+) -> None:
     malmoenv = _malmoenv()
     head = two_servers[0].port
     envs = [malmoenv.make() for _ in two_servers]
@@ -282,13 +255,15 @@ def test_two_malmoenv_clients_take_turns(two_servers: list[WorldServer]) -> None
 
         return run
 
-    _in_threads(play(0), play(1))
+    run_together(play(0), play(1))
     assert [_z(s) for s in two_servers] == [0.5 + TURNS, 0.5 + TURNS]
     for env in envs:
         env.close()
 
 
-def test_a_turn_based_step_out_of_turn_is_not_sent(two_servers: list[WorldServer]) -> None:
+def test_a_turn_based_step_out_of_turn_is_not_sent(
+    two_servers: list[WorldServer], run_together: Callable[..., None]
+) -> None:
     head = ("127.0.0.1", two_servers[0].port)
     clients = [
         MalmoClient("127.0.0.1", s.port, role=k, exp_uid="solo", head=head, timeout=10,
@@ -304,7 +279,7 @@ def test_a_turn_based_step_out_of_turn_is_not_sent(two_servers: list[WorldServer
 
         return run
 
-    _in_threads(reset(0), reset(1))
+    run_together(reset(0), reset(1))
     assert clients[0].step("move 1").sent  # the first turn is role 0's (requestedPosition 1)
     with pytest.raises(TimeoutError, match="not this agent's turn"):
         clients[0].step("move 1")  # the next is role 1's, which has not acted
@@ -314,7 +289,9 @@ def test_a_turn_based_step_out_of_turn_is_not_sent(two_servers: list[WorldServer
         c.close()
 
 
-def test_two_agents_against_minecraft_serve_with_two_instances() -> None:
+def test_two_agents_against_minecraft_serve_with_two_instances(
+    run_together: Callable[..., None],
+) -> None:
     base = free_port_block(2)
     root = str(Path(__file__).resolve().parents[4])
     cmd = [
@@ -337,7 +314,7 @@ def test_two_agents_against_minecraft_serve_with_two_instances() -> None:
 
             return run
 
-        _in_threads(play(0), play(1))
+        run_together(play(0), play(1))
         assert clients[0].step("turn 1").sent  # role 0's second turn: role 1 has moved
         for c in clients:
             c.close()

@@ -206,3 +206,30 @@ def test_default_worlds_are_seeded_and_minecraft_like() -> None:
     near = blocks[max(ix - 12, 0) : ix + 12, :, max(iz - 12, 0) : iz + 12]
     assert (near == B.ID["log"]).sum() >= 8  # trees a short walk from spawn
     assert (blocks[:, : int(a.spawn[1]) - 5, :] == B.STONE_ID).mean() > 0.5
+
+
+def test_the_agents_of_one_mission_share_blocks_items_and_animals() -> None:
+    from pathlib import Path
+
+    from actors.minecraft.malmo.mission import parse_mission
+    from actors.minecraft.malmo.roles import role_mission
+    from actors.minecraft.sim.world import World
+
+    xml = (Path(__file__).parents[1] / "compat" / "missions" / "two_agents_shared.xml").read_text()
+    host = World(parse_mission(role_mission(xml, 0).xml), 5)
+    guest = World(parse_mission(role_mission(xml, 1).xml), 5, share=host)
+    assert guest.others[0] is host.player and host.others[0] is guest.player
+    assert guest.entity_uuid(guest.player_uid) != host.entity_uuid(host.player_uid)
+    version = host.version
+    guest.set(3, 4, 3, B.ID["stone"])  # the guest builds; the host sees it
+    assert host.get(3, 4, 3) == B.ID["stone"] and host.version == version + 1
+    # An item dropped at the guest's feet: the host's tick moves it (once a tick, not
+    # once per agent), the guest's tick picks it up.
+    host.drop("dirt", 2, 0.5, 5.0, 4.5, delay=2, still=True)
+    host.tick([])
+    guest.tick([])
+    assert host.items[0].body.y < 5.0 and host.items[0].age == 1
+    host.tick([])
+    guest.tick([])
+    assert host.items == [] and guest.player.inventory.count("dirt") == 2
+    assert host.player.inventory.count("dirt") == 1  # its own start inventory only

@@ -1,0 +1,37 @@
+"""Frames drawn at the same time in several threads (world servers of one process each
+render in their own thread) show each one's own world."""
+
+from __future__ import annotations
+
+import threading
+
+from actors.minecraft.malmo.mission import parse_mission
+from actors.minecraft.malmo.mission_xml import mission_xml
+from actors.minecraft.sim.render import render
+from actors.minecraft.sim.world import World
+from tests.actors.minecraft.conftest import FLAT, GROUND
+
+
+def _world(block: str) -> World:
+    wall = f'<DrawCuboid x1="-3" y1="4" z1="3" x2="3" y2="7" z2="3" type="{block}"/>'
+    xml = mission_xml(flat=FLAT, placement=(0.5, GROUND, 0.5), decorators=wall, grid_radius=0)
+    return World(parse_mission(xml), 0)
+
+
+def test_frames_rendered_in_parallel_threads_show_their_own_world() -> None:
+    worlds = [_world("gold_block"), _world("lapis_block")]
+    expected = [render(w, 48, 48) for w in worlds]
+    assert expected[0] != expected[1]
+    wrong: list[int] = []
+
+    def draw(k: int) -> None:
+        for _ in range(40):
+            if render(worlds[k], 48, 48) != expected[k]:
+                wrong.append(k)
+
+    threads = [threading.Thread(target=draw, args=(k,)) for k in (0, 1, 0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert wrong == []
