@@ -247,7 +247,9 @@ def measure(broadcast: Broadcast, fleet: list[Any], args: argparse.Namespace) ->
     versions = range(1, args.versions + 1)
     to_all, skipped_by = [], []
     for v in versions:
-        held_at = [min((t for u, t in r["adopted"].items() if u >= v), default=None) for r in reports]
+        held_at = [
+            min((t for u, t in r["adopted"].items() if u >= v), default=None) for r in reports
+        ]
         if None not in held_at:
             to_all.append(max(held_at) - published[v])  # type: ignore[type-var]
         skipped_by.append(sum(v not in r["adopted"] for r in reports))
@@ -293,31 +295,57 @@ def main() -> None:
         args.sizes, args.versions, args.interval = [2, 4], 4, 0.2
     if min(args.sizes) < 1 or args.versions < 1 or args.interval <= 0:
         parser.error("--sizes and --versions must be >= 1, --interval > 0")
-    weights = {k: np.random.default_rng(0).random(s, np.float32) for k, s in MINECRAFT_WEIGHTS.items()}
+    weights = {
+        k: np.random.default_rng(0).random(s, np.float32) for k, s in MINECRAFT_WEIGHTS.items()
+    }
     megabytes = sum(w.nbytes for w in weights.values()) / 1e6
 
     ray.init(address="local", include_dashboard=False, log_to_driver=False, configure_logging=False)
     try:
-        print(f"{max(args.sizes)} actors (num_cpus=0) on {os.cpu_count()} cores, "
-              f"load {os.getloadavg()[0]:.1f}; {megabytes:.1f} MB weights, {args.versions} "
-              f"versions every {args.interval} s, {args.step_ms:.0f} ms steps", flush=True)  # fmt: skip
+        print(
+            f"{max(args.sizes)} actors (num_cpus=0) on {os.cpu_count()} cores, "
+            f"load {os.getloadavg()[0]:.1f}; {megabytes:.1f} MB weights, {args.versions} "
+            f"versions every {args.interval} s, {args.step_ms:.0f} ms steps",
+            flush=True,
+        )
         fleet = start_fleet(max(args.sizes))
-        print(ROW.format("actors", "broadcast", "publish ms", "to-all ms", "to-all p90",
-                         "never adopted", "worst skip %", "bcast CPU ms", "check µs",
-                         "fleet CPU"))  # fmt: skip
+        print(
+            ROW.format(
+                "actors",
+                "broadcast",
+                "publish ms",
+                "to-all ms",
+                "to-all p90",
+                "never adopted",
+                "worst skip %",
+                "bcast CPU ms",
+                "check µs",
+                "fleet CPU",
+            )
+        )
         results: dict[tuple[int, str], dict[str, Any]] = {}
         for n in sorted(args.sizes):
             for name, make in (("single", single), ("fan-out", fan_out)):
                 r = results[n, name] = measure(make(weights), fleet[:n], args)
-                print(ROW.format(
-                    n, name, f"{r['publish_ms']:.1f}",
-                    f"{r['to_all_ms']:.1f}" + ("" if r["complete"] else "*"),
-                    f"{r['to_all_p90_ms']:.1f}", f"{r['skipped_pairs']}/{r['pairs']}",
-                    f"{100 * r['worst_skipped']:.0f}", f"{r['cpu_ms_per_version']:.1f}"
-                    + f" ({r['processes']})", f"{r['check_us']:.1f}", f"{r['fleet_cores']:.2f}",
-                ), flush=True)  # fmt: skip
-        print("bcast CPU: the broadcast's actors, per version (how many); fleet CPU: cores "
-              "the actors used; * some actor never got the last version within --timeout")  # fmt: skip
+                print(
+                    ROW.format(
+                        n,
+                        name,
+                        f"{r['publish_ms']:.1f}",
+                        f"{r['to_all_ms']:.1f}" + ("" if r["complete"] else "*"),
+                        f"{r['to_all_p90_ms']:.1f}",
+                        f"{r['skipped_pairs']}/{r['pairs']}",
+                        f"{100 * r['worst_skipped']:.0f}",
+                        f"{r['cpu_ms_per_version']:.1f}" + f" ({r['processes']})",
+                        f"{r['check_us']:.1f}",
+                        f"{r['fleet_cores']:.2f}",
+                    ),
+                    flush=True,
+                )
+        print(
+            "bcast CPU: the broadcast's actors, per version (how many); fleet CPU: cores "
+            "the actors used; * some actor never got the last version within --timeout"
+        )
         report_ratios(results, sorted(args.sizes))
         print(f"load after: {os.getloadavg()[0]:.1f}")
     finally:
@@ -333,14 +361,18 @@ def report_ratios(results: dict[tuple[int, str], dict[str, Any]], sizes: list[in
     for name in ("single", "fan-out"):
         ratio = results[large, name]["to_all_ms"] / results[small, name]["to_all_ms"]
         worst = max(results[n, name]["worst_skipped"] for n in sizes)
-        print(f"{name:>8}: time-to-all {large} actors / {small} actors = {ratio:.1f}x "
-              f"(target <= {TARGET_RATIO:.0f}x); worst version skipped by {100 * worst:.0f}% "
-              f"of the actors (target <= {100 * TARGET_SKIPPED:.0f}%)")  # fmt: skip
+        print(
+            f"{name:>8}: time-to-all {large} actors / {small} actors = {ratio:.1f}x "
+            f"(target <= {TARGET_RATIO:.0f}x); worst version skipped by {100 * worst:.0f}% "
+            f"of the actors (target <= {100 * TARGET_SKIPPED:.0f}%)"
+        )
     for n in sizes:
         old, new = results[n, "single"], results[n, "fan-out"]
-        print(f"{n:>4} actors, single / fan-out: time-to-all "
-              f"{old['to_all_ms'] / new['to_all_ms']:.1f}x, per-step check "
-              f"{old['check_us'] / max(new['check_us'], 1e-3):.0f}x")  # fmt: skip
+        print(
+            f"{n:>4} actors, single / fan-out: time-to-all "
+            f"{old['to_all_ms'] / new['to_all_ms']:.1f}x, per-step check "
+            f"{old['check_us'] / max(new['check_us'], 1e-3):.0f}x"
+        )
 
 
 if __name__ == "__main__":

@@ -105,7 +105,7 @@ class _Latest:
         return self._version
 
 
-@ray.remote(num_cpus=0, max_concurrency=MAX_WAITERS)
+@ray.remote(num_cpus=0, max_concurrency=MAX_WAITERS)  # type: ignore[call-overload]  # task-only stubs
 class WeightBroadcaster(_Latest):
     """The root of the broadcast: holds the latest (version, weights ref), hands each
     new subscriber the broadcaster or relay it follows."""
@@ -146,7 +146,7 @@ class WeightBroadcaster(_Latest):
         return list(self._relays.values())
 
 
-@ray.remote(num_cpus=0, max_concurrency=MAX_WAITERS)
+@ray.remote(num_cpus=0, max_concurrency=MAX_WAITERS)  # type: ignore[call-overload]  # task-only stubs
 class WeightRelay(_Latest):
     """Repeats its parent's announcements to up to `FANOUT` subscribers on its node."""
 
@@ -256,7 +256,7 @@ class WeightSubscriber:
         return payload
 
     def poll(self, *, block_s: float = 0.0) -> Optional[Weights]:
-        """Returns the newest weights if a newer version arrived (waiting up to `block_s`), else None."""
+        """The newest weights if a newer version arrived (waiting up to `block_s`), else None."""
         payload = self.poll_payload(block_s=block_s)
         return None if payload is None else as_tensors(payload)
 

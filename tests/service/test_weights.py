@@ -65,7 +65,9 @@ def test_stop_reaches_every_subscriber_and_old_versions_are_refused(ray_local):
 
 def test_subscribers_past_the_fanout_follow_relays_and_all_get_the_newest_version(ray_local):
     @ray.remote(num_cpus=0)
-    def follow(subscriber: WeightSubscriber, last: int) -> tuple[list[int], dict[str, torch.Tensor]]:
+    def follow(
+        subscriber: WeightSubscriber, last: int
+    ) -> tuple[list[int], dict[str, torch.Tensor]]:
         versions, weights = [], None
         while subscriber.version < last:
             if (new := subscriber.poll(block_s=1.0)) is not None:
