@@ -38,6 +38,7 @@ from learner.loop import LearnerLoop, LoopSettings, LoopState
 from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
+from service.run.clients import actor_env, evaluator_env, world_clients
 from service.run.config import TrainConfig
 from service.run.preflight import check_fits_locally, check_run_dir, check_task
 from service.run.provenance import config_record
@@ -248,6 +249,7 @@ def train(
     """
     run_dir, checkpoint = check_run_dir(config, run_dir, resume)
     check_fits_locally(config, address)
+    clients = world_clients(config)
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
     start = time.perf_counter()
     builder, behaviour, signature = _probe(config)
@@ -275,7 +277,7 @@ def train(
         client = ReplayClient(connect_to, token=token)
         publisher = BroadcastPublisher()
         evaluator = RemoteEvaluator(
-            env=config.env_spec(),
+            env=evaluator_env(config, clients),
             behaviour=builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
         )
@@ -284,7 +286,7 @@ def train(
         for i in range(config.num_actors):
             # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
             actor = EnvActor.remote(  # type: ignore[attr-defined]
-                env=config.env_spec(),
+                env=actor_env(config, clients, i),
                 num_envs=config.envs_per_actor,
                 seed=config.seed * 1000 + i * config.envs_per_actor,
                 replay=client,
