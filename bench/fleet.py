@@ -39,7 +39,7 @@ from ray import ObjectRef
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from service.weights import BroadcastPublisher, WeightSubscriber  # noqa: E402
+from service.weights import FANOUT, BroadcastPublisher, WeightSubscriber  # noqa: E402
 
 MINECRAFT_WEIGHTS = {"l0.weight": (1000, 600), "l1.weight": (600, 540), "l2.weight": (540, 6)}
 """Three layers, 927,240 float32 parameters: 3.7 MB, as the Minecraft policy publishes."""
@@ -176,11 +176,11 @@ class Broadcast:
     handles: list[Any]
 
 
-def fan_out(weights: dict[str, Any]) -> Broadcast:
+def fan_out(weights: dict[str, Any], fanout: int = FANOUT) -> Broadcast:
     import torch
 
     tensors = {k: torch.from_numpy(v) for k, v in weights.items()}
-    publisher = BroadcastPublisher()
+    publisher = BroadcastPublisher(fanout=fanout)
     root = publisher.broadcaster
 
     def pids() -> list[int]:
@@ -288,6 +288,7 @@ def main() -> None:
     parser.add_argument("--versions", type=int, default=20, help="versions per measurement")
     parser.add_argument("--interval", type=float, default=0.25, help="seconds between publishes")
     parser.add_argument("--step-ms", type=float, default=20.0, help="a simulated actor's step")
+    parser.add_argument("--fanout", type=int, default=FANOUT, help="subscribers per relay")
     parser.add_argument("--timeout", type=float, default=120.0, help="per wait, seconds")
     parser.add_argument("--quick", action="store_true", help="2 and 4 actors, 4 versions")
     args = parser.parse_args()
@@ -325,7 +326,8 @@ def main() -> None:
         )
         results: dict[tuple[int, str], dict[str, Any]] = {}
         for n in sorted(args.sizes):
-            for name, make in (("single", single), ("fan-out", fan_out)):
+            broadcasts = {"single": single, "fan-out": lambda w: fan_out(w, args.fanout)}
+            for name, make in broadcasts.items():
                 r = results[n, name] = measure(make(weights), fleet[:n], args)
                 print(
                     ROW.format(

@@ -97,7 +97,6 @@ def test_each_actor_and_the_evaluator_play_in_their_own_listed_client(ray_local,
         result = train(config, run_dir=tmp_path / "run", progress=False)
         status = [MalmoClient("127.0.0.1", port).status() for port in pool.ports]
     assert all(n > 0 for n in result.summary["actor_env_steps"])
-    # Every client ran missions (the last: the evaluator's), and none was ever asked for
-    # a mission while another client's was running in it.
-    assert all(s["missions_started"] >= 1 for s in status), status
-    assert all(s["busy_replies"] == 0 for s in status), status
+    # Three players (two actors, the evaluator), three clients, each ran missions: so no
+    # two players shared one (a shared client would leave another without any).
+    assert [s["missions_started"] >= 1 for s in status] == [True] * 3, status
