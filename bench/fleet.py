@@ -2,12 +2,17 @@
 the single long-poll broadcaster it replaced (kept below as the baseline), side by side in
 one run on one machine.
 
-For each fleet size N, N lightweight Ray actors (num_cpus=0, no torch) follow the
-broadcast the way env actors do: every step they check for new weights without waiting
-(the per-step cost is timed), then "act" for ``--step-ms`` by waiting in ``poll`` (so an
-arrival ends the step at once and adoption times are not rounded to steps). This process,
-as the learner, publishes ``--versions`` versions of Minecraft-sized weights (3.7 MB of
-float32) every ``--interval`` seconds. Both broadcasts carry the same numpy payload.
+For each fleet size N, N simulated actors follow the broadcast the way env actors do:
+every step they check for new weights without waiting (the per-step cost is timed), then
+"act" for ``--step-ms`` by waiting in ``poll`` (so an arrival ends the step at once and
+adoption times are not rounded to steps). Each has its own subscriber and long-poll; they
+run in lightweight Ray actor processes (num_cpus=0, no torch), one each up to
+``--processes`` (default 64; a Ray worker holds about 40 MB and takes a second of CPU to
+start), past that several to a process, a thread each: they then share their process's
+object-store fetch and core worker, which flatters neither broadcast more than the other.
+This process, as the learner, publishes ``--versions`` versions of Minecraft-sized weights
+(3.7 MB of float32) every ``--interval`` seconds. Both broadcasts carry the same numpy
+payload (the old one published tensors, whose unpickling each actor paid as well).
 
 Printed per size and broadcast: publish time (median), time from publish until every
 actor holds the version (median, p90 over versions: a version counts as held once the
@@ -29,7 +34,7 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Optional
 
@@ -121,19 +126,25 @@ class LongPollSubscriber:
 
 @ray.remote(num_cpus=0, max_concurrency=2)
 class Follower:
-    """A simulated env actor: checks for weights every step, acts by waiting in `poll`."""
+    """Simulated env actors in one process, each on its own thread with its own
+    subscriber: every step checks for weights, then acts by waiting in `poll`."""
 
     def __init__(self) -> None:
-        self.held = -1
+        self.held: list[int] = []
 
     def pid(self) -> int:
         return os.getpid()
 
     def holds(self) -> int:
-        return self.held
+        return min(self.held)
 
-    def follow(self, subscriber: Any, step_s: float) -> dict[str, Any]:
-        self.held = -1
+    def follow(self, subscribers: list[Any], step_s: float) -> list[dict[str, Any]]:
+        self.held = [-1] * len(subscribers)
+        with ThreadPoolExecutor(len(subscribers)) as pool:
+            runs = [pool.submit(self._follow, i, s, step_s) for i, s in enumerate(subscribers)]
+            return [run.result() for run in runs]
+
+    def _follow(self, i: int, subscriber: Any, step_s: float) -> dict[str, Any]:
         adopted: dict[int, float] = {}
         checks: list[float] = []
         while not subscriber.stopped:
@@ -144,7 +155,7 @@ class Follower:
                 payload = subscriber.poll_payload(block_s=step_s)  # acting
             if payload is not None:
                 adopted[subscriber.version] = time.time()
-                self.held = subscriber.version
+                self.held[i] = subscriber.version
         # The median: a busy machine preempts a few checks for whole scheduler slices.
         return {"adopted": adopted, "check_us": 1e6 * statistics.median(checks or [0.0])}
 
@@ -165,15 +176,20 @@ def actor_pid(handle: Any) -> int:
     return int(ray.get(handle.__ray_call__.remote(lambda self: os.getpid())))
 
 
-@dataclass
 class Broadcast:
     """One broadcast under test: how to publish, subscribe, stop, and whose CPU to count."""
 
-    publish: Callable[[int], None]
-    subscriber: Callable[[], Any]
-    stop: Callable[[], None]
-    pids: Callable[[], list[int]]
-    handles: list[Any]
+    def __init__(
+        self,
+        *,
+        publish: Callable[[int], None],
+        subscriber: Callable[[], Any],
+        stop: Callable[[], None],
+        pids: Callable[[], list[int]],
+        handles: list[Any],
+    ) -> None:
+        self.publish, self.subscriber, self.stop = publish, subscriber, stop
+        self.pids, self.handles = pids, handles
 
 
 def fan_out(weights: dict[str, Any], fanout: int = FANOUT) -> Broadcast:
@@ -215,16 +231,24 @@ def wait_until(condition: Callable[[], bool], timeout_s: float) -> bool:
     return True
 
 
-def measure(broadcast: Broadcast, fleet: list[Any], args: argparse.Namespace) -> dict[str, Any]:
-    """Publishes `args.versions` versions to `fleet` following `broadcast`; the figures."""
-    runs = [f.follow.remote(broadcast.subscriber(), args.step_ms / 1000) for f in fleet]
+def measure(
+    broadcast: Broadcast, fleet: list[Any], actors: int, args: argparse.Namespace
+) -> dict[str, Any]:
+    """Publishes `args.versions` versions to `actors` simulated actors, spread evenly over
+    the processes of `fleet`, following `broadcast`; the figures."""
+    step_s = args.step_ms / 1000
+    shares = [len(range(i, actors, len(fleet))) for i in range(len(fleet))]
+    runs = [
+        f.follow.remote([broadcast.subscriber() for _ in range(k)], step_s)
+        for f, k in zip(fleet, shares, strict=True)
+    ]
 
     def all_hold(version: int) -> bool:
         return min(ray.get([f.holds.remote() for f in fleet])) >= version
 
     broadcast.publish(0)  # warm-up: every actor subscribed (relays started) before timing
     if not wait_until(lambda: all_hold(0), args.timeout):
-        raise SystemExit(f"bench/fleet.py: {len(fleet)} actors did not all receive version 0")
+        raise SystemExit(f"bench/fleet.py: {actors} actors did not all receive version 0")
     pids = broadcast.pids()
     fleet_pids = ray.get([f.pid.remote() for f in fleet])
     cpu0, fleet_cpu0, wall0 = cpu_s(pids), cpu_s(fleet_pids), time.monotonic()
@@ -240,7 +264,7 @@ def measure(broadcast: Broadcast, fleet: list[Any], args: argparse.Namespace) ->
     cpu = cpu_s(pids) - cpu0
     fleet_cpu = (cpu_s(fleet_pids) - fleet_cpu0) / (time.monotonic() - wall0)
     broadcast.stop()
-    reports = ray.get(runs, timeout=args.timeout)
+    reports = [r for process in ray.get(runs, timeout=args.timeout) for r in process]
     for handle in broadcast.handles:
         ray.kill(handle)  # relays are owned by the broadcaster: they end with it
 
@@ -259,8 +283,8 @@ def measure(broadcast: Broadcast, fleet: list[Any], args: argparse.Namespace) ->
         "to_all_p90_ms": 1e3 * float(np.percentile(to_all, 90)) if to_all else float("nan"),
         "complete": complete,
         "skipped_pairs": sum(skipped_by),
-        "pairs": len(fleet) * args.versions,
-        "worst_skipped": max(skipped_by) / len(fleet),
+        "pairs": actors * args.versions,
+        "worst_skipped": max(skipped_by) / actors,
         "cpu_ms_per_version": 1e3 * cpu / args.versions,
         "processes": len(pids),
         "fleet_cores": fleet_cpu,
@@ -269,13 +293,15 @@ def measure(broadcast: Broadcast, fleet: list[Any], args: argparse.Namespace) ->
 
 
 def start_fleet(n: int) -> list[Any]:
+    """`n` follower processes, started and answering."""
     fleet = [Follower.remote() for _ in range(n)]  # type: ignore[attr-defined]
     pending = [f.pid.remote() for f in fleet]
     started = 0
     while pending:
-        done, pending = ray.wait(pending, num_returns=len(pending), timeout=5.0)
-        started += len(done)
-        print(f"  starting actors: {started}/{n}", flush=True)
+        done, pending = ray.wait(pending, num_returns=len(pending), timeout=10.0)
+        if done:
+            started += len(done)
+            print(f"  processes started: {started}/{n}", flush=True)
     return fleet
 
 
@@ -288,14 +314,20 @@ def main() -> None:
     parser.add_argument("--versions", type=int, default=20, help="versions per measurement")
     parser.add_argument("--interval", type=float, default=0.25, help="seconds between publishes")
     parser.add_argument("--step-ms", type=float, default=20.0, help="a simulated actor's step")
+    parser.add_argument(
+        "--processes",
+        type=int,
+        default=64,
+        help="Ray actor processes at most; more simulated actors share them, a thread each",
+    )
     parser.add_argument("--fanout", type=int, default=FANOUT, help="subscribers per relay")
     parser.add_argument("--timeout", type=float, default=120.0, help="per wait, seconds")
     parser.add_argument("--quick", action="store_true", help="2 and 4 actors, 4 versions")
     args = parser.parse_args()
     if args.quick:
         args.sizes, args.versions, args.interval = [2, 4], 4, 0.2
-    if min(args.sizes) < 1 or args.versions < 1 or args.interval <= 0:
-        parser.error("--sizes and --versions must be >= 1, --interval > 0")
+    if min(args.sizes) < 1 or args.versions < 1 or args.processes < 1 or args.interval <= 0:
+        parser.error("--sizes, --versions and --processes must be >= 1, --interval > 0")
     weights = {
         k: np.random.default_rng(0).random(s, np.float32) for k, s in MINECRAFT_WEIGHTS.items()
     }
@@ -304,12 +336,13 @@ def main() -> None:
     ray.init(address="local", include_dashboard=False, log_to_driver=False, configure_logging=False)
     try:
         print(
-            f"{max(args.sizes)} actors (num_cpus=0) on {os.cpu_count()} cores, "
+            f"{max(args.sizes)} actors in at most {args.processes} Ray actor processes "
+            f"(num_cpus=0) on {os.cpu_count()} cores, "
             f"load {os.getloadavg()[0]:.1f}; {megabytes:.1f} MB weights, {args.versions} "
             f"versions every {args.interval} s, {args.step_ms:.0f} ms steps",
             flush=True,
         )
-        fleet = start_fleet(max(args.sizes))
+        fleet = start_fleet(min(max(args.sizes), args.processes))
         print(
             ROW.format(
                 "actors",
@@ -328,7 +361,7 @@ def main() -> None:
         for n in sorted(args.sizes):
             broadcasts = {"single": single, "fan-out": lambda w: fan_out(w, args.fanout)}
             for name, make in broadcasts.items():
-                r = results[n, name] = measure(make(weights), fleet[:n], args)
+                r = results[n, name] = measure(make(weights), fleet[:n], n, args)
                 print(
                     ROW.format(
                         n,

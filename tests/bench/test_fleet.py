@@ -22,9 +22,9 @@ _spec.loader.exec_module(fleet)
 def test_every_simulated_actor_ends_holding_the_last_version(ray_local, broadcast) -> None:
     weights = {"w": np.arange(1000, dtype=np.float32)}
     make = fleet.single if broadcast == "single" else lambda w: fleet.fan_out(w, fanout=2)
-    followers = fleet.start_fleet(5)
+    followers = fleet.start_fleet(2)  # five actors in two processes: 3 + 2 threads
     args = argparse.Namespace(versions=3, interval=0.2, step_ms=20.0, timeout=60.0)
-    r = fleet.measure(make(weights), followers, args)
+    r = fleet.measure(make(weights), followers, 5, args)
     for follower in followers:
         ray.kill(follower)
     assert r["complete"], r  # every actor holds version 3
