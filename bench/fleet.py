@@ -308,6 +308,25 @@ def start_fleet(n: int) -> list[Any]:
 ROW = "{:>6} {:>10} {:>11} {:>11} {:>11} {:>13} {:>13} {:>13} {:>11} {:>9}"
 
 
+def start_ray(attempts: int = 3) -> None:
+    """A local Ray instance; Ray gives its raylet 30 s to register, which a machine busy
+    with other jobs can miss: then it tries again."""
+    for attempt in range(1, attempts + 1):
+        try:
+            ray.init(
+                address="local",
+                include_dashboard=False,
+                log_to_driver=False,
+                configure_logging=False,
+            )
+            return
+        except Exception as e:  # Ray raises a bare Exception for this
+            if "timed out during startup" not in str(e) or attempt == attempts:
+                raise
+            print(f"  Ray did not start in time (attempt {attempt}); trying again", flush=True)
+            ray.shutdown()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[4, 16, 64, 256])
@@ -333,7 +352,7 @@ def main() -> None:
     }
     megabytes = sum(w.nbytes for w in weights.values()) / 1e6
 
-    ray.init(address="local", include_dashboard=False, log_to_driver=False, configure_logging=False)
+    start_ray()
     try:
         print(
             f"{max(args.sizes)} actors in at most {args.processes} Ray actor processes "
