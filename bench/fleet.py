@@ -11,8 +11,11 @@ run in lightweight Ray actor processes (num_cpus=0, no torch), one each up to
 start), past that several to a process, a thread each: they then share their process's
 object-store fetch and core worker, which flatters neither broadcast more than the other.
 This process, as the learner, publishes ``--versions`` versions of Minecraft-sized weights
-(3.7 MB of float32) every ``--interval`` seconds. Both broadcasts carry the same numpy
-payload (the old one published tensors, whose unpickling each actor paid as well).
+(3.7 MB of float32) every ``--interval`` seconds. An actor holds a version from the end
+of its fetch: inside `poll` on the acting thread for the baseline, on the subscriber's
+background thread for the fan-out (the acting thread takes it at its next step). Both
+broadcasts carry the same numpy payload (the old one published tensors, whose unpickling
+each actor paid as well).
 
 Printed per size and broadcast: publish time (median), time from publish until every
 actor holds the version (median, p90 over versions: a version counts as held once the
@@ -103,6 +106,7 @@ class LongPollSubscriber:
         self._broadcaster = broadcaster
         self.version = -1
         self.stopped = False
+        self.fetched_at = float("nan")
         self._pending: Optional[ObjectRef[Any]] = None
 
     def poll_payload(self, *, block_s: float = 0.0) -> Optional[Any]:
@@ -115,7 +119,7 @@ class LongPollSubscriber:
         weights = None
         if version > self.version and weights_ref:
             weights = ray.get(weights_ref[0])
-            self.version = version
+            self.version, self.fetched_at = version, time.time()
         if not self.stopped:
             self._pending = self._broadcaster.wait_newer.remote(self.version)
         return weights
@@ -154,7 +158,7 @@ class Follower:
                 checks.append(time.perf_counter() - t)
                 payload = subscriber.poll_payload(block_s=step_s)  # acting
             if payload is not None:
-                adopted[subscriber.version] = time.time()
+                adopted[subscriber.version] = subscriber.fetched_at  # held since
                 self.held[i] = subscriber.version
         # The median: a busy machine preempts a few checks for whole scheduler slices.
         return {"adopted": adopted, "check_us": 1e6 * statistics.median(checks or [0.0])}

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import time
 import warnings
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Optional
@@ -198,6 +199,8 @@ class WeightSubscriber:
         """The learner has finished (set by the background thread)."""
         self.fetched = -1
         """Newest version the background thread holds."""
+        self.fetched_at = float("nan")
+        """Wall-clock time (`time.time()`) when it arrived."""
         self._payload: Optional[Payload] = None
         self._error: Optional[BaseException] = None
         self._cond = threading.Condition()
@@ -218,6 +221,7 @@ class WeightSubscriber:
                     payload = ray.get(weights_ref[0])
                     with self._cond:
                         self._payload, self.fetched = payload, version
+                        self.fetched_at = time.time()
                         self._cond.notify_all()
                     known = version
                 if stopped:
