@@ -312,7 +312,7 @@ def start_fleet(n: int) -> list[Any]:
 ROW = "{:>6} {:>10} {:>11} {:>11} {:>11} {:>13} {:>13} {:>13} {:>11} {:>9}"
 
 
-def start_ray(attempts: int = 3) -> None:
+def start_ray(attempts: int = 6) -> None:
     """A local Ray instance; Ray gives its raylet 30 s to register, which a machine busy
     with other jobs can miss: then it tries again."""
     for attempt in range(1, attempts + 1):
