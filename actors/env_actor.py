@@ -224,6 +224,7 @@ class EnvActor:
                 self.behaviour.end_episodes(record["terminated"] | record["truncated"] | lost)
                 version = -1 if warmup else self.weights.version  # -1: the warm-up policy
                 record["policy_version"] = np.full(n, version, np.int64)
+                record["acted_at"] = np.full(n, time.time())
                 # Each environment is one stream: the table links its steps into episodes,
                 # so sampled windows never mix environments or cross an episode end.
                 record["_stream"] = self.stepper.streams.copy()

@@ -1,10 +1,10 @@
 """The transition record every actor writes, as a replay-table signature.
 
-The environment part (obs, reward, terminated, truncated, next_obs, policy_version) is
-common to all algorithms; the behaviour adds its own columns (`Behaviour.columns`):
-at least `action`, the *unclipped* sampled behaviour action, and `log_prob`, its
-log-likelihood under the behaviour policy: importance ratios are taken on it. The
-environment (and the learner, before valuing it) clips it into bounds.
+The environment part (obs, reward, terminated, truncated, next_obs, policy_version,
+acted_at) is common to all algorithms; the behaviour adds its own columns
+(`Behaviour.columns`): at least `action`, the *unclipped* sampled behaviour action, and
+`log_prob`, its log-likelihood under the behaviour policy: importance ratios are taken on
+it. The environment (and the learner, before valuing it) clips it into bounds.
 """
 
 from __future__ import annotations
@@ -29,6 +29,8 @@ def replay_signature(
         "truncated": {"dtype": "bool", "shape": []},
         "next_obs": obs,
         "policy_version": {"dtype": "int64", "shape": []},
+        # Wall-clock seconds when the step was acted: the learner's `perf/policy_lag`.
+        "acted_at": {"dtype": "float64", "shape": []},
     }
 
 

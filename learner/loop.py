@@ -8,6 +8,7 @@
             metrics = phase.step(algorithm, to_tensors(stream.next_within(STALL_CHECK_S)))
             every publish_every updates: publisher.publish(version, algorithm.policy_state())
             every eval_every env steps:  evaluator.evaluate(weights, ...)  (a future)
+            every log_every updates:     log metrics, perf/policy_lag from the batch
             every checkpoint_every:      self.checkpoint()  (model, optimiser, counters)
         evaluate at the end of every phase
 """
@@ -37,7 +38,7 @@ from service.core import (
     WeightPublisher,
     Weights,
 )
-from service.metrics import MetricsLogger
+from service.metrics import MetricsLogger, PolicyLag
 
 STALL_CHECK_S = 10.0
 """Seconds without a sampled batch before the loop asks its watchdog what is wrong."""
@@ -114,6 +115,7 @@ class LearnerLoop:
         self._env_steps_offset = self.state.env_steps
         self._started = time.perf_counter()
         self._published = False
+        self._lag = PolicyLag()
         self._next_eval = (self.state.env_steps // settings.eval_every + 1) * settings.eval_every
 
     def publish(self) -> Weights:
@@ -121,6 +123,7 @@ class LearnerLoop:
         weights = self.algorithm.policy_state()
         self.state.version += 1 if self.state.updates else 0
         self._published = True
+        self._lag.published(self.state.version, time.time())
         self.publisher.publish(self.state.version, weights)
         return weights
 
@@ -227,6 +230,7 @@ class LearnerLoop:
                     metrics["perf/learner_wait_fraction"] = s.wait_s / max(
                         s.wait_s + s.update_s, 1e-9
                     )
+                    metrics.update(self._lag.measure(batch, version=s.version, now=time.time()))
                     self.logger.log(metrics, env_steps=s.env_steps, updates=s.updates)
                     window_start, window_updates = time.perf_counter(), 0
                 if s.updates % cfg.checkpoint_every == 0:

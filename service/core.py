@@ -88,7 +88,8 @@ class WeightSource(Protocol):
     """The newest published weights, seen from an actor (`WeightSubscriber`, service/weights).
 
     `EnvActor.run` polls before each step (blocking only until the first weights, if
-    acting needs them) and stops once `weights.stopped`::
+    acting needs them) and stops once `weights.stopped`; a poll that finds nothing new
+    must cost next to nothing (`WeightSubscriber` fetches in the background)::
 
         if (new := weights.poll()) is not None:
             behaviour.load(new)

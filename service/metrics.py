@@ -8,6 +8,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
+
 
 class MetricsLogger:
     """Appends `wall_s, env_steps, updates, key, value` rows; mirrors them to TensorBoard."""
@@ -41,6 +43,53 @@ class MetricsLogger:
         self._file.close()
         if self._tb is not None:
             self._tb.close()
+
+
+class PolicyLag:
+    """How stale the data the learner samples is, from the columns every actor writes:
+    `policy_version` (the weights an item was acted with; -1: the warm-up policy) and
+    `acted_at` (wall-clock seconds when it was acted, by the actor's clock).
+
+    `published` records when each version was published, so an item's lag at insert is
+    the learner's version at `acted_at` minus the version it was acted with. Clocks of
+    different nodes are assumed synchronised (NTP); an error of a few milliseconds
+    shifts the lag of only the items acted right at a publish.
+    """
+
+    def __init__(self) -> None:
+        self._times: list[float] = []
+        self._versions: list[int] = []
+
+    def published(self, version: int, wall: float) -> None:
+        """Version `version` became the newest at wall-clock time `wall`."""
+        self._times.append(wall)
+        self._versions.append(version)
+
+    def measure(
+        self, batch: Mapping[str, np.ndarray], *, version: int, now: float
+    ) -> dict[str, float]:
+        """`perf/policy_lag` (mean versions behind at insert), its p90 and max, and the age
+        of the sampled items (`perf/sample_age_versions`, `perf/sample_age_s`); warm-up items
+        are left out. Empty when the batch lacks the columns or holds only warm-up items."""
+        if "policy_version" not in batch or "acted_at" not in batch or not self._times:
+            return {}
+        acted_with = np.asarray(batch["policy_version"]).ravel()
+        acted_at = np.asarray(batch["acted_at"]).ravel()
+        mask = acted_with >= 0
+        if not mask.any():
+            return {}
+        acted_with, acted_at = acted_with[mask], acted_at[mask]
+        latest = np.searchsorted(self._times, acted_at, side="right") - 1
+        newest_then = np.asarray(self._versions)[np.maximum(latest, 0)]
+        # Clock skew can stamp an item just before the publish of the version it used.
+        lag = np.maximum(newest_then - acted_with, 0)
+        return {
+            "perf/policy_lag": float(lag.mean()),
+            "perf/policy_lag_p90": float(np.percentile(lag, 90)),
+            "perf/policy_lag_max": float(lag.max()),
+            "perf/sample_age_versions": float((version - acted_with).mean()),
+            "perf/sample_age_s": float((now - acted_at).mean()),
+        }
 
 
 def read_metric(csv_path: Path, key: str) -> tuple[list[int], list[float]]:

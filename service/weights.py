@@ -1,63 +1,93 @@
 """Weight broadcast: the learner publishes versioned policy weights, actors adopt them.
 
-The learner's `BroadcastPublisher` (a `WeightPublisher`) starts a `WeightBroadcaster`
-Ray actor; every env actor gets a `WeightSubscriber` (a `WeightSource`) from it. Each
-subscriber keeps exactly one outstanding long-poll (`wait_newer`) that resolves when a
-newer version is published, so there is no polling storm however many actors run.
+The learner's `BroadcastPublisher` (a `WeightPublisher`) puts each version into the Ray
+object store once, as numpy arrays, and hands one `ObjectRef` to a `WeightBroadcaster`
+Ray actor. Every env actor gets a `WeightSubscriber` (a `WeightSource`)::
+
+    learner ──publish(version, [ref])──▶ WeightBroadcaster ◀── up to FANOUT subscribers
+                                           ▲   ▲
+                              WeightRelay ─┘   └─ WeightRelay   (one per FANOUT subscribers
+                                 ▲ ▲ ▲                           on a node, on that node)
+                          subscribers on that node
+
+Announcements (a version number and an object ref) travel down this tree by long-poll,
+so no broadcaster or relay answers more than FANOUT subscribers (plus its relays) per
+version, however large the fleet. The weights themselves never pass through it: each
+subscriber fetches the ref from its node's object store (Ray pulls an object to a node
+once), zero-copy for numpy arrays.
+
+A subscriber follows its relay from a background thread, which fetches each announced
+version as it comes (versions announced while a fetch runs are skipped, not queued).
+The acting thread's `poll()` only compares two integers unless new weights have arrived.
 """
 
 from __future__ import annotations
 
 import asyncio
-from typing import Any, Optional
+import threading
+import time
+import warnings
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Optional
 
+import numpy as np
 import ray
 from ray import ObjectRef
+from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-from service.core import Weights
+if TYPE_CHECKING:  # torch is imported only where tensors are made: a subscriber's
+    from service.core import Weights  # process need not load it to follow the weights
+
+FANOUT = 16
+"""Subscribers one broadcaster or relay answers directly; more on a node get a relay each."""
+MAX_WAITERS = 10_000
+"""Long-polls one broadcaster or relay holds at once (Ray's default for async actors is
+1,000, past which a publish would queue behind long-polls). The fan-out keeps them near
+FANOUT plus one per relay."""
+POLL_TIMEOUT_S = 30.0
+"""How long one long-poll waits for a newer version before it is renewed."""
 
 BroadcasterHandle = Any
-"""A Ray handle to a `WeightBroadcaster`. Ray makes its `.remote` methods at run time, so
-mypy cannot check calls through it: only this module makes them, typing what they return."""
+"""A Ray handle to a `WeightBroadcaster` or `WeightRelay`. Ray makes their `.remote`
+methods at run time, so mypy cannot check calls through it: only this module makes them,
+typing what they return."""
 
-_Published = tuple[int, list[ObjectRef[Weights]], bool]
-"""What `WeightBroadcaster.wait_newer` answers: (version, [weights_ref], stopped)."""
+Payload = Mapping[str, Any]
+"""Published weights as stored: numpy arrays (from `BroadcastPublisher`) or tensors."""
+
+_Published = tuple[int, list[ObjectRef[Payload]], bool]
+"""What `wait_newer` answers: (version, [weights_ref], stopped)."""
 
 
-@ray.remote(num_cpus=0)
-class WeightBroadcaster:
-    """Holds the latest (version, weights) and wakes waiting actors on publish.
+class _Latest:
+    """The newest announcement (version, [weights_ref], stopped) and its waiters.
 
-    Weights travel as an object-store reference wrapped in a list, so publishing
-    copies them once into the object store, not once per actor.
+    The ref travels wrapped in a list, so Ray hands it on as a reference: the weights
+    are copied into the object store once, never into a reply.
     """
 
     def __init__(self) -> None:
         self._version = -1
-        self._weights_ref: list[ObjectRef[Weights]] = []
-        self._changed: Optional[asyncio.Event] = None
+        self._weights_ref: list[ObjectRef[Payload]] = []
         self._stopped = False
+        self._changed: Optional[asyncio.Event] = None
 
     def _event(self) -> asyncio.Event:
         if self._changed is None:  # created inside the actor's event loop
             self._changed = asyncio.Event()
         return self._changed
 
-    async def publish(self, version: int, weights_ref: list[ObjectRef[Weights]]) -> None:
-        if version <= self._version:
-            raise ValueError(f"weight version {version} is not newer than {self._version}")
+    def _announce(self, version: int, weights_ref: list[ObjectRef[Payload]], stopped: bool) -> None:
         self._version, self._weights_ref = version, weights_ref
+        self._stopped = self._stopped or stopped
         event = self._event()
         self._changed = asyncio.Event()
         event.set()
 
-    async def stop(self) -> None:
-        """Tells every actor to finish: pending and future polls answer 'stopped'."""
-        self._stopped = True
-        self._event().set()
-
-    async def wait_newer(self, version: int, timeout_s: float = 30.0) -> _Published:
-        """Returns (version, [weights_ref], stopped) once a version newer than `version` exists."""
+    async def wait_newer(self, version: int, timeout_s: float = POLL_TIMEOUT_S) -> _Published:
+        """Returns (version, [weights_ref], stopped) once a version newer than `version`
+        exists or the learner stopped, else the current state after `timeout_s`."""
+        await self._started()
         deadline = asyncio.get_running_loop().time() + timeout_s
         while self._version <= version and not self._stopped:
             remaining = deadline - asyncio.get_running_loop().time()
@@ -69,57 +99,191 @@ class WeightBroadcaster:
                 break
         return self._version, self._weights_ref, self._stopped
 
+    async def _started(self) -> None:
+        """Hook for a relay to start following its parent inside the event loop."""
+
     async def version(self) -> int:
         return self._version
+
+
+@ray.remote(num_cpus=0, max_concurrency=MAX_WAITERS)  # type: ignore[call-overload]  # task-only stubs
+class WeightBroadcaster(_Latest):
+    """The root of the broadcast: holds the latest (version, weights ref), hands each
+    new subscriber the broadcaster or relay it follows."""
+
+    def __init__(self, fanout: int = FANOUT) -> None:
+        super().__init__()
+        self._fanout = fanout
+        self._node_id = ray.get_runtime_context().get_node_id()
+        self._attached: dict[str, int] = {}
+        self._relays: dict[tuple[str, int], BroadcasterHandle] = {}
+
+    async def publish(self, version: int, weights_ref: list[ObjectRef[Payload]]) -> None:
+        if version <= self._version:
+            raise ValueError(f"weight version {version} is not newer than {self._version}")
+        self._announce(version, weights_ref, False)
+
+    async def stop(self) -> None:
+        """Tells every actor to finish: pending and future polls answer 'stopped'."""
+        self._announce(self._version, self._weights_ref, True)
+
+    async def attach(self, node_id: str) -> BroadcasterHandle:
+        """Where a subscriber on `node_id` long-polls: this broadcaster for the first
+        `fanout` on its own node, else that node's relay for its group of `fanout`."""
+        count = self._attached.get(node_id, 0)
+        self._attached[node_id] = count + 1
+        group = count // self._fanout
+        if node_id == self._node_id and group == 0:
+            return ray.get_runtime_context().current_actor
+        if (node_id, group) not in self._relays:
+            # Owned by this actor: relays end with the broadcaster.
+            self._relays[node_id, group] = WeightRelay.options(  # type: ignore[attr-defined]
+                scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=True)
+            ).remote(ray.get_runtime_context().current_actor)
+        return self._relays[node_id, group]
+
+    async def relays(self) -> list[BroadcasterHandle]:
+        """The relays started so far (for measuring them)."""
+        return list(self._relays.values())
+
+
+@ray.remote(num_cpus=0, max_concurrency=MAX_WAITERS)  # type: ignore[call-overload]  # task-only stubs
+class WeightRelay(_Latest):
+    """Repeats its parent's announcements to up to `FANOUT` subscribers on its node."""
+
+    def __init__(self, parent: BroadcasterHandle) -> None:
+        super().__init__()
+        self._parent = parent
+        self._follower: Optional[asyncio.Task[None]] = None
+
+    async def _started(self) -> None:
+        if self._follower is None:
+            self._follower = asyncio.get_running_loop().create_task(self._follow())
+        elif self._follower.done() and self._follower.exception() is not None:
+            raise RuntimeError("the relay lost its parent") from self._follower.exception()
+
+    async def _follow(self) -> None:
+        while not self._stopped:
+            version, weights_ref, stopped = await self._parent.wait_newer.remote(self._version)
+            if version > self._version or stopped:
+                self._announce(version, weights_ref, stopped)
+
+
+def as_tensors(payload: Payload) -> Weights:
+    """Published weights as tensors; numpy arrays are wrapped without a copy."""
+    import torch
+
+    with warnings.catch_warnings():
+        # Arrays fetched from the object store are read-only: a behaviour's
+        # `load_state_dict` copies them, nothing writes into them.
+        warnings.simplefilter("ignore", UserWarning)
+        return {
+            k: torch.from_numpy(v) if isinstance(v, np.ndarray) else v for k, v in payload.items()
+        }
 
 
 class WeightSubscriber:
     """An actor's `WeightSource`: `poll()` never blocks; it returns new weights when they arrived.
 
-    It pickles as its broadcaster's handle, so each Ray actor it is handed to gets a fresh
-    subscriber; its long-poll starts at the first `poll`, in the process that polls.
+    A background thread follows the broadcast and fetches each announced version; the
+    acting thread's `poll` compares version numbers and returns what the thread fetched.
+    It pickles as its broadcaster's handle, so each Ray actor it is handed to gets a
+    fresh subscriber; its thread starts at the first `poll`, in the process that polls.
     """
 
     def __init__(self, broadcaster: BroadcasterHandle) -> None:
         self._broadcaster = broadcaster
         self.version = -1
+        """Version last returned by `poll` (-1: none yet)."""
         self.stopped = False
-        self._pending: Optional[ObjectRef[_Published]] = None
+        """The learner has finished (set by the background thread)."""
+        self.fetched = -1
+        """Newest version the background thread holds."""
+        self.fetched_at = float("nan")
+        """Wall-clock time (`time.time()`) when it arrived."""
+        self._payload: Optional[Payload] = None
+        self._error: Optional[BaseException] = None
+        self._cond = threading.Condition()
+        self._thread: Optional[threading.Thread] = None
 
     def __reduce__(self) -> tuple[type[WeightSubscriber], tuple[BroadcasterHandle]]:
         return WeightSubscriber, (self._broadcaster,)
 
-    def _wait_newer(self) -> ObjectRef[_Published]:
-        ref: ObjectRef[_Published] = self._broadcaster.wait_newer.remote(self.version)
-        return ref
+    def _follow(self) -> None:
+        try:
+            node = ray.get_runtime_context().get_node_id()
+            source = ray.get(self._broadcaster.attach.remote(node))
+            known = -1
+            while True:
+                reply: _Published = ray.get(source.wait_newer.remote(known))
+                version, weights_ref, stopped = reply
+                if version > known and weights_ref:
+                    payload = ray.get(weights_ref[0])
+                    with self._cond:
+                        self._payload, self.fetched = payload, version
+                        self.fetched_at = time.time()
+                        self._cond.notify_all()
+                    known = version
+                if stopped:
+                    with self._cond:
+                        self.stopped = True
+                        self._cond.notify_all()
+                    return
+        except BaseException as e:  # surfaces on the acting thread, at its next poll
+            with self._cond:
+                self._error = e
+                self._cond.notify_all()
+
+    def poll_payload(self, *, block_s: float = 0.0) -> Optional[Payload]:
+        """Like `poll`, as published (numpy arrays): for processes without torch.
+
+        Raises:
+            RuntimeError: the broadcast was lost (its actor died) before the learner stopped.
+        """
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._follow, name="weights", daemon=True)
+            self._thread.start()
+        if self.fetched <= self.version and self._error is None:  # the per-step cost
+            if block_s <= 0:
+                return None
+            with self._cond:
+                self._cond.wait_for(
+                    lambda: self.fetched > self.version or self.stopped or self._error is not None,
+                    block_s,
+                )
+        with self._cond:
+            if self._error is not None and not self.stopped:
+                raise RuntimeError(f"the weight broadcast was lost: {self._error}") from self._error
+            if self.fetched <= self.version:
+                return None
+            self.version, payload, self._payload = self.fetched, self._payload, None
+        return payload
 
     def poll(self, *, block_s: float = 0.0) -> Optional[Weights]:
-        """Returns the newest weights if a newer version arrived, else None."""
-        if self._pending is None:
-            self._pending = self._wait_newer()
-        ready, _ = ray.wait([self._pending], timeout=block_s)
-        if not ready:
-            return None
-        version, weights_ref, self.stopped = ray.get(self._pending)
-        weights = None
-        if version > self.version and weights_ref:
-            weights = ray.get(weights_ref[0])
-            self.version = version
-        if not self.stopped:
-            self._pending = self._wait_newer()
-        return weights
+        """The newest weights if a newer version arrived (waiting up to `block_s`), else None."""
+        payload = self.poll_payload(block_s=block_s)
+        return None if payload is None else as_tensors(payload)
 
 
 class BroadcastPublisher:
     """The learner's `WeightPublisher`: starts a `WeightBroadcaster` and publishes to it."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, fanout: int = FANOUT) -> None:
         # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
-        self._broadcaster: BroadcasterHandle = WeightBroadcaster.remote()  # type: ignore[attr-defined]
+        self._broadcaster: BroadcasterHandle = WeightBroadcaster.remote(fanout)  # type: ignore[attr-defined]
+
+    @property
+    def broadcaster(self) -> BroadcasterHandle:
+        return self._broadcaster
 
     def publish(self, version: int, weights: Weights) -> None:
-        """Makes `weights` version `version`; raises ValueError if that is not newer."""
-        ray.get(self._broadcaster.publish.remote(version, [ray.put(weights)]))
+        """Makes `weights` version `version`; raises ValueError if that is not newer.
+
+        They are put into the object store once, as numpy arrays: subscribers on a node
+        share one copy and read it without deserialising tensors.
+        """
+        arrays = {k: v.detach().cpu().numpy() for k, v in weights.items()}
+        ray.get(self._broadcaster.publish.remote(version, [ray.put(arrays)]))
 
     def subscriber(self) -> WeightSubscriber:
         """A `WeightSource` to hand to an actor."""

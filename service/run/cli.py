@@ -340,7 +340,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--clients",
         dest="actors",
         type=int,
-        help="number of env actors (preset default); Minecraft presets: simulated worlds",
+        help="number of env actors (preset default); Minecraft presets: one simulated world "
+        "each, on its actor's node (real clients: --set clients_file=FILE)",
     )
     train.add_argument(
         "--address",

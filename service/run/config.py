@@ -69,6 +69,12 @@ class TrainConfig:
     """How many env steps actors may run ahead of (or behind) the update ratio before waiting."""
     num_actors: int = 2
     """Ray actors stepping environments."""
+    clients: list[str] = field(default_factory=list)
+    """Minecraft (Malmo) clients to play in, ``host:port`` each: one per actor, then one for
+    the evaluator. Empty: every environment starts its own simulated world on its actor's
+    node (service/run/clients.py)."""
+    clients_file: Optional[str] = None
+    """A file listing `clients`, one ``host:port`` a line (``#`` comments allowed)."""
     envs_per_actor: int = 4
     """Environments each actor steps side by side (one batched policy call per step)."""
     steps_per_insert: int = 8
@@ -145,6 +151,10 @@ class TrainConfig:
             value = getattr(self, name)
             if value is not None:
                 split_import_string(value, name)
+        if not isinstance(self.clients, list) or not all(isinstance(c, str) for c in self.clients):
+            raise ValueError(f"clients={self.clients!r} must be a list of host:port")
+        if self.clients and self.clients_file:
+            raise ValueError(f"clients and clients_file={self.clients_file!r}: give one of them")
         if not isinstance(self.import_path, list) or not all(
             isinstance(p, str) for p in self.import_path
         ):

@@ -41,6 +41,7 @@ from learner.loop import LearnerLoop, LoopSettings, LoopState
 from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
+from service.run.clients import actor_env, evaluator_env, world_clients
 from service.run.config import TrainConfig
 from service.run.preflight import check_cluster, check_fits_locally, check_run_dir, check_task
 from service.run.provenance import config_record
@@ -284,6 +285,7 @@ def train(
         return train_on_cluster(config, address=address, run_dir=run_dir, resume=resume)
     run_dir, checkpoint = check_run_dir(config, run_dir, resume)
     check_fits_locally(config, address)
+    clients = world_clients(config)
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
     start = time.perf_counter()
     builder, behaviour, signature = _probe(config)
@@ -329,7 +331,7 @@ def train(
         notes: list[str] = []
         say = _say_and_keep(notes, progress)
         evaluator = RemoteEvaluator(
-            env=config.env_spec(),
+            env=evaluator_env(config, clients),
             behaviour=builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
             options=config.evaluator.ray_options(),
@@ -344,7 +346,7 @@ def train(
                 **config.actors.ray_options(), max_concurrency=2
             )
             return options.remote(
-                env=config.env_spec(),
+                env=actor_env(config, clients, i),
                 num_envs=config.envs_per_actor,
                 # A replacement explores from other seeds than the actor it replaces.
                 seed=config.seed * 1000 + i * config.envs_per_actor + 100_000 * incarnation,

@@ -5,6 +5,7 @@ replay-server implementations run end to end in tests/service/run."""
 
 from __future__ import annotations
 
+import time
 from concurrent.futures import Future
 from typing import Optional
 
@@ -14,7 +15,7 @@ import torch
 from learner.agent import Phase
 from learner.loop import LearnerLoop, LoopSettings
 from service.core import Algorithm, Columns, EvalTag, Evaluation, Metrics, TensorBatch, Weights
-from service.metrics import MetricsLogger
+from service.metrics import MetricsLogger, read_metric
 
 
 class ListStream:
@@ -115,3 +116,40 @@ def test_each_phase_hands_its_batches_to_its_own_step_callable(tmp_path):
         e["tag"]["updates"] for e in state.evaluations
     )
     assert state.evaluations[-1]["mean"] == 4.0  # and evaluated
+
+
+class StampingStream(ListStream):
+    """Batches acted with version 0, stamped when they are sampled: an actor stuck on
+    the first weights while the learner publishes after every update."""
+
+    def next_within(self, timeout: Optional[float]) -> Columns:
+        batch = super().next_within(timeout)
+        return {
+            **batch,
+            "policy_version": np.zeros(2, np.int64),
+            "acted_at": np.full(2, time.time()),
+        }
+
+
+def test_the_loop_logs_how_many_versions_behind_the_sampled_data_was_acted(tmp_path):
+    online = Phase("online", env_steps=0, updates=4, min_size=1)
+    logger = MetricsLogger(tmp_path, tensorboard=False)
+    loop = LearnerLoop(
+        CountingAlgorithm(),
+        phases=[online],
+        open_stream=lambda phase: StampingStream(batches(1, 4)),
+        publisher=RecordingPublisher(),
+        evaluator=ImmediateEvaluator(),
+        logger=logger,
+        checkpoint_dir=tmp_path / "checkpoints",
+        settings=LoopSettings(
+            publish_every=1, eval_every=100, eval_episodes=1, checkpoint_every=100, log_every=1
+        ),
+    )
+    loop.run()
+    logger.close()
+    # Batch k is sampled after version k-1 was published; it was acted with version 0.
+    _, lags = read_metric(logger.csv_path, "perf/policy_lag")
+    assert lags == [0.0, 1.0, 2.0, 3.0]
+    _, ages = read_metric(logger.csv_path, "perf/sample_age_versions")
+    assert ages == [1.0, 2.0, 3.0, 4.0]  # the version after each update's publish

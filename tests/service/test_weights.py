@@ -61,3 +61,38 @@ def test_stop_reaches_every_subscriber_and_old_versions_are_refused(ray_local):
     publisher.stop()
     while not subscriber.stopped:
         assert subscriber.poll(block_s=1.0) is None  # nothing newer than version 1
+
+
+def test_subscribers_past_the_fanout_follow_relays_and_all_get_the_newest_version(ray_local):
+    @ray.remote(num_cpus=0)
+    def follow(
+        subscriber: WeightSubscriber, last: int
+    ) -> tuple[list[int], dict[str, torch.Tensor]]:
+        versions, weights = [], None
+        while subscriber.version < last:
+            if (new := subscriber.poll(block_s=1.0)) is not None:
+                versions.append(subscriber.version)
+                weights = new
+        return versions, weights
+
+    publisher = BroadcastPublisher(fanout=2)
+    runs = [follow.remote(publisher.subscriber(), 2) for _ in range(5)]
+    for version in range(3):
+        publisher.publish(version, {"w": torch.full((3,), float(version))})
+    for versions, weights in ray.get(runs, timeout=60):
+        assert versions[-1] == 2 and versions == sorted(set(versions))
+        assert torch.equal(weights["w"], torch.full((3,), 2.0))
+    # One node: the broadcaster answers the first 2 subscribers, a relay each further 2.
+    assert len(ray.get(publisher.broadcaster.relays.remote())) == 2
+    publisher.stop()
+
+
+def test_an_actor_whose_broadcast_died_fails_instead_of_acting_on_stale_weights(ray_local):
+    publisher = BroadcastPublisher()
+    publisher.publish(0, {"w": torch.zeros(1)})
+    subscriber = publisher.subscriber()
+    adopt(subscriber)
+    ray.kill(publisher.broadcaster)
+    with pytest.raises(RuntimeError, match="weight broadcast was lost"):
+        for _ in range(30):
+            subscriber.poll(block_s=1.0)

@@ -49,6 +49,7 @@ def test_pendulum_td3_end_to_end_then_resume(ray_local, tmp_path, capsys):
     with (tmp_path / "metrics.csv").open() as f:
         keys = {row["key"] for row in csv.DictReader(f)}
     assert {"losses/critic", "eval/return_mean", "perf/updates_per_s"} <= keys
+    assert {"perf/policy_lag", "perf/sample_age_versions", "perf/sample_age_s"} <= keys
 
     # `graft eval` loads the run folder and a checkpoint file of it alike.
     for policy in (tmp_path, tmp_path / "checkpoints" / "ckpt-000000400.pt"):
