@@ -175,9 +175,20 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     if started_ray:
         # A run takes 0.75 logical CPUs (its task, one actor, the evaluator).
         cpus = max(os.cpu_count() or 1, args.parallel)
-        ray.init(
-            num_cpus=cpus, include_dashboard=False, log_to_driver=False, configure_logging=False
-        )
+        for attempt in range(3):  # a loaded machine can miss Ray's 30 s raylet start-up wait
+            try:
+                ray.init(
+                    num_cpus=cpus,
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    configure_logging=False,
+                )
+                break
+            except Exception as error:  # noqa: BLE001 - Ray raises a bare Exception here
+                print(f"Ray did not start ({error}); retrying", flush=True)
+                ray.shutdown()
+                if attempt == 2:
+                    raise
     address = ray.get_runtime_context().gcs_address
     tree = graft.load_policy("hardcoded", preset=PRESETS / "backbone.yaml")
     finals: dict[str, list[dict]] = {method: [] for method in (*TRAINED, TREE)}
