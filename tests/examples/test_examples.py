@@ -7,6 +7,7 @@ Real parts throughout: a local Ray cluster, the replay server process, the learn
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import subprocess
@@ -41,8 +42,11 @@ TINY = {
 SECTIONS = {
     "td3": {"batch_size": 32, "burn_in_updates": 10, "frozen_actor_updates": 10},
     "pretrain": {"demo_steps": 100, "pretrain_updates": 20},
-    "dqn": {"batch_size": 32, "burn_in_updates": 20, "epsilon_decay_env_steps": 200},
+    # 250: the learner logs every 250th update's losses, the margin loss among them.
+    "dqn": {"batch_size": 32, "burn_in_updates": 250, "epsilon_decay_env_steps": 200},
 }
+BY_CLI = ["mountaincar/presets/backbone.yaml", "cartpole/presets/ddqn-demos.yaml"]
+"""Trained by `graft train` in a fresh process; every other preset through `graft.train`."""
 PRESETS = sorted(str(p.relative_to(EXAMPLES)) for p in EXAMPLES.glob("*/presets/*.yaml"))
 
 
@@ -74,7 +78,9 @@ def test_the_examples_are_installed_as_their_own_distributions() -> None:
         assert (EXAMPLES / example / "README.md").is_file()
 
 
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("preset", sorted(set(PRESETS) - set(BY_CLI)))
 def test_every_example_preset_trains_and_its_run_evaluates(
     preset: str, ray_local, tmp_path, monkeypatch, capsys
 ) -> None:
@@ -111,9 +117,7 @@ def _set_flags(overrides: dict) -> list[str]:
 
 @pytest.mark.slow
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize(
-    "preset", ["mountaincar/presets/backbone.yaml", "cartpole/presets/ddqn-demos.yaml"]
-)
+@pytest.mark.parametrize("preset", BY_CLI)
 def test_graft_train_and_eval_of_an_example_in_fresh_processes(
     preset: str, ray_local, tmp_path
 ) -> None:
@@ -127,6 +131,11 @@ def test_graft_train_and_eval_of_an_example_in_fresh_processes(
     )  # fmt: skip
     assert train.returncode == 0, train.stderr[-3000:]
     _check_run(run_dir, preset)
+    if preset.endswith("ddqn-demos.yaml"):
+        # The burn-in trained on the tree's demonstrations, with the margin loss towards it.
+        with (run_dir / "metrics.csv").open() as f:
+            margin = [float(r["value"]) for r in csv.DictReader(f) if r["key"] == "losses/margin"]
+        assert margin and all(np.isfinite(margin))
     evaluated = _graft(["eval", "--policy", str(run_dir), "--episodes", "2", "--json"], tmp_path)
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     assert np.isfinite(json.loads(evaluated.stdout)["mean"])
