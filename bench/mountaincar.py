@@ -7,6 +7,7 @@ return, and the seeds whose every in-run evaluation (from the first) reached the
 Prints a table and writes a PNG of the evaluation returns over env steps.
 
     python bench/mountaincar.py [--seeds 5] [--env-steps 10000] [--episodes 20] [--parallel 2]
+        [--methods td3,backbone,backbone-narrow]
     python bench/mountaincar.py --quick    # a smoke run: 1 seed, tiny budgets
 
 The example package must be installed (``pip install -e examples/mountaincar``).
@@ -29,8 +30,13 @@ from service.run.config import load_preset
 from service.run.launcher import train
 
 PRESETS = Path(__file__).resolve().parents[1] / "examples" / "mountaincar" / "presets"
-TRAINED = {"td3": "plain TD3", "backbone": "backbone TD3"}
+TRAINED = {
+    "td3": "plain TD3",
+    "backbone": "backbone TD3",
+    "backbone-narrow": "backbone TD3, |correction| <= 0.7",
+}
 """Preset file stem -> the method's name in the table."""
+COLORS = {"td3": "tab:red", "backbone": "tab:blue", "backbone-narrow": "tab:purple"}
 TREE = "tree alone"
 QUICK = {
     "learning_starts": 200,
@@ -133,7 +139,8 @@ def plot(runs: dict[str, list[dict]], tree_return: float, png: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    for (preset, seeds), color in zip(runs.items(), ("tab:red", "tab:blue"), strict=False):
+    for preset, seeds in runs.items():
+        color = COLORS[preset]
         length = min(len(r["steps"]) for r in seeds)
         steps = np.array(seeds[0]["steps"][:length])
         values = np.array([r["returns"][:length] for r in seeds])
@@ -166,10 +173,19 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     parser.add_argument("--episodes", type=int, default=20, help="final episodes per seed")
     parser.add_argument("--out", type=Path, default=Path("runs/bench-mountaincar"))
     parser.add_argument("--parallel", type=int, default=2, help="runs at a time")
+    parser.add_argument(
+        "--methods",
+        default=",".join(TRAINED),
+        help=f"the trained methods, by preset (default: {','.join(TRAINED)})",
+    )
     parser.add_argument("--quick", action="store_true", help="1 seed, 600 env steps, 2 episodes")
     args = parser.parse_args(argv)
     if args.quick:
         args.seeds, args.env_steps, args.episodes = 1, 600, 2
+    methods = args.methods.split(",")
+    unknown = sorted(set(methods) - set(TRAINED))
+    if unknown:
+        parser.error(f"--methods: unknown {unknown}; choose from {','.join(TRAINED)}")
 
     started_ray = not ray.is_initialized()
     if started_ray:
@@ -191,11 +207,11 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
                     raise
     address = ray.get_runtime_context().gcs_address
     tree = graft.load_policy("hardcoded", preset=PRESETS / "backbone.yaml")
-    finals: dict[str, list[dict]] = {method: [] for method in (*TRAINED, TREE)}
+    finals: dict[str, list[dict]] = {method: [] for method in (*methods, TREE)}
     for seed in range(args.seeds):
         finals[TREE].append(final_episodes(tree, episodes=args.episodes, seed=eval_seed(seed)))
-    jobs = [(preset, seed) for seed in range(args.seeds) for preset in TRAINED]
-    runs: dict[str, dict[int, dict]] = {preset: {} for preset in TRAINED}
+    jobs = [(preset, seed) for seed in range(args.seeds) for preset in methods]
+    runs: dict[str, dict[int, dict]] = {preset: {} for preset in methods}
     pending: dict[Any, tuple[str, int]] = {}
     start = time.perf_counter()
     while jobs or pending:
@@ -216,7 +232,7 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
         run = runs[preset][seed] = ray.get(ready)
         final = final_episodes(run["run_dir"], episodes=args.episodes, seed=eval_seed(seed))
         finals[preset].append(final)
-        done, total = sum(len(r) for r in runs.values()), args.seeds * len(TRAINED)
+        done, total = sum(len(r) for r in runs.values()), args.seeds * len(methods)
         elapsed = time.perf_counter() - start
         print(
             f"[{done}/{total}] {TRAINED[preset]}, seed {seed}: final return "
@@ -228,9 +244,9 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     if started_ray:
         ray.shutdown()
 
-    trained = {p: [runs[p][s] for s in sorted(runs[p])] for p in TRAINED}
-    rows = [summarise(TRAINED[p], finals[p], trained[p]) for p in TRAINED]
-    rows.insert(1, summarise(TREE, finals[TREE], [None] * args.seeds))
+    trained = {p: [runs[p][s] for s in sorted(runs[p])] for p in methods}
+    rows = [summarise(TREE, finals[TREE], [None] * args.seeds)]
+    rows += [summarise(TRAINED[p], finals[p], trained[p]) for p in methods]
     print()
     print(table(rows, env_steps=args.env_steps, episodes=args.episodes))
     png = args.out / "mountaincar.png"
