@@ -33,7 +33,7 @@ PRESETS = Path(__file__).resolve().parents[1] / "examples" / "mountaincar" / "pr
 TRAINED = {
     "td3": "plain TD3",
     "backbone": "backbone TD3",
-    "backbone-narrow": "backbone TD3, |correction| <= 0.7",
+    "backbone-narrow": "backbone TD3, correction within ±0.7",
 }
 """Preset file stem -> the method's name in the table."""
 COLORS = {"td3": "tab:red", "backbone": "tab:blue", "backbone-narrow": "tab:purple"}
