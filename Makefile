@@ -10,12 +10,17 @@ TORCH  := 2.13.0
 demo: setup
 	$(BIN)/graft train --preset pendulum-td3
 
-# The user-task fixture is a package of its own, installed the way a user installs theirs.
-test: setup $(VENV)/.usertask
+# The user-task fixture and each example project are packages of their own, installed the
+# way a user installs theirs.
+test: setup $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example-cartpole
 	$(BIN)/python -m pytest -q
 
 $(VENV)/.usertask: tests/fixtures/usertask/pyproject.toml $(VENV)/.installed
 	$(BIN)/pip install --no-deps -e tests/fixtures/usertask
+	touch $@
+
+$(VENV)/.example-%: examples/%/pyproject.toml $(VENV)/.installed
+	$(BIN)/pip install --no-deps -e examples/$*
 	touch $@
 
 setup: $(VENV)/.installed

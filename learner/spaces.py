@@ -37,7 +37,8 @@ def box_action_dim(space: spaces.Space, method: str) -> int:
     if isinstance(space, spaces.Discrete):
         raise ValueError(
             f"{method} needs continuous actions (a 1-D Box), the environment's action space "
-            f"is {space}: use algorithm ddqn for discrete actions"
+            f"is {space}: use algorithm ddqn for discrete actions (dqn.warmup: hardcoded "
+            "starts it from your hard-coded policy)"
         )
     if not isinstance(space, spaces.Box) or len(space.shape) != 1:
         raise ValueError(f"{method} needs a 1-D Box action space, the environment's is {space}")

@@ -1,5 +1,6 @@
 """Shared fixtures: a real replay server process and a real local Ray instance; the user
-task of tests/fixtures/usertask installed as its own distribution."""
+task of tests/fixtures/usertask and the projects in examples/ installed as their own
+distributions."""
 
 from __future__ import annotations
 
@@ -16,25 +17,34 @@ import ray
 from service.replay.client import ReplayClient
 from service.run.replay_process import ReplayProcess
 
-USERTASK = Path(__file__).resolve().parent / "fixtures" / "usertask"
+TESTS = Path(__file__).resolve().parent
+USERTASK = TESTS / "fixtures" / "usertask"
 """A user's own task package, which graft never imports (tests/service/run/test_own_task)."""
+USER_PACKAGES = {
+    "usertask": USERTASK,
+    "mountaincar_example": TESTS.parent / "examples" / "mountaincar",
+    "cartpole_example": TESTS.parent / "examples" / "cartpole",
+}
+"""Packages of graft's users (module: project folder), each its own distribution."""
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """Installs the user-task package (``pip install -e``, as a user would) when it is not
-    installed from this folder yet; `make test` does it before pytest starts."""
-    spec = importlib.util.find_spec("usertask")
-    if spec is not None and spec.origin and Path(spec.origin).is_relative_to(USERTASK):
-        return
-    subprocess.run(
-        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "-e", str(USERTASK)],
-        check=True,
-    )
-    # This process read site-packages' .pth files before the install: read the new one.
-    for folder in site.getsitepackages():
-        for pth in Path(folder).glob("__editable__.usertask-*.pth"):
-            site.addpackage(folder, pth.name, None)  # type: ignore[attr-defined]
-    importlib.invalidate_caches()
+    """Installs each user package (``pip install -e``, as a user would) when it is not
+    installed from its folder yet; `make test` does it before pytest starts."""
+    for module, folder in USER_PACKAGES.items():
+        spec = importlib.util.find_spec(module)
+        if spec is not None and spec.origin and Path(spec.origin).is_relative_to(folder):
+            continue
+        subprocess.run(
+            [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "-e", str(folder)],
+            check=True,
+        )
+        # This process read site-packages' .pth files before the install: read the new one
+        # (addpackage skips folders already on sys.path).
+        for site_folder in site.getsitepackages():
+            for pth in Path(site_folder).glob("__editable__.*.pth"):
+                site.addpackage(site_folder, pth.name, None)  # type: ignore[attr-defined]
+        importlib.invalidate_caches()
 
 
 PENDULUM_SIGNATURE = {

@@ -1,11 +1,19 @@
-"""ε-greedy over a Q network (DQN, sec. II-B1): greedy with probability 1 − ε, else uniform."""
+"""ε-greedy over a Q network (DQN, sec. II-B1): greedy with probability 1 − ε, else uniform.
+
+Warm-up is uniform (ε = 1), or, when a hard-coded policy μ is given, ε-greedy around μ(s)
+(demonstrations); with μ given every step also records ``backbone_action`` = μ(s), the
+action the large-margin loss ranks first.
+"""
 
 from __future__ import annotations
+
+from typing import Optional
 
 import numpy as np
 import torch
 from torch import nn
 
+from actors.hardcoded import HardCodedPolicy
 from service.core import Columns, ColumnSpec, Weights
 
 
@@ -53,6 +61,8 @@ class EpsilonGreedyBehaviour:
         epsilon_end: float,
         decay_env_steps: int,
         num_actors: int,
+        hardcoded: Optional[HardCodedPolicy] = None,
+        demo_epsilon: float = 0.1,
     ) -> None:
         """Initialises the behaviour.
 
@@ -62,7 +72,20 @@ class EpsilonGreedyBehaviour:
             epsilon_end: ε after `decay_env_steps` global env steps.
             decay_env_steps: Length of the linear decay, in the run's env steps.
             num_actors: Actors sharing the run (scales this actor's step count).
+            hardcoded: μ, discrete actions [B] from observations; when given, warm-up
+                acts ε-greedy around μ(s) with `demo_epsilon` and every step records
+                ``backbone_action`` = μ(s).
+            demo_epsilon: Probability of a uniform action instead of μ(s) in warm-up.
+
+        Raises:
+            ValueError: If `hardcoded` is given with `demo_epsilon` outside (0, 1].
         """
+        if hardcoded is not None and not 0.0 < demo_epsilon <= 1.0:
+            raise ValueError(
+                f"demo_epsilon={demo_epsilon} must lie in (0, 1] around a hard-coded policy: "
+                "its deterministic actions alone would give other actions probability 0"
+            )
+        self.hardcoded, self.demo_epsilon = hardcoded, demo_epsilon
         self.q_network = q_network.eval()
         self.start, self.end, self.decay = epsilon_start, epsilon_end, decay_env_steps
         self.num_actors = num_actors
@@ -76,10 +99,10 @@ class EpsilonGreedyBehaviour:
         )
 
     def columns(self) -> dict[str, ColumnSpec]:
-        return {
-            "action": {"dtype": "int64", "shape": []},
-            "log_prob": {"dtype": "float32", "shape": []},
-        }
+        columns: dict[str, ColumnSpec] = {"action": {"dtype": "int64", "shape": []}}
+        if self.hardcoded is not None:
+            columns["backbone_action"] = {"dtype": "int64", "shape": []}
+        return {**columns, "log_prob": {"dtype": "float32", "shape": []}}
 
     def load(self, weights: Weights) -> None:
         self.q_network.load_state_dict(weights)
@@ -94,11 +117,20 @@ class EpsilonGreedyBehaviour:
     def act(
         self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
     ) -> tuple[np.ndarray, Columns]:
-        epsilon = 1.0 if warmup else self.epsilon
-        self._epsilons.append(epsilon)
         self.steps += len(obs)
-        action, log_prob = epsilon_greedy(self._q(obs), epsilon, rng)
-        return action, {"action": action, "log_prob": log_prob}
+        extra: Columns = {}
+        q = self._q(obs)
+        if self.hardcoded is not None:
+            mu = np.asarray(self.hardcoded(obs), dtype=np.int64).reshape(len(obs))
+            extra["backbone_action"] = mu
+        if warmup and self.hardcoded is not None:
+            # ε-greedy around μ(s): μ's one-hot as the "Q values" to be greedy on.
+            epsilon, q = self.demo_epsilon, np.eye(q.shape[1], dtype=np.float32)[mu]
+        else:
+            epsilon = 1.0 if warmup else self.epsilon
+        self._epsilons.append(epsilon)
+        action, log_prob = epsilon_greedy(q, epsilon, rng)
+        return action, {"action": action, **extra, "log_prob": log_prob}
 
     def next_columns(self, next_obs: np.ndarray) -> Columns:
         return {}  # nothing about s'

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Optional
+
 from gymnasium import spaces
 
 from actors.behaviours.epsilon_greedy import EpsilonGreedyBehaviour
+from actors.hardcoded import ImportedPolicy, required_policy
 from learner.agent import Budget, Phase, online_phase
 from learner.dqn.config import DQNConfig
 from learner.dqn.learning import DQNLearner
@@ -13,7 +17,8 @@ from learner.spaces import discrete_actions, observation_dim
 
 
 class DQNBuilder:
-    """Double DQN as a run: one online phase, ε = 1 warm-up, then decaying ε-greedy."""
+    """Double DQN as a run: one online phase, its warm-up ε = 1 (or demonstrations of the
+    hard-coded policy, ε-greedy around μ(s), and a burn-in on them), then decaying ε-greedy."""
 
     def __init__(
         self,
@@ -23,19 +28,37 @@ class DQNBuilder:
         config: DQNConfig,
         budget: Budget,
         seed: int,
+        hardcoded_policy: Optional[str] = None,
+        import_path: Sequence[str] = (),
     ) -> None:
-        """Raises ValueError when the observation space is not a flat Box or the actions
-        are not Discrete."""
+        """`hardcoded_policy` (μ's import string, found on `import_path`) is used only with
+        ``config.warmup`` = hardcoded.
+
+        Raises ValueError when the observation space is not a flat Box, the actions are not
+        Discrete, or warmup: hardcoded has no hard-coded policy that builds."""
         self.obs_dim = observation_dim(obs_space, "ddqn")
         self.num_actions = discrete_actions(action_space, "ddqn")
         self.config, self.budget, self.seed = config, budget, seed
         self.batch_size = config.batch_size
+        self.hardcoded: Optional[ImportedPolicy] = None
+        if config.warmup == "hardcoded":
+            self.hardcoded = required_policy(
+                hardcoded_policy,
+                obs_space,
+                action_space,
+                method="ddqn with dqn.warmup=hardcoded",
+                import_path=import_path,
+            )
 
     def phases(self) -> list[Phase]:
         budget = self.budget
         return [
             online_phase(
-                budget, batch_size=self.batch_size, env_steps=budget.env_steps, warmup=True
+                budget,
+                batch_size=self.batch_size,
+                env_steps=budget.env_steps,
+                warmup=True,
+                burn_in_updates=self.config.burn_in_updates,
             )
         ]
 
@@ -57,4 +80,6 @@ class DQNBuilder:
             epsilon_end=c.epsilon_end,
             decay_env_steps=c.epsilon_decay_env_steps,
             num_actors=num_actors,
+            hardcoded=self.hardcoded,
+            demo_epsilon=c.demo_epsilon,
         )

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
+WARMUPS = ("uniform", "hardcoded")
+
 
 @dataclass(frozen=True)
 class DQNConfig:
@@ -35,6 +37,18 @@ class DQNConfig:
     """ε after the decay."""
     epsilon_decay_env_steps: int = 10_000
     """Env steps (over all actors) over which ε decays linearly."""
+    warmup: str = "uniform"
+    """How the first `learning_starts` env steps act: uniform (ε = 1), or hardcoded: the
+    preset's hardcoded_policy μ, ε-greedy around μ(s) with `demo_epsilon` (demonstrations,
+    as DQfD's; ddqn only)."""
+    demo_epsilon: float = 0.1
+    """Probability of a uniform action instead of μ(s) in the demonstrations (warmup: hardcoded)."""
+    burn_in_updates: int = 0
+    """Updates on the warm-up transitions alone before the actors go on (0: none)."""
+    margin: float = 0.8
+    """With warmup: hardcoded, the burn-in updates add DQfD's large-margin loss
+    max_a [Q(s, a) + margin·1(a ≠ μ(s))] − Q(s, μ(s)), so that Q ranks μ's action first
+    (Hester et al. 2018, eq. 2; 0 disables it)."""
 
     def __post_init__(self) -> None:
         """Refuses settings that cannot train, naming the field."""
@@ -61,5 +75,16 @@ class DQNConfig:
                 f"need 0 <= epsilon_end ({self.epsilon_end}) <= epsilon_start "
                 f"({self.epsilon_start}) <= 1: ε is a probability and decays"
             )
+        if self.warmup not in WARMUPS:
+            raise ValueError(f"warmup={self.warmup!r} must be one of {', '.join(WARMUPS)}")
+        if not 0.0 < self.demo_epsilon <= 1.0:
+            raise ValueError(
+                f"demo_epsilon={self.demo_epsilon} must lie in (0, 1]: the demonstrations "
+                "need every action's probability > 0 (log_prob)"
+            )
+        if self.burn_in_updates < 0:
+            raise ValueError(f"burn_in_updates={self.burn_in_updates} must be >= 0 (0: none)")
+        if self.margin < 0.0:
+            raise ValueError(f"margin={self.margin} must be >= 0 (0 disables the margin loss)")
         if self.epsilon_decay_env_steps < 1:
             raise ValueError(f"epsilon_decay_env_steps={self.epsilon_decay_env_steps} must be >= 1")

@@ -44,6 +44,22 @@ def double_q_target(
     return returns + discount * target(next_obs).gather(1, best).squeeze(1)
 
 
+def large_margin_loss(q: torch.Tensor, expert_action: torch.Tensor, margin: float) -> torch.Tensor:
+    """DQfD's supervised loss (Hester et al. 2018, eq. 2), as a mean over the batch:
+    max_a [Q(s, a) + l(a_E, a)] − Q(s, a_E), l = margin where a ≠ a_E, else 0.
+
+    Zero once Q ranks the expert's action a_E above every other by at least `margin`.
+
+    Args:
+        q: Q(s, ·), [B, n].
+        expert_action: a_E = μ(s), int64 [B].
+        margin: l for every action other than a_E.
+    """
+    chosen = expert_action.long().unsqueeze(1)
+    penalty = torch.full_like(q, margin).scatter(1, chosen, 0.0)
+    return ((q + penalty).max(dim=1).values - q.gather(1, chosen).squeeze(1)).mean()
+
+
 def linear_decay(start: float, end: float, *, step: int, steps: int) -> float:
     """start + (end − start) · min(step / steps, 1): `start` at step 0, `end` from `steps` on."""
     return end if step >= steps else start + (end - start) * step / steps
@@ -51,6 +67,9 @@ def linear_decay(start: float, end: float, *, step: int, steps: int) -> float:
 
 class DQNLearner:
     """Online and target Q networks, Adam; the target moves every `target_update_every`.
+
+    With `config.warmup` = hardcoded, the first `config.burn_in_updates` updates (drawn from
+    the demonstrations alone) add `large_margin_loss` towards the recorded μ(s).
 
     With `config.learning_rate_end` set, update u (counted from 0) steps at
     lr(u) = linear_decay(learning_rate, learning_rate_end, step=u, steps=total_updates):
@@ -84,6 +103,8 @@ class DQNLearner:
         self._max_grad_norm = config.max_grad_norm
         self._lr_start, self._lr_end = config.learning_rate, config.learning_rate_end
         self._total_updates = total_updates
+        self._margin_updates = config.burn_in_updates if config.warmup == "hardcoded" else 0
+        self._margin = config.margin
         self.num_updates = 0
 
     @property
@@ -100,19 +121,37 @@ class DQNLearner:
 
         Args:
             batch: ``obs`` [B, obs_dim], ``action`` [B] int64, ``reward`` [B],
-                ``terminated`` [B] bool, ``next_obs`` [B, obs_dim].
+                ``terminated`` [B] bool, ``next_obs`` [B, obs_dim]; in burn-in with
+                warmup: hardcoded, ``backbone_action`` [B] int64 (μ(s)).
         """
         # Truncation is not termination: only a terminal s' stops the bootstrap.
         discount = self._gamma * (1.0 - batch["terminated"].float())
         y = double_q_target(
             batch["reward"], discount, batch["next_obs"], online=self.q, target=self.target_q
         )
-        return self.fit(batch["obs"], batch["action"], y)
+        expert = None
+        if self.num_updates < self._margin_updates and self._margin > 0.0:
+            expert = batch["backbone_action"]
+        return self.fit(batch["obs"], batch["action"], y, expert_action=expert)
 
-    def fit(self, obs: torch.Tensor, action: torch.Tensor, y: torch.Tensor) -> dict[str, float]:
-        """One Huber-loss step of Q(obs, action) towards a target y; counts an update."""
-        q = self.q(obs).gather(1, action.long().unsqueeze(1)).squeeze(1)
+    def fit(
+        self,
+        obs: torch.Tensor,
+        action: torch.Tensor,
+        y: torch.Tensor,
+        *,
+        expert_action: Optional[torch.Tensor] = None,
+    ) -> dict[str, float]:
+        """One Huber-loss step of Q(obs, action) towards a target y (plus the large-margin
+        loss towards `expert_action` when given); counts an update."""
+        q_all = self.q(obs)
+        q = q_all.gather(1, action.long().unsqueeze(1)).squeeze(1)
         loss = F.smooth_l1_loss(q, y)
+        metrics = {}
+        if expert_action is not None:
+            margin_loss = large_margin_loss(q_all, expert_action, self._margin)
+            loss = loss + margin_loss
+            metrics["losses/margin"] = float(margin_loss.detach())
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         nn.utils.clip_grad_norm_(self.q.parameters(), self._max_grad_norm)
@@ -127,6 +166,7 @@ class DQNLearner:
             "losses/q": float(loss.detach()),
             "values/q_mean": float(q.detach().mean()),
             "charts/learning_rate": lr,
+            **metrics,
         }
 
     def policy_state(self) -> dict[str, torch.Tensor]:

@@ -139,6 +139,12 @@ class TrainConfig:
             raise ValueError(
                 f"learning_starts={self.learning_starts} must lie in (0, online env steps={online})"
             )
+        if self.dqn.warmup == "hardcoded" and self.algorithm != "ddqn":
+            raise ValueError(
+                f"dqn.warmup=hardcoded is for algorithm ddqn (demonstrations of the hard-coded "
+                f"policy), not {self.algorithm}: pretrain_td3 is its continuous-action "
+                "counterpart"
+            )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
         if not 0 <= self.seed < 2**32:

@@ -29,7 +29,13 @@ def make_builder(config: TrainConfig) -> AgentBuilder:
         from learner.dqn.builder import DQNBuilder
 
         return DQNBuilder(
-            obs_space, action_space, config=config.dqn, budget=budget, seed=config.seed
+            obs_space,
+            action_space,
+            config=config.dqn,
+            budget=budget,
+            seed=config.seed,
+            hardcoded_policy=config.hardcoded_policy,
+            import_path=config.import_path,
         )
     # Every other algorithm is TD3 plus something: the TD3 builder checks the spaces.
     from learner.td3.builder import TD3Builder

@@ -4,13 +4,19 @@ target network and the learning-rate schedule."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 import torch
 
-from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
-from learner.dqn.learning import double_q_target, linear_decay
+from actors.behaviours.epsilon_greedy import (
+    EpsilonGreedyBehaviour,
+    epsilon_greedy,
+    linear_epsilon,
+)
+from learner.dqn.config import DQNConfig
+from learner.dqn.learning import DQNLearner, double_q_target, large_margin_loss, linear_decay
 from tests.learner.helpers import Table
 
 
@@ -132,3 +138,97 @@ def test_dqn_builder_decays_the_rate_over_the_runs_updates():
     assert learner.learning_rate == pytest.approx(5.5e-4)
     learner.num_updates = 2000
     assert learner.learning_rate == pytest.approx(1e-4)
+
+
+# Demonstrations of a hard-coded policy (dqn.warmup: hardcoded): DQfD's large-margin loss.
+MARGIN_CASES = [
+    # Q(s, ·), a_E, margin, loss = max_a [Q(s, a) + l(a_E, a)] − Q(s, a_E)
+    ([[1.0, 3.0, 0.0]], [1], 0.8, 0.0),  # a_E ahead by 1 ≥ 0.8: nothing to push
+    ([[1.0, 1.5, 0.0]], [1], 0.8, 0.3),  # ahead by 0.5 only: 1 + 0.8 − 1.5
+    ([[2.0, 1.0, 0.0]], [1], 0.8, 1.8),  # another action ahead: 2 + 0.8 − 1
+    ([[2.0, 1.0, 0.0], [1.0, 3.0, 0.0]], [1, 1], 0.8, 0.9),  # mean of 1.8 and 0
+    ([[2.0, 1.0, 0.0]], [1], 0.0, 1.0),  # margin 0: the plain ranking gap
+]
+
+
+@pytest.mark.parametrize("q, expert, margin, expected", MARGIN_CASES)
+def test_large_margin_loss_by_hand(q, expert, margin, expected):
+    loss = large_margin_loss(torch.tensor(q), torch.tensor(expert), margin)
+    assert float(loss) == pytest.approx(expected)
+
+
+def _demo_batch(n: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+    """Demonstrations of μ(s) = 1 if s_1 > 0 else 0 on 2-feature states, reward 0."""
+    obs = rng.normal(size=(n, 2)).astype(np.float32)
+    mu = (obs[:, 1] > 0).astype(np.int64)
+    return {
+        "obs": torch.as_tensor(obs),
+        "action": torch.as_tensor(mu),
+        "backbone_action": torch.as_tensor(mu),
+        "reward": torch.zeros(n),
+        "terminated": torch.zeros(n, dtype=torch.bool),
+        "next_obs": torch.as_tensor(obs),
+    }
+
+
+def test_burn_in_with_the_margin_loss_makes_the_greedy_policy_the_hard_coded_one():
+    config = DQNConfig(hidden_sizes=(16,), warmup="hardcoded", burn_in_updates=200)
+    learner = DQNLearner(2, 2, config=config, seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        metrics = learner.update(_demo_batch(64, rng))
+        assert "losses/margin" in metrics
+    test = _demo_batch(1000, rng)
+    greedy = learner.q(test["obs"]).argmax(dim=1)
+    # TD alone gives no reason to prefer μ's action (every reward is 0): the margin does.
+    assert float((greedy == test["backbone_action"]).float().mean()) > 0.95
+    # After the burn-in: plain Double DQN, the recorded μ(s) is not needed.
+    batch = _demo_batch(64, rng)
+    del batch["backbone_action"]
+    assert "losses/margin" not in learner.update(batch)
+
+
+def test_uniform_warmup_never_adds_the_margin_loss():
+    learner = DQNLearner(2, 2, config=DQNConfig(hidden_sizes=(16,), burn_in_updates=5), seed=0)
+    batch = _demo_batch(8, np.random.default_rng(0))
+    assert "losses/margin" not in learner.update(batch)
+
+
+def test_demonstrations_act_epsilon_greedily_around_the_hard_coded_policy():
+    def mu(obs: np.ndarray) -> np.ndarray:
+        return (obs[:, 1] > 0).astype(np.int64)
+
+    behaviour = EpsilonGreedyBehaviour(
+        torch.nn.Linear(2, 3),  # Q(s, ·) over three actions, unused in warm-up
+        epsilon_start=1.0,
+        epsilon_end=0.05,
+        decay_env_steps=10,
+        num_actors=1,
+        hardcoded=mu,
+        demo_epsilon=0.3,
+    )
+    assert behaviour.columns()["backbone_action"] == {"dtype": "int64", "shape": []}
+    obs = np.random.default_rng(1).normal(size=(4000, 2)).astype(np.float32)
+    action, columns = behaviour.act(obs, np.random.default_rng(2), warmup=True)
+    np.testing.assert_array_equal(columns["backbone_action"], mu(obs))
+    followed = action == mu(obs)
+    assert abs(followed.mean() - (0.7 + 0.3 / 3)) < 0.03  # 1 − ε + ε/n
+    np.testing.assert_allclose(columns["log_prob"][followed], math.log(0.8), rtol=1e-6)
+    np.testing.assert_allclose(columns["log_prob"][~followed], math.log(0.1), rtol=1e-6)
+    # Online: the Q network's ε-greedy (ε from epsilon_start), μ(s) still recorded.
+    _, online = behaviour.act(obs[:5], np.random.default_rng(3), warmup=False)
+    np.testing.assert_array_equal(online["backbone_action"], mu(obs[:5]))
+
+
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("warmup", "expert", "warmup='expert' must be one of uniform, hardcoded"),
+        ("demo_epsilon", 0.0, "demo_epsilon=0.0 must lie in (0, 1]"),
+        ("burn_in_updates", -1, "burn_in_updates=-1 must be >= 0"),
+        ("margin", -0.1, "margin=-0.1 must be >= 0"),
+    ],
+)
+def test_dqn_demonstration_settings_are_refused_by_name(field, value, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        DQNConfig(**{field: value})

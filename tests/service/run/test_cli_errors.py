@@ -113,7 +113,23 @@ BAD_INPUTS = {
     "a space the method refuses": (
         [*TRAIN, "--set", "env_id=CartPole-v1"],
         "graft train: td3 needs continuous actions (a 1-D Box), the environment's action "
-        "space is Discrete(2): use algorithm ddqn for discrete actions",
+        "space is Discrete(2): use algorithm ddqn for discrete actions (dqn.warmup: hardcoded "
+        "starts it from your hard-coded policy)",
+    ),
+    "the options method on discrete actions": (
+        [*TRAIN, "--set", "env_id=CartPole-v1", "--set", "algorithm=options"],
+        "graft train: options needs continuous actions (a 1-D Box), the environment's action "
+        "space is Discrete(2): use algorithm ddqn for discrete actions (dqn.warmup: hardcoded "
+        "starts it from your hard-coded policy)",
+    ),
+    "DQN demonstrations for a TD3 method": (
+        [*TRAIN, "--set", "dqn.warmup=hardcoded"],
+        "graft train: dqn.warmup=hardcoded is for algorithm ddqn (demonstrations of the "
+        "hard-coded policy), not td3: pretrain_td3 is its continuous-action counterpart",
+    ),
+    "unknown DQN warm-up": (
+        [*TRAIN, "--set", "dqn.warmup=expert"],
+        "graft train: dqn.warmup='expert' must be one of uniform, hardcoded",
     ),
     "unknown preset name": (
         ["train", "--preset", "pendulum-td4"],
@@ -181,6 +197,16 @@ def test_malformed_preset_yaml_names_line_and_column(tmp_path, capsys) -> None:
     assert _refused(["train", "--preset", str(preset)], capsys) == (
         f"graft train: preset {preset}: malformed YAML at line 4, column 8: expected ',' or "
         "']', but got ':'"
+    )
+
+
+def test_dqn_demonstrations_need_a_hard_coded_policy(tmp_path, capsys) -> None:
+    preset = tmp_path / "cartpole.yaml"
+    preset.write_text("env_id: CartPole-v1\nalgorithm: ddqn\ndqn: {warmup: hardcoded}\n")
+    assert _refused(["train", "--preset", str(preset)], capsys) == (
+        "graft train: ddqn with dqn.warmup=hardcoded improves a hard-coded policy, and the "
+        "preset names none: set hardcoded_policy: package.module:factory (a py_trees tree or "
+        "a callable)"
     )
 
 

@@ -1,0 +1,160 @@
+"""The example user projects in examples/, each installed as its own distribution (the
+Makefile and tests/conftest.py install them with ``pip install -e``): their trees behave as
+their READMEs say, every preset trains for a tiny budget, and `graft eval` loads the runs.
+
+Real parts throughout: a local Ray cluster, the replay server process, the learner.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import ray
+import yaml
+
+import graft
+from service.run.cli import main
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLES = REPO / "examples"
+DISTRIBUTIONS = {
+    "mountaincar": "graft-example-mountaincar 0.1.0",
+    "cartpole": "graft-example-cartpole 0.1.0",
+}
+TINY = {
+    "env_steps": 300,
+    "learning_starts": 100,
+    "steps_per_insert": 4,
+    "slack_env_steps": 16,
+    "publish_every": 20,
+    "eval_every": 300,
+    "eval_episodes": 1,
+    "checkpoint_every": 10_000,
+}
+"""Every preset's budget cut to seconds; the sections' own counts below."""
+SECTIONS = {
+    "td3": {"batch_size": 32, "burn_in_updates": 10, "frozen_actor_updates": 10},
+    "pretrain": {"demo_steps": 100, "pretrain_updates": 20},
+    # 250: the learner logs every 250th update's losses, the margin loss among them.
+    "dqn": {"batch_size": 32, "burn_in_updates": 250, "epsilon_decay_env_steps": 200},
+}
+BY_CLI = ["mountaincar/presets/backbone.yaml", "cartpole/presets/ddqn-demos.yaml"]
+"""Trained by `graft train` in a fresh process; every other preset through `graft.train`."""
+PRESETS = sorted(str(p.relative_to(EXAMPLES)) for p in EXAMPLES.glob("*/presets/*.yaml"))
+
+
+def _tiny(preset: str) -> dict:
+    """Overrides for the sections the preset sets (a section it does not set keeps its
+    defaults, and some methods refuse fields they do not use)."""
+    data = yaml.safe_load((EXAMPLES / preset).read_text())
+    sections = {name: dict(fields) for name, fields in SECTIONS.items() if name in data}
+    if data["algorithm"] != "pretrain_td3":
+        sections.pop("pretrain", None)
+    return {**TINY, **sections}
+
+
+def _check_run(run_dir: Path, preset: str) -> None:
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert 300 - 16 <= summary["env_steps"] <= 300, summary
+    assert summary["updates"] > 0 and np.isfinite(summary["final_eval_return_mean"])
+    recorded = yaml.safe_load((run_dir / "config.yaml").read_text())
+    example = preset.split("/")[0]
+    assert DISTRIBUTIONS[example] in recorded["versions"]["task"].values()
+
+
+def test_the_examples_are_installed_as_their_own_distributions() -> None:
+    from importlib.metadata import distribution
+
+    for example, installed in DISTRIBUTIONS.items():
+        name, version = installed.split()
+        assert distribution(name).version == version
+        assert (EXAMPLES / example / "README.md").is_file()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("preset", sorted(set(PRESETS) - set(BY_CLI)))
+def test_every_example_preset_trains_and_its_run_evaluates(
+    preset: str, ray_local, tmp_path, monkeypatch, capsys
+) -> None:
+    monkeypatch.chdir(tmp_path)  # neither the example's folder nor graft's
+    run = graft.train(EXAMPLES / preset, run_dir=tmp_path / "run", **_tiny(preset))
+    _check_run(run.run_dir, preset)
+    main(["eval", "--policy", str(run.run_dir), "--episodes", "1", "--json"])
+    result = json.loads(capsys.readouterr().out)
+    assert result["env_id"] == run.config.env_id and np.isfinite(result["mean"])
+
+
+def _graft(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
+    """The `graft` command in a fresh process, from `cwd`."""
+    path = os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])
+    return subprocess.run(
+        [sys.executable, "-m", "service.run.cli", *args],
+        cwd=cwd,
+        env={**os.environ, "PYTHONPATH": path},
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+
+
+def _set_flags(overrides: dict) -> list[str]:
+    flags = []
+    for key, value in overrides.items():
+        if isinstance(value, dict):
+            flags += [f"--set={key}.{field}={v}" for field, v in value.items()]
+        else:
+            flags.append(f"--set={key}={value}")
+    return flags
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("preset", BY_CLI)
+def test_graft_train_and_eval_of_an_example_in_fresh_processes(
+    preset: str, ray_local, tmp_path
+) -> None:
+    """As the examples' READMEs say: `graft train --preset examples/...`, then `graft eval`."""
+    address = ray.get_runtime_context().gcs_address  # join the session's cluster
+    run_dir = tmp_path / "run"
+    train = _graft(
+        ["train", "--preset", str(EXAMPLES / preset), "--address", address,
+         "--run-dir", str(run_dir), "--no-progress", *_set_flags(_tiny(preset))],
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert train.returncode == 0, train.stderr[-3000:]
+    _check_run(run_dir, preset)
+    if preset.endswith("ddqn-demos.yaml"):
+        # The burn-in trained on the tree's demonstrations, with the margin loss towards it.
+        with (run_dir / "metrics.csv").open() as f:
+            margin = [float(r["value"]) for r in csv.DictReader(f) if r["key"] == "losses/margin"]
+        assert margin and all(np.isfinite(margin))
+    evaluated = _graft(["eval", "--policy", str(run_dir), "--episodes", "2", "--json"], tmp_path)
+    assert evaluated.returncode == 0, evaluated.stderr[-3000:]
+    assert np.isfinite(json.loads(evaluated.stdout)["mean"])
+
+
+def test_the_energy_pumping_tree_reaches_the_flag_from_every_start() -> None:
+    tree = graft.load_policy("hardcoded", preset=EXAMPLES / "mountaincar/presets/backbone.yaml")
+    result = graft.evaluate(tree, episodes=5, seed=0)
+    np.testing.assert_array_equal(result.metrics["reached"], np.ones(5))
+    assert np.all((85.0 < result.returns) & (result.returns < 95.0)), result.returns
+
+
+def test_the_cartpole_tree_writes_discrete_actions_and_balances_for_a_while() -> None:
+    preset = EXAMPLES / "cartpole/presets/ddqn-demos.yaml"
+    tree = graft.load_policy("hardcoded", preset=preset)
+    obs = np.array([[0.0, 0.0, 0.0, 0.5], [0.0, 0.0, 0.0, -0.5]], np.float32)
+    np.testing.assert_array_equal(tree(obs), [1, 0])  # falling right: push right
+    assert tree(obs).dtype == np.int64
+    returns = graft.evaluate(tree, episodes=5, seed=0).returns
+    random = graft.evaluate(graft.load_policy("random", preset=preset), episodes=5, seed=0)
+    assert returns.min() > 100 > random.returns.max()  # well past random, short of 500
+    assert returns.max() < 500
