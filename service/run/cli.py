@@ -107,7 +107,7 @@ def _train(args: argparse.Namespace) -> None:
             file=sys.stderr,
         )
         raise SystemExit(INTERRUPTED)
-    print(f"\nrun folder: {result.run_dir}")
+    print(f"\nrun folder: {result.run_dir} ({s['mode']} mode)")
     print(
         f"final evaluation return: {s['final_eval_return_mean']:.1f} ± "
         f"{s['final_eval_return_std']:.1f} after {s['env_steps']} env steps, "
