@@ -273,7 +273,6 @@ def train(
     (run_dir / "config.yaml").write_text(config_record(config))
     if checkpoint is not None:
         print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
-    restore_torch = deterministic(config.seed) if config.reproducible else _no_op
     started_ray = connect_ray(address)
     # Beyond one machine the replay server must listen on the network: then it needs a token.
     host = "127.0.0.1" if address == "local" else "0.0.0.0"
@@ -281,6 +280,7 @@ def train(
     actors: list[Any] = []  # Ray handles: their `.remote` methods exist only at run time
     replay: Optional[ReplayProcess] = None
     interrupted, release_sigint = False, _no_op
+    restore_torch = deterministic(config.seed) if config.reproducible else _no_op
     try:
         replay = ReplayProcess(tables, host=host, token=token, log_path=run_dir / "replay.log")
         connect_to = replay.address
@@ -311,7 +311,11 @@ def train(
         # asks them for one insert batch at a time (ActorRing) and draws each batch only
         # when it needs it; wall-clock metrics go to timing.csv, not metrics.csv.
         runs = [] if config.reproducible else [a.run.remote(segments) for a in actors]
-        lockstep = Lockstep(ActorRing(actors, segments), builder.batch_size)
+        lockstep = (
+            Lockstep(ActorRing(actors, segments), builder.batch_size)
+            if config.reproducible
+            else None
+        )
         logger = MetricsLogger(run_dir, wall_clock=not config.reproducible)
         prefetch = 0 if config.reproducible else config.prefetch
 
@@ -353,7 +357,7 @@ def train(
             state=state,
             on_progress=on_progress,
             watchdog=stalled if config.reproducible else lambda: _check_actors(runs),
-            lockstep=lockstep if config.reproducible else None,
+            lockstep=lockstep,
         )
         try:
             final = loop.run()
