@@ -25,7 +25,7 @@ import ray
 from service.metrics import MetricsLogger
 from service.run.cli import parse_settings
 from service.run.config import load_preset
-from service.run.launcher import train
+from service.run.launcher import connect_ray, train
 
 
 def comparable_rows(csv_path: Path) -> list[str]:
@@ -88,13 +88,14 @@ def main() -> None:
     parser.add_argument("--also-async", action="store_true", help="also the default mode")
     parser.add_argument("--out", type=Path, default=Path("runs/bench-reproduce"))
     args = parser.parse_args()
-    ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False)
+    started = connect_ray("local")  # a Ray instance of its own
     try:
         run_twice(args, reproducible=True)
         if args.also_async:
             run_twice(args, reproducible=False)
     finally:
-        ray.shutdown()
+        if started:
+            ray.shutdown()
 
 
 if __name__ == "__main__":
