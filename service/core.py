@@ -205,7 +205,7 @@ class LockstepActors(Protocol):
     `LearnerLoop` (learner/loop.py) then samples only what the held ratio allows::
 
         while updates < end of phase:
-            while updates >= allowed(inserted):   # exact samples per insert
+            while updates_allowed(phase, inserted, batch_size=...) <= updates:  # the held ratio
                 inserted += actors.advance(phase.name, version)  # stored when it returns
             metrics = phase.step(algorithm, to_tensors(stream.next_within(timeout)))
     """
