@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from service.run.experiments import summarise
 from service.run.stats import bootstrap_ci, iqm, main, summarize
 
 
@@ -47,3 +48,22 @@ def test_fewer_than_three_seeds_get_no_interval(capsys):
 def test_non_finite_values_are_refused():
     with pytest.raises(ValueError, match="finite per-seed values"):
         summarize([1.0, float("nan")])
+
+
+def test_an_experiment_summary_gives_an_interval_from_three_seeds_on():
+    finals = {"a": [-140.0, -150.0, -130.0], "b": [-300.0, -100.0]}
+    rows = [
+        {"variant": v, "seed": str(seed), "env_steps": str(steps), "return_mean": str(value)}
+        for v, values in finals.items()
+        for seed, last in enumerate(values)
+        for steps, value in ((1000, -1000.0), (2000, last))
+    ]
+    a, b = summarise(rows, ["a", "b"])
+    assert (a["seeds"], a["final_mean"], a["final_iqm"]) == (3, -140.0, -140.0)
+    assert a["final_ci95_low"] < -140.0 < a["final_ci95_high"]
+    assert (b["seeds"], b["final_mean"], b["final_ci95_low"], b["final_iqm"]) == (
+        2,
+        -200.0,
+        None,
+        None,
+    )
