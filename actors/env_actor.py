@@ -146,7 +146,9 @@ class Segment:
 
 @ray.remote(num_cpus=0.25, max_concurrency=2)  # type: ignore[call-overload]  # task-only stubs
 class EnvActor:
-    """Collects transitions segment by segment with its behaviour policy.
+    """Collects transitions segment by segment with its behaviour policy: all of them in
+    one `run()` call (the default, asynchronous mode), or one insert batch per
+    `advance()` call when the learner drives it (reproducible mode).
 
     Two calls run at once: `report()` and `restart_meters()` answer while `run()` acts.
     `nice`, when given, is the acting thread's CPU niceness: Ray starts workers at nice
@@ -180,6 +182,8 @@ class EnvActor:
         self.versions_seen: list[int] = []
         self.stats: list[dict[str, float]] = []
         self.env_steps = 0
+        self._start: Optional[float] = None
+        self._advanced: dict[str, int] = {}  # advance(): env steps acted per table
         self._window = (time.monotonic(), 0)  # measurement window: start, env steps then
 
     def _adopt_new_weights(self, block_s: float = 0.0) -> None:
@@ -206,46 +210,91 @@ class EnvActor:
         """Steps through `segments` in order (or until the learner says stop)."""
         self._set_priority()
         self.restart_meters()
-        n = len(self.stepper.envs)
-        start = time.perf_counter()
+        self._start = time.perf_counter()
         for segment in segments:
-            buffer: list[dict[str, np.ndarray]] = []
-            seg_steps = 0
-            while seg_steps < segment.steps and not self.weights.stopped:
-                warmup = seg_steps < segment.warmup_steps
-                if not warmup:
-                    self._wait_for_first_weights()
-                self._adopt_new_weights()
-                env_action, record = self.behaviour.act(self.stepper.obs, self.rng, warmup=warmup)
-                record.update(self.stepper.step(env_action))
-                # Columns computed on s' (e.g. the backbone's μ(s')); most add none.
-                record.update(self.behaviour.next_columns(record["next_obs"]))
-                lost = self.stepper.lost
-                self.behaviour.end_episodes(record["terminated"] | record["truncated"] | lost)
-                version = -1 if warmup else self.weights.version  # -1: the warm-up policy
-                record["policy_version"] = np.full(n, version, np.int64)
-                record["acted_at"] = np.full(n, time.time())
-                # Each environment is one stream: the table links its steps into episodes,
-                # so sampled windows never mix environments or cross an episode end.
-                record["_stream"] = self.stepper.streams.copy()
-                if lost.any():  # a world went away mid-step: no successor, no transition
-                    record = {k: v[~lost] for k, v in record.items()}
-                buffer.append(record)
-                kept = n - int(lost.sum())
-                seg_steps += kept
-                self.env_steps += kept
-                if len(buffer) >= self.steps_per_insert or seg_steps >= segment.steps:
-                    batch = {k: np.concatenate([r[k] for r in buffer]) for k in buffer[0]}
-                    self.writer.insert(segment.table, batch, max_pending=segment.pending_inserts)
-                    buffer.clear()
-                    if stats := self.behaviour.stats():
-                        self.stats.append({"actor_steps": self.env_steps, **stats})
+            done = 0
+            while done < segment.steps and not self.weights.stopped:
+                buffer, steps = self._collect(segment, done)
+                done += steps
+                if len(buffer) < self.steps_per_insert and done < segment.steps:
+                    break  # stopped mid-batch: see below
+                self._insert(segment, buffer, max_pending=segment.pending_inserts)
         # A stopped run drops its unfinished batch: the learner no longer samples, and a
         # rate-limited table could hold its insert forever. Queued batches still go out.
+        return self.finish()
+
+    def advance(self, segment: Segment, version: int) -> int:
+        """Reproducible mode: acts one insert batch of `segment` with policy `version`
+        (-1: none needed yet), and returns the env steps stored once the server has them
+        (0: this actor's share of the segment is done).
+
+        The learner calls this for one actor at a time and publishes only between calls,
+        so which weights act on which steps is fixed by the call order, not by timing.
+        """
+        if self._start is None:
+            self._start = time.perf_counter()
+        done = self._advanced.get(segment.table, 0)
+        if done >= segment.steps:
+            return 0
+        while self.weights.version < version and not self.weights.stopped:
+            self._adopt_new_weights(block_s=5.0)
+        buffer, steps = self._collect(segment, done)
+        if not buffer:  # the learner said stop
+            return 0
+        self._advanced[segment.table] = done + steps
+        self._insert(segment, buffer, max_pending=0)
+        return steps
+
+    def _collect(self, segment: Segment, done: int) -> tuple[list[dict[str, np.ndarray]], int]:
+        """Acts up to one insert batch (`steps_per_insert` vector steps) of `segment`, from
+        its step `done`; fewer when the segment ends or the learner says stop. Returns the
+        per-step records and the env steps they hold."""
+        n = len(self.stepper.envs)
+        buffer: list[dict[str, np.ndarray]] = []
+        steps = 0
+        while (
+            len(buffer) < self.steps_per_insert
+            and done + steps < segment.steps
+            and not self.weights.stopped
+        ):
+            warmup = done + steps < segment.warmup_steps
+            if not warmup:
+                self._wait_for_first_weights()
+            self._adopt_new_weights()
+            env_action, record = self.behaviour.act(self.stepper.obs, self.rng, warmup=warmup)
+            record.update(self.stepper.step(env_action))
+            # Columns computed on s' (e.g. the backbone's μ(s')); most add none.
+            record.update(self.behaviour.next_columns(record["next_obs"]))
+            lost = self.stepper.lost
+            self.behaviour.end_episodes(record["terminated"] | record["truncated"] | lost)
+            version = -1 if warmup else self.weights.version  # -1: the warm-up policy
+            record["policy_version"] = np.full(n, version, np.int64)
+            record["acted_at"] = np.full(n, time.time())
+            # Each environment is one stream: the table links its steps into episodes,
+            # so sampled windows never mix environments or cross an episode end.
+            record["_stream"] = self.stepper.streams.copy()
+            if lost.any():  # a world went away mid-step: no successor, no transition
+                record = {k: v[~lost] for k, v in record.items()}
+            buffer.append(record)
+            kept = n - int(lost.sum())
+            steps += kept
+            self.env_steps += kept
+        return buffer, steps
+
+    def _insert(
+        self, segment: Segment, buffer: list[dict[str, np.ndarray]], *, max_pending: int
+    ) -> None:
+        batch = {k: np.concatenate([r[k] for r in buffer]) for k in buffer[0]}
+        self.writer.insert(segment.table, batch, max_pending=max_pending)
+        if stats := self.behaviour.stats():
+            self.stats.append({"actor_steps": self.env_steps, **stats})
+
+    def finish(self) -> dict[str, Any]:
+        """Sends what is queued; the actor's report of the whole run."""
         self.writer.flush(timeout_s=FLUSH_TIMEOUT_S)
         return {
             "env_steps": self.env_steps,
-            "wall_s": time.perf_counter() - start,
+            "wall_s": time.perf_counter() - (self._start or time.perf_counter()),
             "insert_s": self.writer.wait_s,
             "versions_seen": self.versions_seen,
             "episode_returns": self.stepper.finished_returns,

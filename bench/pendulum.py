@@ -3,7 +3,9 @@
 Prints per seed the env steps and wall time until the mean deterministic evaluation
 return over 100 episodes first reaches -200, the return at the end of the budget,
 the learner's fraction of time waiting on the replay server, and its updates/s beside
-a same-process baseline: the identical update loop on an in-memory batch.
+a same-process baseline: the identical update loop on an in-memory batch. Then, over
+the seeds, the mean and IQM of the final return and of the env steps to -200, each with
+its 95 % bootstrap confidence interval (service/run/stats.py).
 
     python bench/pendulum.py [--seeds 5] [--env-steps 20000]
 """
@@ -24,6 +26,7 @@ from learner.loop import to_tensors
 from learner.td3.builder import make_td3_learner
 from service.run.config import TrainConfig, load_preset
 from service.run.launcher import train
+from service.run.stats import summarize
 
 THRESHOLD = -200.0
 
@@ -136,8 +139,15 @@ def main() -> None:
         )
     plot_seeds(args.out, args.seeds, args.out / "pendulum-td3.png")
     print(f"curves: {args.out / 'pendulum-td3.png'}")
-    hits = sum(r["steps_to_-200"] is not None for r in rows)
-    print(f"\n{hits}/{len(rows)} seeds reached {THRESHOLD} within {args.env_steps} env steps")
+    reached = [r["steps_to_-200"] for r in rows if r["steps_to_-200"] is not None]
+    print(
+        f"\n{len(reached)}/{len(rows)} seeds reached {THRESHOLD} within {args.env_steps} env steps"
+    )
+    print(f"return at end: {summarize([r['final_return'] for r in rows]).line()}")
+    if reached:
+        print(
+            f"env steps to ≥ {THRESHOLD:.0f} (seeds that reached it): {summarize(reached).line(0)}"
+        )
 
 
 if __name__ == "__main__":

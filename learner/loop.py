@@ -11,6 +11,11 @@
             every log_every updates:     log metrics, perf/policy_lag from the batch
             every checkpoint_every:      self.checkpoint()  (model, optimiser, counters)
         evaluate at the end of every phase
+
+In reproducible mode (a `Lockstep`) the loop also drives the actors: before each update
+it has the actors insert, one batch at a time in a fixed order, until the phase's held
+ratio admits that update (`updates_allowed`); batches are drawn only when needed, and each
+evaluation is logged as soon as it is done.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from service.core import (
     EvalTag,
     Evaluation,
     Evaluator,
+    LockstepActors,
     SampleStream,
     TensorBatch,
     WeightPublisher,
@@ -80,6 +86,25 @@ class LoopSettings:
     log_every: int = 250
 
 
+@dataclass(frozen=True)
+class Lockstep:
+    """Reproducible mode: the actors the loop advances, and the batch size that turns the
+    table's held samples-per-insert into updates."""
+
+    actors: LockstepActors
+    batch_size: int
+
+
+def updates_allowed(phase: Phase, inserted: int, *, batch_size: int) -> int:
+    """Updates of `phase` its table's rate limiter holds for `inserted` items: none below
+    `min_size`, then `samples_per_insert` items per insert beyond it plus the burn-in
+    credit. (A phase without a ratio updates once its actors have finished.)"""
+    if phase.samples_per_insert is None or inserted < phase.min_size:
+        return 0
+    samples = (inserted - phase.min_size) * phase.samples_per_insert + phase.sample_credit
+    return int(samples // batch_size)
+
+
 class LearnerLoop:
     """Drives one algorithm through its phases, each from its own sample stream."""
 
@@ -97,6 +122,7 @@ class LearnerLoop:
         state: Optional[LoopState] = None,
         on_progress: Optional[Callable[[LoopState], None]] = None,
         watchdog: Optional[Callable[[], None]] = None,
+        lockstep: Optional[Lockstep] = None,
     ) -> None:
         self.algorithm = algorithm
         self.phases = phases
@@ -110,6 +136,7 @@ class LearnerLoop:
         self.on_progress = on_progress
         self.watchdog = watchdog
         """Called while no batch arrives; raises if the data can never come."""
+        self.lockstep = lockstep
         self._pending_evals: list[Future[Evaluation]] = []
         # A resumed run starts a fresh table: its insert counter restarts at zero.
         self._env_steps_offset = self.state.env_steps
@@ -202,8 +229,11 @@ class LearnerLoop:
         offset = self._env_steps_offset
         window_start, window_updates = time.perf_counter(), 0
         first_batch = True
+        feed = None if self.lockstep is None else _Feed(self.lockstep, phase, first=s.updates)
         try:
             while s.updates < end:
+                if feed is not None:
+                    s.env_steps = offset + feed.until_allowed(s.updates + 1, s.version)
                 wait_before = stream.wait_s
                 batch = self._next_batch(stream)
                 waited = stream.wait_s - wait_before
@@ -212,7 +242,8 @@ class LearnerLoop:
                     first_batch = False
                 else:
                     s.wait_s += waited
-                s.env_steps = offset + stream.table_inserts
+                if feed is None:
+                    s.env_steps = offset + stream.table_inserts
                 t = time.perf_counter()
                 metrics = phase.step(self.algorithm, to_tensors(batch))
                 s.update_s += time.perf_counter() - t
@@ -223,7 +254,9 @@ class LearnerLoop:
                 if self._published and weights is not None and s.env_steps >= self._next_eval:
                     self._evaluate(weights)
                     self._next_eval = (s.env_steps // cfg.eval_every + 1) * cfg.eval_every
-                self._collect_evaluations()
+                # Reproducible mode logs an evaluation right away: its row's place in
+                # metrics.csv must not depend on how long the episodes took.
+                self._collect_evaluations(wait=feed is not None)
                 if s.updates % cfg.log_every == 0:
                     elapsed = time.perf_counter() - window_start
                     metrics["perf/updates_per_s"] = window_updates / elapsed
@@ -245,3 +278,28 @@ class LearnerLoop:
             weights = self.publish() if self._published else self.algorithm.policy_state()
             self._evaluate(weights)
         return weights
+
+
+class _Feed:
+    """One phase's lock-step schedule: the actors insert, one batch at a time in a fixed
+    order, until the held ratio admits the next update."""
+
+    def __init__(self, lockstep: Lockstep, phase: Phase, *, first: int) -> None:
+        self.lockstep, self.phase, self.first = lockstep, phase, first
+        self.inserted = 0
+        self.finished = False
+
+    def until_allowed(self, update: int, version: int) -> int:
+        """Advances the actors until the run's update number `update` is allowed (or
+        they have finished the phase); returns the items in the phase's table."""
+        version = version if self.phase.acts_with_weights else -1
+        batch_size = self.lockstep.batch_size
+        while (
+            not self.finished
+            and updates_allowed(self.phase, self.inserted, batch_size=batch_size)
+            < update - self.first
+        ):
+            steps = self.lockstep.actors.advance(self.phase.name, version)
+            self.inserted += steps
+            self.finished = steps == 0
+        return self.inserted

@@ -198,3 +198,20 @@ class Evaluator(Protocol):
 
     def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
         """Starts `episodes` greedy episodes with `weights`; the future holds their returns."""
+
+
+class LockstepActors(Protocol):
+    """Actors the learner advances itself, in reproducible mode (service/run/lockstep.py).
+
+    `LearnerLoop` (learner/loop.py) then samples only what the held ratio allows::
+
+        while updates < end of phase:
+            while updates_allowed(phase, inserted, batch_size=...) <= updates:  # the held ratio
+                inserted += actors.advance(phase.name, version)  # stored when it returns
+            metrics = phase.step(algorithm, to_tensors(stream.next_within(timeout)))
+    """
+
+    def advance(self, table: str, version: int) -> int:
+        """The next actor in a fixed order acts one insert batch into `table` with policy
+        `version` (-1: none needed yet); returns the env steps stored (0: every actor has
+        finished its share of the phase)."""

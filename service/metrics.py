@@ -6,24 +6,31 @@ import csv
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional, TextIO
 
 import numpy as np
 
 
 class MetricsLogger:
-    """Appends `wall_s, env_steps, updates, key, value` rows; mirrors them to TensorBoard."""
+    """Appends `wall_s, env_steps, updates, key, value` rows; mirrors them to TensorBoard.
+
+    With ``wall_clock=False`` (reproducible mode) metrics.csv holds only what a run
+    computes, `env_steps, updates, key, value`, so two runs of one seed compare byte for
+    byte; wall-clock measurements (the `perf/` keys, and every row's time) go to
+    timing.csv beside it.
+    """
 
     FIELDS = ("wall_s", "env_steps", "updates", "key", "value")
+    TIMING_PREFIX = "perf/"
+    """Keys measured on the wall clock (rates, waiting shares), never reproducible."""
 
-    def __init__(self, run_dir: Path, *, tensorboard: bool = True) -> None:
+    def __init__(self, run_dir: Path, *, tensorboard: bool = True, wall_clock: bool = True) -> None:
         run_dir.mkdir(parents=True, exist_ok=True)
         self.csv_path = run_dir / "metrics.csv"
-        new = not self.csv_path.exists()
-        self._file = self.csv_path.open("a", newline="")
-        self._csv = csv.writer(self._file)
-        if new:
-            self._csv.writerow(self.FIELDS)
+        self.wall_clock = wall_clock
+        self._file, self._csv = _open_csv(self.csv_path, self.FIELDS[int(not wall_clock) :])
+        self._timing = None if wall_clock else _open_csv(run_dir / "timing.csv", self.FIELDS)
+        """timing.csv (file, writer), in reproducible mode."""
         self._start = time.monotonic()
         self._tb = None
         if tensorboard:
@@ -34,13 +41,23 @@ class MetricsLogger:
     def log(self, scalars: Mapping[str, float], *, env_steps: int, updates: int) -> None:
         wall = round(time.monotonic() - self._start, 3)
         for key, value in scalars.items():
-            self._csv.writerow((wall, env_steps, updates, key, f"{float(value):.6g}"))
+            row = (env_steps, updates, key, f"{float(value):.6g}")
+            if self._timing is None:
+                self._csv.writerow((wall, *row))
+            elif key.startswith(self.TIMING_PREFIX):
+                self._timing[1].writerow((wall, *row))
+            else:
+                self._csv.writerow(row)
             if self._tb is not None:
                 self._tb.add_scalar(key, float(value), env_steps)
         self._file.flush()  # so a running job can be followed (tail, plots)
+        if self._timing is not None:
+            self._timing[0].flush()
 
     def close(self) -> None:
         self._file.close()
+        if self._timing is not None:
+            self._timing[0].close()
         if self._tb is not None:
             self._tb.close()
 
@@ -90,6 +107,16 @@ class PolicyLag:
             "perf/sample_age_versions": float((version - acted_with).mean()),
             "perf/sample_age_s": float((now - acted_at).mean()),
         }
+
+
+def _open_csv(path: Path, fields: tuple[str, ...]) -> tuple[TextIO, Any]:
+    """A CSV file opened for appending, with its header when it is new."""
+    new = not path.exists()
+    file = path.open("a", newline="")
+    writer = csv.writer(file)
+    if new:
+        writer.writerow(fields)
+    return file, writer
 
 
 def read_metric(csv_path: Path, key: str) -> tuple[list[int], list[float]]:

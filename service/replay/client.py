@@ -192,6 +192,12 @@ class ReplayClient:
         With `sequence_length` k > 1 each item is a window of k consecutive steps of one
         episode: data columns come shaped [B, k, ...] and `_key` [B, k].
         """
+        response = self._sample_once(table, batch_size, sequence_length, timeout)
+        return decode_batch(response.batch, max_bytes=self.max_message_bytes)
+
+    def _sample_once(
+        self, table: str, batch_size: int, sequence_length: int, timeout: Optional[float]
+    ) -> replay_pb2.SampleResponse:
         request = replay_pb2.SampleRequest(
             table=table,
             batch_size=batch_size,
@@ -201,15 +207,19 @@ class ReplayClient:
         )
         try:
             for response in self.stub.Sample(iter((request,)), metadata=self._metadata):
-                return decode_batch(response.batch, max_bytes=self.max_message_bytes)
+                sampled: replay_pb2.SampleResponse = response
+                return sampled
         except grpc.RpcError as error:
             raise _typed(error) from None
         raise ReplayError("server closed the sample stream without a batch")
 
     def sample_stream(
         self, table: str, batch_size: int, *, prefetch: int = 4, sequence_length: int = 1
-    ) -> SampleStream:
-        """An endless iterator of batches, fetched ahead by a background thread."""
+    ) -> SampleStream | OnDemandStream:
+        """An endless iterator of batches, fetched ahead by a background thread; with
+        `prefetch=0`, each batch is drawn only when asked for (`OnDemandStream`)."""
+        if prefetch == 0:
+            return OnDemandStream(self, table, batch_size, sequence_length=sequence_length)
         return SampleStream(
             self, table, batch_size, prefetch=prefetch, sequence_length=sequence_length
         )
@@ -412,3 +422,39 @@ class SampleStream:
         self._closed.set()
         self._credits.put(None)
         self._call.cancel()
+
+
+class OnDemandStream:
+    """Batches drawn one at a time, each only when the consumer asks for it: nothing is
+    sampled ahead, so every draw sees the table exactly as the consumer's own order of
+    inserts and samples left it (the reproducible mode's lock-step learner)."""
+
+    def __init__(
+        self, client: ReplayClient, table: str, batch_size: int, *, sequence_length: int = 1
+    ) -> None:
+        self.table_inserts = 0
+        self.table_size = 0
+        self.wait_s = 0.0
+        self._client = client
+        self._args = (table, batch_size, sequence_length)
+
+    def __iter__(self) -> Iterator[Batch]:
+        return self
+
+    def __next__(self) -> Batch:
+        return self.next_within(None)
+
+    def next_within(self, timeout: Optional[float]) -> Batch:
+        """The next batch; raises TimeoutError if the table admits none within `timeout` s."""
+        start = time.perf_counter()
+        try:
+            response = self._client._sample_once(*self._args, timeout)
+        except DeadlineExceeded:
+            raise TimeoutError(f"no sampled batch within {timeout} s") from None
+        finally:
+            self.wait_s += time.perf_counter() - start
+        self.table_inserts, self.table_size = response.table_inserts, response.table_size
+        return decode_batch(response.batch, max_bytes=self._client.max_message_bytes)
+
+    def close(self) -> None:
+        pass

@@ -16,7 +16,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from service.replay.client import ReplayClient, SampleStream, TableStatus
+from service.replay.client import OnDemandStream, ReplayClient, SampleStream, TableStatus
 from service.replay.codec import Batch
 
 SHARD_SHIFT = np.uint64(56)
@@ -109,7 +109,10 @@ class ShardedSampleStream:
     """Prefetching streams from every shard; each batch comes from a size-weighted shard."""
 
     def __init__(
-        self, client: ShardedReplayClient, streams: list[SampleStream], sizes: np.ndarray
+        self,
+        client: ShardedReplayClient,
+        streams: list[SampleStream | OnDemandStream],
+        sizes: np.ndarray,
     ) -> None:
         self._client, self._streams = client, streams
         self._sizes = np.maximum(sizes, 0.0)

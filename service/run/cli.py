@@ -113,7 +113,7 @@ def _train(args: argparse.Namespace) -> None:
             file=sys.stderr,
         )
         raise SystemExit(TERMINATED if terminated else INTERRUPTED)
-    print(f"\nrun folder: {result.run_dir}")
+    print(f"\nrun folder: {result.run_dir} ({s['mode']} mode)")
     print(
         f"final evaluation return: {s['final_eval_return_mean']:.1f} ± "
         f"{s['final_eval_return_std']:.1f} after {s['env_steps']} env steps, "
@@ -167,6 +167,7 @@ def _train_overrides(args: argparse.Namespace) -> dict[str, object]:
         "num_actors": ("--actors", args.actors),
         "seed": ("--seed", args.seed),
         "env_steps": ("--env-steps", args.env_steps),
+        "reproducible": ("--reproducible", True if args.reproducible else None),
     }
     settings = _settings("train", args.set)
     for key, (flag, value) in flags.items():
@@ -363,6 +364,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="a new (or empty) folder; default runs/<preset>-s<seed>-<time>",
     )
     train.add_argument("--resume", action="store_true", help="continue from --run-dir's checkpoint")
+    train.add_argument(
+        "--reproducible",
+        action="store_true",
+        help="lock-step actors and learner: the same seed rewrites the same metrics.csv "
+        "(slower; wall-clock metrics go to timing.csv)",
+    )
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.set_defaults(handler=_train)
 

@@ -94,7 +94,10 @@ class TrainConfig:
     keep_checkpoints: int = 3
     """Newest checkpoints kept on disk; 0 keeps all (for learning curves over checkpoints)."""
     seed: int = 0
-    """Seeds networks, actors' environments and exploration."""
+    """Seeds networks, actors' environments and exploration, and the replay sampler."""
+    reproducible: bool = False
+    """Lock-step mode: the learner drives the actors in a fixed order and samples exactly
+    the held ratio, so a seed rewrites the same metrics.csv (slower); default asynchronous."""
     td3: TD3Config = field(default_factory=TD3Config)
     """TD3 hyper-parameters (td3, backbone_td3, pretrain_td3, the RL option)."""
     dqn: DQNConfig = field(default_factory=DQNConfig)

@@ -21,6 +21,7 @@ import ray
 
 from service.run.figures import FIGURES, Variant
 from service.run.plots import curves, plot_figure
+from service.run.stats import MIN_SEEDS, summarize
 from service.run.validation import ConfigError
 
 
@@ -225,7 +226,8 @@ def report(name: str, out_dir: Path) -> tuple[Path, Path]:
 def summarise(
     rows: list[dict[str, str]], labels: list[str], *, threshold: float = -200.0, at: int = 5000
 ) -> list[dict[str, Any]]:
-    """Per variant: seeds, final return (mean ± std over seeds), the first env-step count
+    """Per variant: seeds, final return (mean ± std over seeds; from 3 seeds on also its
+    95 % bootstrap interval and the IQM, service/run/stats.py), the first env-step count
     at which the across-seed mean reaches `threshold`, and the across-seed std at the
     evaluation nearest `at` env steps."""
     out = []
@@ -234,6 +236,8 @@ def summarise(
         if not c["seeds"]:
             continue
         finals = c["per_seed"][:, -1]
+        stats = summarize(finals)
+        interval = stats.n >= MIN_SEEDS
         reached = np.flatnonzero(c["mean"] >= threshold)
         near = int(np.argmin(np.abs(c["env_steps"] - at)))
         out.append(
@@ -243,6 +247,9 @@ def summarise(
                 "final_env_steps": int(c["env_steps"][-1]),
                 "final_mean": round(float(finals.mean()), 1),
                 "final_std": round(float(finals.std()), 1),
+                "final_ci95_low": round(stats.mean_ci[0], 1) if interval else None,
+                "final_ci95_high": round(stats.mean_ci[1], 1) if interval else None,
+                "final_iqm": round(stats.iqm, 1) if interval else None,
                 f"env_steps_to_{int(threshold)}": int(c["env_steps"][reached[0]])
                 if len(reached)
                 else None,

@@ -9,6 +9,8 @@ graft train --preset pendulum-td3
 
 What differs between algorithms (phases, tables' columns, learner, behaviour) comes
 from the algorithm's builder (service/run/registry.py); this module knows none of them.
+A reproducible run (`reproducible: true`) has the learner drive the actors in lock-step
+instead (service/run/lockstep.py).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
+import numpy as np
 import ray
 import torch
 from ray.exceptions import RayActorError
@@ -37,12 +40,13 @@ from actors.evaluator import RemoteEvaluator
 from actors.transitions import replay_signature
 from learner.agent import Phase
 from learner.checkpoint import load_checkpoint
-from learner.loop import LearnerLoop, LoopSettings, LoopState
+from learner.loop import LearnerLoop, Lockstep, LoopSettings, LoopState
 from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
 from service.run.clients import actor_env, evaluator_env, world_clients
 from service.run.config import TrainConfig
+from service.run.lockstep import ActorRing, deterministic, stalled
 from service.run.preflight import check_cluster, check_fits_locally, check_run_dir, check_task
 from service.run.provenance import config_record
 from service.run.registry import make_builder
@@ -55,9 +59,15 @@ REFERENCE_LEVELS = {"Pendulum-v1": {"hard-coded policy": -429.0}}
 
 
 def table_spec(
-    phase: Phase, *, signature: dict[str, Any], max_size: int, slack_env_steps: int
+    phase: Phase,
+    *,
+    signature: dict[str, Any],
+    max_size: int,
+    slack_env_steps: int,
+    seed: Optional[int] = None,
 ) -> dict[str, Any]:
-    """The replay table of one phase, its rate limiter holding the phase's update ratio."""
+    """The replay table of one phase, its rate limiter holding the phase's update ratio
+    and its sampler seeded with `seed` (None: fresh entropy)."""
     if phase.samples_per_insert is None:
         limiter: dict[str, Any] = {"kind": "min_size", "min_size": phase.min_size}
     else:
@@ -69,6 +79,8 @@ def table_spec(
             "sample_credit": phase.sample_credit,
         }
     spec = {"name": phase.name, "max_size": max_size, "signature": signature}
+    if seed is not None:
+        spec["seed"] = seed
     if phase.sequence_length > 1:
         spec["max_sequence_length"] = phase.sequence_length
     return {**spec, "rate_limiter": limiter}
@@ -98,8 +110,9 @@ def preset_tables(
             signature=signature,
             max_size=config.replay_max_size,
             slack_env_steps=config.slack_env_steps,
+            seed=int(np.random.SeedSequence([config.seed, i]).generate_state(1)[0]),
         )
-        for p in phases
+        for i, p in enumerate(phases)
     ]
 
 
@@ -303,6 +316,7 @@ def train(
     replay: Optional[SupervisedReplay] = None
     supervisor: Optional[Supervisor] = None
     interrupted, release_sigint = False, _no_op
+    restore_torch = deterministic(config.seed) if config.reproducible else _no_op
     try:
         check_cluster(config, address)
         # Beyond one machine the replay server must listen on the network: then it needs
@@ -356,18 +370,31 @@ def train(
                 steps_per_insert=config.steps_per_insert,
             )
 
+        # Asynchronous: every actor acts its segments on its own, and a dead one is
+        # replaced. Reproducible: the learner asks them for one insert batch at a time
+        # (ActorRing) and draws each batch only when it needs it; wall-clock metrics go to
+        # timing.csv, not metrics.csv. A dead actor there ends the run (a replacement
+        # would change what the seed computes).
+        segments = _segments(phases, config.num_actors)
         actors = ActorFleet(
             make_actor,
-            _segments(phases, config.num_actors),
+            segments,
             config.num_actors,
-            max_restarts=config.actors.max_restarts,
+            max_restarts=0 if config.reproducible else config.actors.max_restarts,
+            start=not config.reproducible,
         )
         supervisor = Supervisor(replay, actors, say)
-        logger = MetricsLogger(run_dir)
+        lockstep = (
+            Lockstep(ActorRing(actors.handles, segments), builder.batch_size)
+            if config.reproducible
+            else None
+        )
+        logger = MetricsLogger(run_dir, wall_clock=not config.reproducible)
+        prefetch = 0 if config.reproducible else config.prefetch
 
         def open_stream(phase: Phase) -> SampleStream:
             return client.sample_stream(
-                phase.name, builder.batch_size, prefetch=config.prefetch, **_window(phase)
+                phase.name, builder.batch_size, prefetch=prefetch, **_window(phase)
             )
 
         settings = LoopSettings(
@@ -406,7 +433,10 @@ def train(
             settings=settings,
             state=state,
             on_progress=on_progress,
-            watchdog=lambda: _watch(supervisor, actors, faults, loop.state),
+            watchdog=stalled
+            if config.reproducible
+            else lambda: _watch(supervisor, actors, faults, loop.state),
+            lockstep=lockstep,
         )
         try:
             final = loop.run()
@@ -414,9 +444,13 @@ def train(
             publisher.stop()
             supervisor.stop()
             supervisor.raise_error()
-            actor_reports, leftovers = actors.reports(timeout_s=ACTOR_FINISH_S)
-            for line in leftovers:
-                say(line)
+            if config.reproducible:
+                finishing = [a.finish.remote() for a in actors.handles]
+                actor_reports = ray.get(finishing, timeout=ACTOR_FINISH_S)
+            else:
+                actor_reports, leftovers = actors.reports(timeout_s=ACTOR_FINISH_S)
+                for line in leftovers:
+                    say(line)
             # The learner may stop before it sees the actors' last inserts: count them directly.
             final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)
         except KeyboardInterrupt:  # Ctrl-C: stop here and keep what was learned
@@ -432,6 +466,7 @@ def train(
         logger.close()
         summary = _summarise(config, final, actor_reports, time.perf_counter() - start)
         summary["interrupted"] = interrupted
+        summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         plot_learning_curve(
             run_dir / "metrics.csv",
@@ -448,6 +483,7 @@ def train(
             replay.stop()
         if started_ray:
             ray.shutdown()
+        restore_torch()
         release_sigint()
     return RunResult(run_dir, summary, final.evaluations, interrupted=interrupted)
 

@@ -133,6 +133,8 @@ class ActorFleet:
         segments: each actor's share.
         count: how many actors.
         max_restarts: restarts allowed over all actors.
+        start: start each actor's `run` on its share; False when someone else drives
+            the actors (reproducible mode), and then they are not supervised.
     """
 
     def __init__(
@@ -142,16 +144,22 @@ class ActorFleet:
         count: int,
         *,
         max_restarts: int,
+        start: bool = True,
     ) -> None:
         self._make, self.max_restarts, self.restarts = make_actor, max_restarts, 0
         self.slots = []
         for i in range(count):
             actor = make_actor(i, 0)
-            self.slots.append(_Slot(actor, actor.run.remote(segments), list(segments)))
+            run = actor.run.remote(segments) if start else None
+            self.slots.append(_Slot(actor, run, list(segments)))
+
+    @property
+    def handles(self) -> list[Any]:
+        return [s.actor for s in self.slots]
 
     @property
     def runs(self) -> list[Any]:
-        return [s.run for s in self.slots]
+        return [s.run for s in self.slots if s.run is not None]
 
     def check(self) -> list[str]:
         """Polls progress, replaces dead actors; returns a line per restart.
@@ -162,6 +170,8 @@ class ActorFleet:
         """
         notes = []
         for i, slot in enumerate(self.slots):
+            if slot.run is None:  # driven by someone else: not supervised
+                continue
             if slot.report is not None and ray.wait([slot.report], timeout=0)[0]:
                 try:
                     slot.stored = int(ray.get(slot.report)["replay/inserted"])

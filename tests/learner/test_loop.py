@@ -10,10 +10,11 @@ from concurrent.futures import Future
 from typing import Optional
 
 import numpy as np
+import pytest
 import torch
 
 from learner.agent import Phase
-from learner.loop import LearnerLoop, LoopSettings
+from learner.loop import LearnerLoop, Lockstep, LoopSettings, updates_allowed
 from service.core import Algorithm, Columns, EvalTag, Evaluation, Metrics, TensorBatch, Weights
 from service.metrics import MetricsLogger, read_metric
 
@@ -153,3 +154,94 @@ def test_the_loop_logs_how_many_versions_behind_the_sampled_data_was_acted(tmp_p
     assert lags == [0.0, 1.0, 2.0, 3.0]
     _, ages = read_metric(logger.csv_path, "perf/sample_age_versions")
     assert ages == [1.0, 2.0, 3.0, 4.0]  # the version after each update's publish
+
+
+@pytest.mark.parametrize(
+    "inserted, ratio, min_size, credit, expected",
+    [
+        (15, 2.0, 16, 0.0, 0),  # below min_size: nothing
+        (16, 2.0, 16, 0.0, 0),  # at min_size, no credit: the first insert beyond it
+        (17, 2.0, 16, 0.0, 1),  # 1 item x 2 samples per insert / batch 2
+        (24, 2.0, 16, 0.0, 8),
+        (24, 1.0, 16, 0.0, 4),  # half an update per env step
+        (25, 1.0, 16, 0.0, 4),  # a half update is not one
+        (16, 2.0, 16, 10.0, 5),  # a burn-in credit of 10 items = 5 updates at min_size
+        (99, None, 16, 0.0, 0),  # no ratio: only once the actors have finished
+    ],
+)
+def test_updates_allowed_is_the_rate_limiters_ratio(inserted, ratio, min_size, credit, expected):
+    phase = Phase(
+        "t", env_steps=100, updates=100, min_size=min_size, samples_per_insert=ratio,
+        sample_credit=credit,
+    )  # fmt: skip
+    assert updates_allowed(phase, inserted, batch_size=2) == expected
+
+
+class RecordingActors:
+    """`LockstepActors` in-process: each call inserts 8 steps until `total`, and is logged."""
+
+    def __init__(self, log: list[str], total: int) -> None:
+        self.log, self.total, self.inserted = log, total, 0
+        self.versions: list[int] = []
+
+    def advance(self, table: str, version: int) -> int:
+        steps = min(8, self.total - self.inserted)
+        self.inserted += steps
+        self.versions.append(version)
+        self.log.append(f"insert {self.inserted}" if steps else "finished")
+        return steps
+
+
+class LoggingAlgorithm(CountingAlgorithm):
+    def __init__(self, log: list[str]) -> None:
+        super().__init__()
+        self.log = log
+
+    def update(self, batch: TensorBatch) -> Metrics:
+        self.log.append("update")
+        return super().update(batch)
+
+
+def lockstep_loop(
+    tmp_path, algorithm: Algorithm, phase: Phase, actors: RecordingActors
+) -> LearnerLoop:
+    return LearnerLoop(
+        algorithm,
+        phases=[phase],
+        open_stream=lambda phase: ListStream(batches(0, phase.updates)),
+        publisher=RecordingPublisher(),
+        evaluator=ImmediateEvaluator(),
+        logger=MetricsLogger(tmp_path, tensorboard=False, wall_clock=False),
+        checkpoint_dir=tmp_path / "checkpoints",
+        settings=LoopSettings(publish_every=8, eval_every=99, eval_episodes=1, checkpoint_every=99),
+        lockstep=Lockstep(actors, batch_size=2),
+    )
+
+
+def test_lockstep_inserts_then_makes_exactly_the_updates_the_ratio_allows(tmp_path):
+    log: list[str] = []
+    # One update per env step (2 samples per insert, batch 2) past min_size 16.
+    phase = Phase("t", env_steps=40, updates=24, min_size=16, samples_per_insert=2.0)
+    actors = RecordingActors(log, total=40)
+    loop = lockstep_loop(tmp_path, LoggingAlgorithm(log), phase, actors)
+    state = loop.run()
+    assert log == (
+        ["insert 8", "insert 16", "insert 24"] + ["update"] * 8
+        + ["insert 32"] + ["update"] * 8
+        + ["insert 40"] + ["update"] * 8
+    )  # fmt: skip
+    assert (state.updates, state.env_steps) == (24, 40)
+    # Weights published every 8 updates act from the next insert on.
+    assert actors.versions == [0, 0, 0, 1, 2]
+    # metrics.csv holds no wall-clock column.
+    assert (tmp_path / "metrics.csv").read_text().splitlines()[0] == "env_steps,updates,key,value"
+
+
+def test_lockstep_phase_without_a_ratio_updates_once_its_actors_finished(tmp_path):
+    log: list[str] = []
+    demos = Phase("demos", env_steps=20, updates=3, min_size=20, acts_with_weights=False)
+    actors = RecordingActors(log, total=20)
+    loop = lockstep_loop(tmp_path, LoggingAlgorithm(log), demos, actors)
+    loop.run()
+    assert log == ["insert 8", "insert 16", "insert 20", "finished"] + ["update"] * 3
+    assert actors.versions == [-1] * 4  # the demonstrations need no weights

@@ -10,6 +10,7 @@ tables:
     max_times_sampled: 0          # 0 = unlimited
     max_sequence_length: 1        # longest window a sample may ask for
     allow_nonfinite: false
+    seed: 0                       # the sampler's random generator (default: fresh entropy)
     signature: {obs: {dtype: float32, shape: [3]}, ...}
 """
 
@@ -26,7 +27,7 @@ from service.replay.server.table import Table
 TABLE_KEYS = frozenset(
     {
         "name", "max_size", "signature", "sampler", "remover", "rate_limiter",
-        "max_times_sampled", "max_sequence_length", "allow_nonfinite",
+        "max_times_sampled", "max_sequence_length", "allow_nonfinite", "seed",
     }
 )  # fmt: skip
 
@@ -43,13 +44,21 @@ def make_rate_limiter(spec: Optional[Mapping[str, Any]]) -> RateLimiter:
 
 
 def make_table(spec: Mapping[str, Any], *, seed: Optional[int] = None) -> Table:
-    """Builds one table; refuses unknown keys and unworkable settings with the reason."""
+    """Builds one table; refuses unknown keys and unworkable settings with the reason.
+
+    The sampler draws from a generator seeded with the spec's ``seed`` (else `seed`,
+    else fresh entropy): the same inserts and sample requests in the same order then
+    draw the same items.
+    """
     unknown = sorted(set(spec) - TABLE_KEYS)
     if unknown:
         raise ValueError(f"table config has unknown key(s) {unknown}; known: {sorted(TABLE_KEYS)}")
     for required in ("name", "max_size", "signature"):
         if required not in spec:
             raise ValueError(f"table config is missing '{required}'")
+    seed = spec.get("seed", seed)
+    if seed is not None and not (isinstance(seed, int) and seed >= 0):
+        raise ValueError(f"table config seed={seed!r} must be an integer >= 0")
     return Table(
         spec["name"],
         max_size=int(spec["max_size"]),

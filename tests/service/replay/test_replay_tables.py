@@ -9,6 +9,7 @@ import pytest
 from service.replay._proto import replay_pb2
 from service.replay.client import DeadlineExceeded, InvalidArgument, ReplayClient, TableNotFound
 from service.replay.codec import encode_batch
+from service.replay.server.table_config import make_table
 from service.run.replay_process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
@@ -51,6 +52,10 @@ TABLES = [
         "rate_limiter": {"kind": "min_size", "min_size": 50},
         "signature": SCALAR_SIGNATURE,
     },
+    *(
+        {"name": name, "max_size": 100, "seed": seed, "signature": SCALAR_SIGNATURE}
+        for name, seed in (("seeded", 7), ("seeded_again", 7), ("seeded_other", 8))
+    ),
 ]
 
 
@@ -185,3 +190,20 @@ def test_priorities_on_a_uniform_table_are_refused(client):
 def test_negative_priority_is_refused(client):
     with pytest.raises(InvalidArgument, match="finite and >= 0"):
         client.update_priorities("prioritized", [0], [-1.0])
+
+
+def test_a_seeded_sampler_draws_the_same_items_from_the_same_inserts(client):
+    drawn = {}
+    for table in ("seeded", "seeded_again", "seeded_other"):
+        client.insert(table, scalar_batch(range(100)))
+        stream = client.sample_stream(table, 16, prefetch=0)  # each batch drawn when asked
+        drawn[table] = [stream.next_within(5)["x"] for _ in range(3)]
+        assert stream.table_inserts == 100
+    assert np.array_equal(drawn["seeded"], drawn["seeded_again"])
+    assert not np.array_equal(drawn["seeded"], drawn["seeded_other"])
+
+
+def test_a_table_seed_must_be_a_non_negative_integer():
+    spec = {"name": "t", "max_size": 10, "signature": SCALAR_SIGNATURE, "seed": -1}
+    with pytest.raises(ValueError, match="seed=-1 must be an integer >= 0"):
+        make_table(spec)

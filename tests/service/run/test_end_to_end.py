@@ -46,8 +46,13 @@ def test_pendulum_td3_end_to_end_then_resume(ray_local, tmp_path, capsys):
     assert sorted(p.name for p in (tmp_path / "checkpoints").glob("*.pt"))[-1] == (
         "ckpt-000000400.pt"
     )
+    # The default mode is asynchronous, and says so; its metrics carry wall-clock times.
+    assert s["mode"] == "asynchronous"
+    assert "reproducible: false" in (tmp_path / "config.yaml").read_text()
     with (tmp_path / "metrics.csv").open() as f:
-        keys = {row["key"] for row in csv.DictReader(f)}
+        rows = list(csv.DictReader(f))
+    assert rows and all(float(row["wall_s"]) >= 0 for row in rows)
+    keys = {row["key"] for row in rows}
     assert {"losses/critic", "eval/return_mean", "perf/updates_per_s"} <= keys
     assert {"perf/policy_lag", "perf/sample_age_versions", "perf/sample_age_s"} <= keys
 
