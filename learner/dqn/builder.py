@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from gymnasium import spaces
 
 from actors.behaviours.epsilon_greedy import EpsilonGreedyBehaviour
@@ -33,11 +35,11 @@ class DQNBuilder:
 
     def phases(self) -> list[Phase]:
         budget = self.budget
-        return [
-            online_phase(
-                budget, batch_size=self.batch_size, env_steps=budget.env_steps, warmup=True
-            )
-        ]
+        phase = online_phase(
+            budget, batch_size=self.batch_size, env_steps=budget.env_steps, warmup=True
+        )
+        # n-step returns come from windows of n steps of one episode, drawn from replay.
+        return [dataclasses.replace(phase, sequence_length=self.config.n_step)]
 
     def make_learner(self) -> DQNLearner:
         (phase,) = self.phases()

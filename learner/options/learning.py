@@ -5,14 +5,19 @@ V(s_{t+1}) in eq. (14) comes from the option-value network, as the paper specifi
 max_o Q_Ω(s_{t+1}, o) where the option ends after step t, Q_Ω(s_{t+1}, o_t) otherwise.
 The traces are cut (c = 0) where the next step starts a new option or belongs to the
 hard-coded option: there a' was not drawn from π.
+
+With a residual RL option (actors/behaviours/options.py) the RL learner is TD3 on the
+correction c = a − μ(s), its actor and critics seeing [s, μ(s) / scale]: the windows are
+rewritten once (`residual_view`) and the rest reads as for the paper's RL option.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Optional
 
 import torch
 
+from actors.behaviours.backbone import backbone_input
 from actors.behaviours.options import RL
 from learner.dqn.learning import DQNLearner, double_q_target
 from learner.options.targets import importance_ratio, k_step_return, retrace_targets, retrace_traces
@@ -38,6 +43,7 @@ class OptionsLearner:
         retrace_lambda: float,
         behaviour_std: float,
         gamma: float,
+        residual_scale: Optional[torch.Tensor] = None,
     ) -> None:
         """Combines the two learners.
 
@@ -48,8 +54,12 @@ class OptionsLearner:
             retrace_lambda: λ of the traces.
             behaviour_std: Std of the actors' Gaussian around π(s), for ρ.
             gamma: Discount of eqs. (13) and (14).
+            residual_scale: The action box's half-width when the RL option is residual
+                (its learner then sees [s, μ(s) / scale] and the correction); None for
+                the paper's RL option.
         """
         self.options, self.rl = options, rl
+        self.residual_scale = residual_scale
         self.k, self.lam, self.std, self.gamma = option_length, retrace_lambda, behaviour_std, gamma
         self.num_updates = 0
 
@@ -79,11 +89,24 @@ class OptionsLearner:
         out = self.options.fit(w["obs"][:, 0], w["option"][:, 0], y)
         return {"losses/option_q": out["losses/q"], "values/option_q_mean": out["values/q_mean"]}
 
+    def residual_view(self, w: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The windows as the residual RL learner sees them: ``rl_obs`` [s, μ(s)/scale] and
+        ``action`` the unclipped sampled correction a − μ(s); unchanged without residual."""
+        if self.residual_scale is None:
+            return dict(w, rl_obs=w["obs"])
+        mu = w["hardcoded_action"]
+        return dict(
+            w,
+            rl_obs=backbone_input(w["obs"], mu, self.residual_scale),
+            action=w["action"] - mu,
+        )
+
     @torch.no_grad()
     def retrace(self, w: dict[str, torch.Tensor]) -> torch.Tensor:
         """Q^ret for every step of every window, [B, k] (eq. 14)."""
         rl, k = self.rl, self.k
-        obs, next_obs, option = w["obs"], w["next_obs"], w["option"]
+        w = self.residual_view(w)
+        obs, next_obs, option = w["rl_obs"], w["next_obs"], w["option"]
         action = torch.clamp(w["action"], rl.actor.action_low, rl.actor.action_high)
         discounts = self.gamma * (1.0 - w["terminated"].float())
         # V(s_{t+1}) from the option-value target network.
@@ -104,7 +127,8 @@ class OptionsLearner:
     def _update_rl(self, w: dict[str, torch.Tensor], rows: torch.Tensor) -> dict[str, float]:
         """TD3 on the RL option's steps, its critic regressed onto Q^ret."""
         target = self.retrace(w)
-        flat = {"obs": w["obs"][rows], "action": w["action"][rows], "retrace_target": target[rows]}
+        w = self.residual_view(w)
+        flat = {"obs": w["rl_obs"][rows], "action": w["action"][rows], "retrace_target": target[rows]}
         return self.rl.update(flat)
 
     def policy_state(self) -> dict[str, torch.Tensor]:
