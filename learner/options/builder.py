@@ -19,6 +19,7 @@ from learner.options.config import OptionsConfig
 from learner.options.learning import OptionsLearner, RetraceTD3Learner
 from learner.options.networks import NUM_OPTIONS, make_option_network
 from learner.td3.builder import TD3Builder, make_actor_network
+from learner.td3.learning import TD3Learner
 
 
 class OptionsBuilder:
@@ -63,7 +64,9 @@ class OptionsBuilder:
         t = self.td3
         option_seed, rl_seed = np.random.SeedSequence(t.seed).generate_state(2)
         rl_in, low, high = self._rl_spaces()
-        rl = RetraceTD3Learner(rl_in, t.act_dim, low, high, config=t.config, seed=int(rl_seed))
+        # Intra-option learning trains the RL option with TD3's own target, not eq. (14).
+        kind: type[TD3Learner] = TD3Learner if self.config.intra_option else RetraceTD3Learner
+        rl = kind(rl_in, t.act_dim, low, high, config=t.config, seed=int(rl_seed))
         residual = self.config.residual_limit is not None
         if residual:  # the residual RL option starts as the hard-coded policy
             zero_output_(rl.actor)
@@ -76,6 +79,7 @@ class OptionsBuilder:
             behaviour_std=t.exploration_std,
             gamma=self.dqn.gamma,
             residual_scale=torch.as_tensor(np.abs(t.high)) if residual else None,
+            intra_option=self.config.intra_option,
         )
 
     def make_behaviour(self, *, num_actors: int) -> OptionsBehaviour:

@@ -20,6 +20,9 @@ class OptionsConfig:
     switch_margin: float = 0.0
     """m: the policy over options picks the RL option only where its value beats the
     hard-coded option's by more than m (0: plain argmax, as in the paper)."""
+    intra_option: bool = False
+    """Intra-option learning: the RL option's critic learns from every transition, tree
+    steps included, with TD3's one-step target (False: Retrace, eq. 14, on its own steps)."""
 
     def __post_init__(self) -> None:
         if self.option_length < 1:

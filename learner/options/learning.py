@@ -9,6 +9,12 @@ hard-coded option: there a' was not drawn from π.
 With a residual RL option (actors/behaviours/options.py) the RL learner is TD3 on the
 correction c = a − μ(s), its actor and critics seeing [s, μ(s) / scale]: the windows are
 rewritten once (`residual_view`) and the rest reads as for the paper's RL option.
+
+With intra-option learning (Sutton, Precup & Singh 1999) the RL option's critic learns
+from every step of every window, whichever option acted: an action-value Q(s, a) of the
+RL option's own policy can be learnt off-policy from any transition, and a tree step is
+the residual option's correction c = 0. Its target is TD3's one-step target (eq. 5), the
+value of following the RL option, in place of eq. (14).
 """
 
 from __future__ import annotations
@@ -37,13 +43,14 @@ class OptionsLearner:
     def __init__(
         self,
         options: DQNLearner,
-        rl: RetraceTD3Learner,
+        rl: TD3Learner,
         *,
         option_length: int,
         retrace_lambda: float,
         behaviour_std: float,
         gamma: float,
         residual_scale: Optional[torch.Tensor] = None,
+        intra_option: bool = False,
     ) -> None:
         """Combines the two learners.
 
@@ -57,9 +64,12 @@ class OptionsLearner:
             residual_scale: The action box's half-width when the RL option is residual
                 (its learner then sees [s, μ(s) / scale] and the correction); None for
                 the paper's RL option.
+            intra_option: Train the RL option on every step with TD3's own target (`rl`
+                is then a plain `TD3Learner`), not on its own steps with Retrace.
         """
         self.options, self.rl = options, rl
         self.residual_scale = residual_scale
+        self.intra_option = intra_option
         self.k, self.lam, self.std, self.gamma = option_length, retrace_lambda, behaviour_std, gamma
         self.num_updates = 0
 
@@ -71,7 +81,9 @@ class OptionsLearner:
         if starts.any():
             metrics.update(self._update_options({c: v[starts] for c, v in batch.items()}))
         rl_rows = batch["option"] == RL
-        if rl_rows.any():
+        if self.intra_option:
+            metrics.update(self._update_rl_intra(batch))
+        elif rl_rows.any():
             metrics.update(self._update_rl(batch, rl_rows))
         metrics["options/rl_fraction_sampled"] = float(rl_rows.float().mean())
         return metrics
@@ -129,6 +141,24 @@ class OptionsLearner:
         target = self.retrace(w)
         w = self.residual_view(w)
         flat = {"obs": w["rl_obs"][rows], "action": w["action"][rows], "retrace_target": target[rows]}
+        return self.rl.update(flat)
+
+    def _update_rl_intra(self, w: dict[str, torch.Tensor]) -> dict[str, float]:
+        """TD3 on every transition (s_t, c_t, r_t, s_{t+1}) inside the windows.
+
+        s_{t+1} is the next step's row (with μ(s_{t+1}) when residual), so each window
+        gives its first k − 1 steps; a window never crosses an episode end, so none of
+        them is terminal.
+        """
+        v = self.residual_view(w)
+        x = v["rl_obs"]
+        flat = {
+            "obs": x[:, :-1].flatten(0, 1),
+            "next_obs": x[:, 1:].flatten(0, 1),
+            "action": v["action"][:, :-1].flatten(0, 1),
+            "reward": w["reward"][:, :-1].flatten(0, 1),
+            "terminated": w["terminated"][:, :-1].flatten(0, 1),
+        }
         return self.rl.update(flat)
 
     def policy_state(self) -> dict[str, torch.Tensor]:

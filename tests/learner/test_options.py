@@ -296,3 +296,50 @@ def test_residual_options_learner_starts_as_the_tree_and_learns_the_correction()
     # The behaviour's RL actor has the learner's shape: it loads the broadcast weights.
     behaviour = builder.make_behaviour(num_actors=1)
     behaviour.load(learner.policy_state())
+
+
+def test_intra_option_learning_trains_the_rl_option_on_every_step_of_a_window():
+    from gymnasium import spaces
+
+    from learner.agent import Budget
+    from learner.dqn.config import DQNConfig
+    from learner.options.builder import OptionsBuilder
+    from learner.options.config import OptionsConfig
+    from learner.td3.builder import TD3Builder
+    from learner.td3.config import TD3Config
+
+    budget = Budget(env_steps=2000, learning_starts=100, updates_per_env_step=1.0, slack_env_steps=0)
+    td3 = TD3Builder(
+        spaces.Box(-8.0, 8.0, shape=(3,)),
+        spaces.Box(-2.0, 2.0, shape=(1,)),
+        config=TD3Config(hidden_sizes=(8,), batch_size=4),
+        method="options",
+        budget=budget,
+        seed=0,
+    )
+    config = OptionsConfig(option_length=3, residual_limit=4.0, intra_option=True)
+    learner = OptionsBuilder(
+        "actors.trees.pendulum:swing_up", td3, dqn=DQNConfig(hidden_sizes=(8,)), config=config
+    ).make_learner()
+    seen = []
+    learner.rl.update = lambda batch: seen.append(batch) or {}  # type: ignore[method-assign]
+    g = torch.Generator().manual_seed(0)
+    windows = {
+        "obs": torch.randn(2, 3, 3, generator=g),
+        "next_obs": torch.randn(2, 3, 3, generator=g),
+        "action": torch.randn(2, 3, 1, generator=g),
+        "hardcoded_action": torch.randn(2, 3, 1, generator=g),
+        "reward": torch.randn(2, 3, generator=g),
+        "terminated": torch.zeros(2, 3, dtype=torch.bool),
+        "option": torch.tensor([[HARDCODED] * 3, [RL] * 3]),  # tree steps train it too
+        "option_step": torch.tensor([[0, 1, 2], [0, 1, 2]]),
+        "log_prob": torch.zeros(2, 3),
+    }
+    learner.update(windows)
+    (batch,) = seen
+    assert batch["obs"].shape == (4, 4)  # k − 1 = 2 steps of each of 2 windows, [s, μ(s)/2]
+    # s_{t+1} is the next row of the window, μ(s_{t+1}) included.
+    torch.testing.assert_close(batch["next_obs"][0], batch["obs"][1])
+    torch.testing.assert_close(batch["obs"][0, :3], windows["obs"][0, 0])
+    expected = windows["action"][0, 0] - windows["hardcoded_action"][0, 0]
+    torch.testing.assert_close(batch["action"][0], expected)
