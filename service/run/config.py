@@ -93,7 +93,7 @@ class TrainConfig:
     pretrain: PretrainConfig = field(default_factory=PretrainConfig)
     """Demonstrations and pre-training losses (pretrain_td3)."""
     options: OptionsConfig = field(default_factory=OptionsConfig)
-    """Option length and Retrace λ (options)."""
+    """Option length, Retrace λ and the changes past the paper (options)."""
 
     def __post_init__(self) -> None:
         for name in (
