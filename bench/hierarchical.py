@@ -8,7 +8,8 @@ Per seed, the documented commands (each seed in its own process):
 and once `graft eval --policy hardcoded --preset pendulum-options --episodes 100 --seed
 1000`: the tree on the same 100 episodes. Prints each seed's return, the mean over seeds
 with its 95 % bootstrap interval, the same for the difference to the tree, and writes
-OUT/hierarchical.png.
+OUT/hierarchical.png. On the same episodes it also evaluates each trained run with its
+option choice changed: no switching margin (m = 0), and the RL option alone.
 
     python bench/hierarchical.py [--seeds 5] [--preset pendulum-options] [--set K=V] [--out DIR]
 """
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 from pathlib import Path
 
@@ -29,6 +31,17 @@ def tree_return(preset: str, *, episodes: int, seed: int) -> float:
     cmd += ["--episodes", str(episodes), "--seed", str(seed), "--json"]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
     return float(json.loads(out.strip().splitlines()[-1])["mean"])
+
+
+def with_switch(run_dir: Path, margin: float) -> float:
+    """The trained run's greedy policy over options with switching margin `margin`
+    (−inf: always the RL option), on the 100 evaluation episodes."""
+    from service.run.api import evaluate
+    from service.run.trained import load_behaviour
+
+    behaviour, config = load_behaviour(run_dir)
+    behaviour.margin = margin
+    return evaluate(behaviour.greedy, env=config.env_id, episodes=100, seed=1000).mean
 
 
 def plot(results: list[SeedResult], tree: float, png: Path, title: str) -> None:
@@ -77,14 +90,23 @@ def main() -> None:
         env_steps=args.env_steps,
         parallel=args.parallel,
     )
-    print("\n| seed | hierarchical, 100 episodes | − tree |\n|---|---|---|")
+    print("\n| seed | hierarchical, 100 episodes | − tree | same run, m = 0 | RL option alone |")
+    print("|---|---|---|---|---|")
+    no_margin, rl_alone = [], []
     for r in results:
-        print(f"| {r.seed} | {r.mean:.1f} ± {r.std:.1f} | {r.mean - tree:+.1f} |")
+        no_margin.append(with_switch(r.run_dir, 0.0))
+        rl_alone.append(with_switch(r.run_dir, -math.inf))
+        print(
+            f"| {r.seed} | {r.mean:.1f} ± {r.std:.1f} | {r.mean - tree:+.1f} "
+            f"| {no_margin[-1]:.1f} | {rl_alone[-1]:.1f} |",
+            flush=True,
+        )
     means = [r.mean for r in results]
     above = sum(m > tree for m in means)
     print(f"\nhierarchical, mean over seeds [95 % bootstrap CI]: {format_ci(means)}")
     print(f"minus the tree ({tree:.1f}): {format_ci([m - tree for m in means])}")
     print(f"{above} of {len(results)} seeds end above the tree")
+    print(f"same runs, m = 0: {format_ci(no_margin)}; RL option alone: {format_ci(rl_alone)}")
     png = args.out / "hierarchical.png"
     plot(results, tree, png, f"{args.preset} ({setting}) vs the tree")
     print(f"figure: {png}")

@@ -115,7 +115,9 @@ class OptionsBehaviour:
 
     def _correction(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
         """π([s, μ(s) / scale]): the residual RL option's mean correction."""
-        x = backbone_input(torch.as_tensor(obs, dtype=torch.float32), torch.as_tensor(mu), self._scale)
+        x = backbone_input(
+            torch.as_tensor(obs, dtype=torch.float32), torch.as_tensor(mu), self._scale
+        )
         with torch.no_grad():
             return self.actor(x).numpy()
 

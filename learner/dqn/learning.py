@@ -136,7 +136,11 @@ class DQNLearner:
         returns, discounts = window_returns(batch["reward"], batch["terminated"], self._gamma)
         b, n = returns.shape
         bootstrap = double_q_target(
-            torch.zeros(b), torch.ones(b), batch["next_obs"][:, -1], online=self.q, target=self.target_q
+            torch.zeros(b),
+            torch.ones(b),
+            batch["next_obs"][:, -1],
+            online=self.q,
+            target=self.target_q,
         )
         y = returns + discounts * bootstrap.unsqueeze(1)
         return self.fit(batch["obs"].flatten(0, 1), batch["action"].flatten(), y.flatten())

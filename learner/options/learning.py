@@ -140,7 +140,11 @@ class OptionsLearner:
         """TD3 on the RL option's steps, its critic regressed onto Q^ret."""
         target = self.retrace(w)
         w = self.residual_view(w)
-        flat = {"obs": w["rl_obs"][rows], "action": w["action"][rows], "retrace_target": target[rows]}
+        flat = {
+            "obs": w["rl_obs"][rows],
+            "action": w["action"][rows],
+            "retrace_target": target[rows],
+        }
         return self.rl.update(flat)
 
     def _update_rl_intra(self, w: dict[str, torch.Tensor]) -> dict[str, float]:

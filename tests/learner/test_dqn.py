@@ -180,7 +180,9 @@ def test_n_step_dqn_samples_windows_of_n_steps():
     from learner.dqn.builder import DQNBuilder
     from learner.dqn.config import DQNConfig
 
-    budget = Budget(env_steps=5000, learning_starts=1000, updates_per_env_step=0.5, slack_env_steps=0)
+    budget = Budget(
+        env_steps=5000, learning_starts=1000, updates_per_env_step=0.5, slack_env_steps=0
+    )
     for n in (1, 3):
         builder = DQNBuilder(
             spaces.Box(-1.0, 1.0, shape=(4,)),

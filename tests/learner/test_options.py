@@ -267,7 +267,9 @@ def test_residual_options_learner_starts_as_the_tree_and_learns_the_correction()
     from learner.td3.builder import TD3Builder
     from learner.td3.config import TD3Config
 
-    budget = Budget(env_steps=2000, learning_starts=100, updates_per_env_step=1.0, slack_env_steps=0)
+    budget = Budget(
+        env_steps=2000, learning_starts=100, updates_per_env_step=1.0, slack_env_steps=0
+    )
     td3 = TD3Builder(
         spaces.Box(-8.0, 8.0, shape=(3,)),
         spaces.Box(-2.0, 2.0, shape=(1,)),
@@ -308,7 +310,9 @@ def test_intra_option_learning_trains_the_rl_option_on_every_step_of_a_window():
     from learner.td3.builder import TD3Builder
     from learner.td3.config import TD3Config
 
-    budget = Budget(env_steps=2000, learning_starts=100, updates_per_env_step=1.0, slack_env_steps=0)
+    budget = Budget(
+        env_steps=2000, learning_starts=100, updates_per_env_step=1.0, slack_env_steps=0
+    )
     td3 = TD3Builder(
         spaces.Box(-8.0, 8.0, shape=(3,)),
         spaces.Box(-2.0, 2.0, shape=(1,)),
