@@ -2,7 +2,9 @@
 
 Each seed is the documented pair of commands, each in its own process with its own local
 Ray instance, so up to `parallel` seeds run side by side. A seed whose `eval.json` exists
-is read back, not re-run, so an interrupted benchmark continues where it stopped.
+is read back, not re-run, so an interrupted benchmark continues where it stopped; a seed
+folder without one is started afresh, so give each benchmark process its own `--out`.
+A seed whose run fails is reported with its log and left out; the others go on.
 """
 
 from __future__ import annotations
@@ -99,15 +101,19 @@ def run_seeds(
     """Runs every seed into `out/s<seed>`, `parallel` at a time, printing each as it ends."""
     start = time.perf_counter()
 
-    def one(seed: int) -> SeedResult:
-        r = run_seed(
-            preset,
-            seed,
-            out / f"s{seed}",
-            overrides=overrides,
-            env_steps=env_steps,
-            episodes=episodes,
-        )
+    def one(seed: int) -> SeedResult | None:
+        try:
+            r = run_seed(
+                preset,
+                seed,
+                out / f"s{seed}",
+                overrides=overrides,
+                env_steps=env_steps,
+                episodes=episodes,
+            )
+        except subprocess.CalledProcessError:
+            print(f"  seed {seed}: FAILED, see {out / f's{seed}.log'}", flush=True)
+            return None
         print(
             f"  seed {seed}: {r.mean:.1f} ± {r.std:.1f} over {episodes} episodes "
             f"(train {r.wall_s:.0f} s; {time.perf_counter() - start:.0f} s elapsed)",
@@ -116,4 +122,5 @@ def run_seeds(
         return r
 
     with ThreadPoolExecutor(max_workers=parallel) as pool:
-        return sorted(pool.map(one, seeds), key=lambda r: r.seed)
+        done = [r for r in pool.map(one, seeds) if r is not None]
+    return sorted(done, key=lambda r: r.seed)
