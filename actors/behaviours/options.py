@@ -6,6 +6,13 @@ option acts a ~ N(π(s), σ²), unclipped, with its log-likelihood recorded for 
 ratios of eq. (14); the hard-coded option acts μ(s) deterministically (its steps train
 no RL critic, so it records log_prob 0). Each environment keeps its own option clock,
 restarted when its episode ends.
+
+Two changes from the options literature are optional. A *residual* RL option acts
+μ(s) + c with c ~ N(π([s, μ(s)]), σ²) and c ∈ [−L, L] (residual policy learning, Silver
+et al. 2018): with π zero at the start it is the hard-coded option plus noise, never worse
+to pick; replay records μ(s) (``hardcoded_action``) so the learner can recover c. A
+*switching margin* m picks the RL option only where Q_Ω(s, RL) > Q_Ω(s, hard-coded) + m,
+so noise in two close option values does not hand control to the RL option.
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from actors.behaviours.backbone import backbone_input
 from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
 from actors.behaviours.gaussian import box_column
 from actors.hardcoded import HardCodedPolicy
@@ -52,9 +60,18 @@ class OptionsBehaviour:
         epsilon_end: float,
         decay_env_steps: int,
         num_actors: int,
+        residual_limit: Optional[float] = None,
+        switch_margin: float = 0.0,
     ) -> None:
+        """`residual_limit` L makes the RL option residual (None: it acts π(s) alone);
+        `switch_margin` is m of the option choice."""
         self.option_q, self.actor = option_q.eval(), actor.eval()
         self.hardcoded = hardcoded
+        self.residual_limit, self.margin = residual_limit, switch_margin
+        self._scale = torch.as_tensor(np.abs(np.asarray(high, dtype=np.float32)))
+        if residual_limit is not None:
+            bound = np.full(np.shape(low), residual_limit, dtype=np.float32)
+            self.uniform_correction = UniformRandomPolicy(-bound, bound)
         self.k = option_length
         self.exploration = GaussianExploration(std, low, high)
         self.uniform = UniformRandomPolicy(low, high)
@@ -69,12 +86,15 @@ class OptionsBehaviour:
         self._used: list[np.ndarray] = []
 
     def columns(self) -> dict[str, ColumnSpec]:
-        return {
+        columns: dict[str, ColumnSpec] = {
             "action": box_column(self.action_shape),
             "log_prob": {"dtype": "float32", "shape": []},
             "option": {"dtype": "int64", "shape": []},
             "option_step": {"dtype": "int64", "shape": []},
         }
+        if self.residual_limit is not None:
+            columns["hardcoded_action"] = box_column(self.action_shape)
+        return columns
 
     def load(self, weights: Weights) -> None:
         options, actor = split_weights(weights)
@@ -93,6 +113,14 @@ class OptionsBehaviour:
         with torch.no_grad():
             return net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
 
+    def _correction(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
+        """π([s, μ(s) / scale]): the residual RL option's mean correction."""
+        x = backbone_input(
+            torch.as_tensor(obs, dtype=torch.float32), torch.as_tensor(mu), self._scale
+        )
+        with torch.no_grad():
+            return self.actor(x).numpy()
+
     def _choose(
         self,
         obs: np.ndarray,
@@ -107,6 +135,7 @@ class OptionsBehaviour:
         due = clock == 0
         if due.any():
             q = self._net(self.option_q, obs[due])
+            q[:, RL] -= self.margin  # the RL option must beat the hard-coded one by m
             if rng is None:
                 option[due] = q.argmax(axis=1)
             else:
@@ -120,7 +149,16 @@ class OptionsBehaviour:
         self._option, self._clock = self._choose(obs, self._option, self._clock, epsilon, rng)
         self.steps += len(obs)
         mu = np.asarray(self.hardcoded(obs), dtype=np.float32)
-        if warmup:
+        if self.residual_limit is not None:
+            # The warm-up spreads corrections over all of [−L, L] (the critic then knows
+            # them all); after it, c ~ N(π, σ²) around the learnt correction.
+            limit = self.residual_limit
+            if warmup:
+                correction, rl_log_prob = self.uniform_correction.sample(len(obs), rng)
+            else:
+                correction, rl_log_prob = self.exploration.sample(self._correction(obs, mu), rng)
+            rl_action = mu + np.clip(correction, -limit, limit)
+        elif warmup:
             rl_action, rl_log_prob = self.uniform.sample(len(obs), rng)
         else:
             rl_action, rl_log_prob = self.exploration.sample(self._net(self.actor, obs), rng)
@@ -133,6 +171,10 @@ class OptionsBehaviour:
             "option": self._option.copy(),
             "option_step": self._clock.copy(),
         }
+        if self.residual_limit is not None:
+            columns["hardcoded_action"] = mu
+            # The learner recovers the unclipped sampled correction as action − μ(s).
+            columns["action"] = np.where(use_rl[:, None], mu + correction, mu).astype(np.float32)
         if not warmup:
             self._used.append(use_rl)
         self._clock = (self._clock + 1) % self.k
@@ -148,9 +190,12 @@ class OptionsBehaviour:
         """Greedy options, each held k calls; a change of batch size restarts the clocks."""
         option, clock = self._choose(obs, self._greedy_option, self._greedy_clock, 0.0, None)
         use_rl = option == RL
-        action = np.where(
-            use_rl[:, None], self._net(self.actor, obs), np.asarray(self.hardcoded(obs))
-        )
+        mu = np.asarray(self.hardcoded(obs), dtype=np.float32)
+        if self.residual_limit is not None:
+            rl_action = mu + self._correction(obs, mu)
+        else:
+            rl_action = self._net(self.actor, obs)
+        action = np.where(use_rl[:, None], rl_action, mu)
         self._used.append(use_rl)
         self._greedy_option, self._greedy_clock = option, (clock + 1) % self.k
         return self.exploration.clip(action)

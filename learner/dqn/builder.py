@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Optional
 
@@ -52,15 +53,15 @@ class DQNBuilder:
 
     def phases(self) -> list[Phase]:
         budget = self.budget
-        return [
-            online_phase(
-                budget,
-                batch_size=self.batch_size,
-                env_steps=budget.env_steps,
-                warmup=True,
-                burn_in_updates=self.config.burn_in_updates,
-            )
-        ]
+        phase = online_phase(
+            budget,
+            batch_size=self.batch_size,
+            env_steps=budget.env_steps,
+            warmup=True,
+            burn_in_updates=self.config.burn_in_updates,
+        )
+        # n-step returns come from windows of n steps of one episode, drawn from replay.
+        return [dataclasses.replace(phase, sequence_length=self.config.n_step)]
 
     def make_learner(self) -> DQNLearner:
         (phase,) = self.phases()

@@ -29,6 +29,10 @@ class DQNConfig:
     target_tau: float = 1.0
     """Polyak rate of each target update: 1 copies the online network (DQN's hard update),
     e.g. 0.005 with target_update_every=1 moves the target smoothly."""
+    n_step: int = 1
+    """n of the n-step return: the learner samples windows of n consecutive steps from
+    replay and trains every step of a window on its return to the window's end (1: the
+    one-step target of eq. 4)."""
     max_grad_norm: float = 10.0
     """Gradients are clipped to this global norm (Huber loss keeps them bounded too)."""
     epsilon_start: float = 1.0
@@ -68,6 +72,8 @@ class DQNConfig:
             raise ValueError(f"hidden_sizes={self.hidden_sizes} must be positive widths")
         if not 0.0 < self.target_tau <= 1.0:
             raise ValueError(f"target_tau={self.target_tau} must lie in (0, 1]")
+        if self.n_step < 1:
+            raise ValueError(f"n_step={self.n_step} must be >= 1")
         if self.batch_size < 1 or self.target_update_every < 1:
             raise ValueError("batch_size and target_update_every must be >= 1")
         if not 0.0 <= self.epsilon_end <= self.epsilon_start <= 1.0:

@@ -60,6 +60,29 @@ def large_margin_loss(q: torch.Tensor, expert_action: torch.Tensor, margin: floa
     return ((q + penalty).max(dim=1).values - q.gather(1, chosen).squeeze(1)).mean()
 
 
+def window_returns(
+    rewards: torch.Tensor, terminated: torch.Tensor, gamma: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """n-step returns to the window's end from every step of windows [B, n].
+
+    R_j = Σ_{i=j}^{n−1} γ^{i−j} r_i and D_j = γ^{n−j} (1 − d_{n−1}): step j bootstraps from
+    the state after the window's last step. A window never crosses an episode end, so only
+    its last step can be terminal; training every step (not only the first) reaches the
+    last n − 1 steps of an episode, which never start a full window.
+
+    Returns:
+        (R, D), both [B, n], for `double_q_target`.
+    """
+    n = rewards.shape[1]
+    returns = torch.empty_like(rewards)
+    returns[:, n - 1] = rewards[:, n - 1]
+    for j in range(n - 2, -1, -1):
+        returns[:, j] = rewards[:, j] + gamma * returns[:, j + 1]
+    steps_left = torch.arange(n, 0, -1, dtype=rewards.dtype, device=rewards.device)
+    alive = 1.0 - terminated[:, -1:].to(rewards.dtype)
+    return returns, gamma**steps_left * alive
+
+
 def linear_decay(start: float, end: float, *, step: int, steps: int) -> float:
     """start + (end − start) · min(step / steps, 1): `start` at step 0, `end` from `steps` on."""
     return end if step >= steps else start + (end - start) * step / steps
@@ -121,18 +144,37 @@ class DQNLearner:
 
         Args:
             batch: ``obs`` [B, obs_dim], ``action`` [B] int64, ``reward`` [B],
-                ``terminated`` [B] bool, ``next_obs`` [B, obs_dim]; in burn-in with
-                warmup: hardcoded, ``backbone_action`` [B] int64 (μ(s)).
+                ``terminated`` [B] bool, ``next_obs`` [B, obs_dim]; or windows of n
+                steps, every column [B, n, ...], for n-step returns. In the burn-in with
+                warmup: hardcoded, also ``backbone_action`` (μ(s), int64) of the same shape
+                as ``action``.
         """
-        # Truncation is not termination: only a terminal s' stops the bootstrap.
-        discount = self._gamma * (1.0 - batch["terminated"].float())
-        y = double_q_target(
-            batch["reward"], discount, batch["next_obs"], online=self.q, target=self.target_q
-        )
         expert = None
         if self.num_updates < self._margin_updates and self._margin > 0.0:
             expert = batch["backbone_action"]
-        return self.fit(batch["obs"], batch["action"], y, expert_action=expert)
+        if batch["reward"].dim() == 1:
+            # Truncation is not termination: only a terminal s' stops the bootstrap.
+            discount = self._gamma * (1.0 - batch["terminated"].float())
+            y = double_q_target(
+                batch["reward"], discount, batch["next_obs"], online=self.q, target=self.target_q
+            )
+            return self.fit(batch["obs"], batch["action"], y, expert_action=expert)
+        returns, discounts = window_returns(batch["reward"], batch["terminated"], self._gamma)
+        b, n = returns.shape
+        bootstrap = double_q_target(
+            torch.zeros(b),
+            torch.ones(b),
+            batch["next_obs"][:, -1],
+            online=self.q,
+            target=self.target_q,
+        )
+        y = returns + discounts * bootstrap.unsqueeze(1)
+        return self.fit(
+            batch["obs"].flatten(0, 1),
+            batch["action"].flatten(),
+            y.flatten(),
+            expert_action=None if expert is None else expert.flatten(),
+        )
 
     def fit(
         self,

@@ -5,14 +5,25 @@ V(s_{t+1}) in eq. (14) comes from the option-value network, as the paper specifi
 max_o Q_Ω(s_{t+1}, o) where the option ends after step t, Q_Ω(s_{t+1}, o_t) otherwise.
 The traces are cut (c = 0) where the next step starts a new option or belongs to the
 hard-coded option: there a' was not drawn from π.
+
+With a residual RL option (actors/behaviours/options.py) the RL learner is TD3 on the
+correction c = a − μ(s), its actor and critics seeing [s, μ(s) / scale]: the windows are
+rewritten once (`residual_view`) and the rest reads as for the paper's RL option.
+
+With intra-option learning (Sutton, Precup & Singh 1999) the RL option's critic learns
+from every step of every window, whichever option acted: an action-value Q(s, a) of the
+RL option's own policy can be learnt off-policy from any transition, and a tree step is
+the residual option's correction c = 0. Its target is TD3's one-step target (eq. 5), the
+value of following the RL option, in place of eq. (14).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Optional
 
 import torch
 
+from actors.behaviours.backbone import backbone_input
 from actors.behaviours.options import RL
 from learner.dqn.learning import DQNLearner, double_q_target
 from learner.options.targets import importance_ratio, k_step_return, retrace_targets, retrace_traces
@@ -32,12 +43,14 @@ class OptionsLearner:
     def __init__(
         self,
         options: DQNLearner,
-        rl: RetraceTD3Learner,
+        rl: TD3Learner,
         *,
         option_length: int,
         retrace_lambda: float,
         behaviour_std: float,
         gamma: float,
+        residual_scale: Optional[torch.Tensor] = None,
+        intra_option: bool = False,
     ) -> None:
         """Combines the two learners.
 
@@ -48,8 +61,15 @@ class OptionsLearner:
             retrace_lambda: λ of the traces.
             behaviour_std: Std of the actors' Gaussian around π(s), for ρ.
             gamma: Discount of eqs. (13) and (14).
+            residual_scale: The action box's half-width when the RL option is residual
+                (its learner then sees [s, μ(s) / scale] and the correction); None for
+                the paper's RL option.
+            intra_option: Train the RL option on every step with TD3's own target (`rl`
+                is then a plain `TD3Learner`), not on its own steps with Retrace.
         """
         self.options, self.rl = options, rl
+        self.residual_scale = residual_scale
+        self.intra_option = intra_option
         self.k, self.lam, self.std, self.gamma = option_length, retrace_lambda, behaviour_std, gamma
         self.num_updates = 0
 
@@ -61,7 +81,9 @@ class OptionsLearner:
         if starts.any():
             metrics.update(self._update_options({c: v[starts] for c, v in batch.items()}))
         rl_rows = batch["option"] == RL
-        if rl_rows.any():
+        if self.intra_option:
+            metrics.update(self._update_rl_intra(batch))
+        elif rl_rows.any():
             metrics.update(self._update_rl(batch, rl_rows))
         metrics["options/rl_fraction_sampled"] = float(rl_rows.float().mean())
         return metrics
@@ -79,11 +101,24 @@ class OptionsLearner:
         out = self.options.fit(w["obs"][:, 0], w["option"][:, 0], y)
         return {"losses/option_q": out["losses/q"], "values/option_q_mean": out["values/q_mean"]}
 
+    def residual_view(self, w: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The windows as the residual RL learner sees them: ``rl_obs`` [s, μ(s)/scale] and
+        ``action`` the unclipped sampled correction a − μ(s); unchanged without residual."""
+        if self.residual_scale is None:
+            return dict(w, rl_obs=w["obs"])
+        mu = w["hardcoded_action"]
+        return dict(
+            w,
+            rl_obs=backbone_input(w["obs"], mu, self.residual_scale),
+            action=w["action"] - mu,
+        )
+
     @torch.no_grad()
     def retrace(self, w: dict[str, torch.Tensor]) -> torch.Tensor:
         """Q^ret for every step of every window, [B, k] (eq. 14)."""
         rl, k = self.rl, self.k
-        obs, next_obs, option = w["obs"], w["next_obs"], w["option"]
+        w = self.residual_view(w)
+        obs, next_obs, option = w["rl_obs"], w["next_obs"], w["option"]
         action = torch.clamp(w["action"], rl.actor.action_low, rl.actor.action_high)
         discounts = self.gamma * (1.0 - w["terminated"].float())
         # V(s_{t+1}) from the option-value target network.
@@ -104,7 +139,30 @@ class OptionsLearner:
     def _update_rl(self, w: dict[str, torch.Tensor], rows: torch.Tensor) -> dict[str, float]:
         """TD3 on the RL option's steps, its critic regressed onto Q^ret."""
         target = self.retrace(w)
-        flat = {"obs": w["obs"][rows], "action": w["action"][rows], "retrace_target": target[rows]}
+        w = self.residual_view(w)
+        flat = {
+            "obs": w["rl_obs"][rows],
+            "action": w["action"][rows],
+            "retrace_target": target[rows],
+        }
+        return self.rl.update(flat)
+
+    def _update_rl_intra(self, w: dict[str, torch.Tensor]) -> dict[str, float]:
+        """TD3 on every transition (s_t, c_t, r_t, s_{t+1}) inside the windows.
+
+        s_{t+1} is the next step's row (with μ(s_{t+1}) when residual), so each window
+        gives its first k − 1 steps; a window never crosses an episode end, so none of
+        them is terminal.
+        """
+        v = self.residual_view(w)
+        x = v["rl_obs"]
+        flat = {
+            "obs": x[:, :-1].flatten(0, 1),
+            "next_obs": x[:, 1:].flatten(0, 1),
+            "action": v["action"][:, :-1].flatten(0, 1),
+            "reward": w["reward"][:, :-1].flatten(0, 1),
+            "terminated": w["terminated"][:, :-1].flatten(0, 1),
+        }
         return self.rl.update(flat)
 
     def policy_state(self) -> dict[str, torch.Tensor]:

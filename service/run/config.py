@@ -107,7 +107,7 @@ class TrainConfig:
     pretrain: PretrainConfig = field(default_factory=PretrainConfig)
     """Demonstrations and pre-training losses (pretrain_td3)."""
     options: OptionsConfig = field(default_factory=OptionsConfig)
-    """Option length and Retrace λ (options)."""
+    """Option length, Retrace λ and the changes past the paper (options)."""
     actors: ActorPlacement = field(default_factory=ActorPlacement)
     """What each env actor reserves, where it may run, how often it is restarted."""
     evaluator: ActorPlacement = field(default_factory=ActorPlacement)

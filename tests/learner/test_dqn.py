@@ -232,3 +232,65 @@ def test_demonstrations_act_epsilon_greedily_around_the_hard_coded_policy():
 def test_dqn_demonstration_settings_are_refused_by_name(field, value, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         DQNConfig(**{field: value})
+
+
+@pytest.mark.parametrize(
+    "terminated, discounts",
+    [
+        ([0.0, 0.0, 0.0], [0.125, 0.25, 0.5]),  # γ^(n − j): each step bootstraps past the end
+        ([0.0, 0.0, 1.0], [0.0, 0.0, 0.0]),  # the window ends in a terminal state
+    ],
+)
+def test_window_returns_to_the_windows_end_from_every_step(terminated, discounts):
+    from learner.dqn.learning import window_returns
+
+    rewards = torch.tensor([[1.0, 2.0, 3.0]])
+    returns, discount = window_returns(rewards, torch.tensor([terminated]).bool(), 0.5)
+    # R_0 = 1 + 0.5·2 + 0.25·3, R_1 = 2 + 0.5·3, R_2 = 3.
+    torch.testing.assert_close(returns, torch.tensor([[2.75, 3.5, 3.0]]))
+    torch.testing.assert_close(discount, torch.tensor([discounts]))
+
+
+def test_windows_of_one_step_train_exactly_as_single_transitions():
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+
+    config = DQNConfig(hidden_sizes=(8,), target_update_every=2)
+    flat, windowed = (DQNLearner(2, 2, config=config, seed=0) for _ in range(2))
+    rng = torch.Generator().manual_seed(0)
+    for _ in range(3):
+        batch = {
+            "obs": torch.randn(8, 2, generator=rng),
+            "action": torch.randint(0, 2, (8,), generator=rng),
+            "reward": torch.randn(8, generator=rng),
+            "terminated": torch.rand(8, generator=rng) < 0.3,
+            "next_obs": torch.randn(8, 2, generator=rng),
+        }
+        a = flat.update(batch)
+        b = windowed.update({k: v.unsqueeze(1) for k, v in batch.items()})
+        assert a["losses/q"] == pytest.approx(b["losses/q"], rel=1e-6)
+    for p, q in zip(flat.q.parameters(), windowed.q.parameters(), strict=True):
+        torch.testing.assert_close(p, q)
+
+
+def test_n_step_dqn_samples_windows_of_n_steps():
+    from gymnasium import spaces
+
+    from learner.agent import Budget
+    from learner.dqn.builder import DQNBuilder
+    from learner.dqn.config import DQNConfig
+
+    budget = Budget(
+        env_steps=5000, learning_starts=1000, updates_per_env_step=0.5, slack_env_steps=0
+    )
+    for n in (1, 3):
+        builder = DQNBuilder(
+            spaces.Box(-1.0, 1.0, shape=(4,)),
+            spaces.Discrete(2),
+            config=DQNConfig(hidden_sizes=(4,), n_step=n),
+            budget=budget,
+            seed=0,
+        )
+        assert [p.sequence_length for p in builder.phases()] == [n]
+    with pytest.raises(ValueError, match="n_step"):
+        DQNConfig(n_step=0)

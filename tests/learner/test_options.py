@@ -197,3 +197,153 @@ def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
     behaviour.load(options_table([1.0, 0.0]))  # now prefers the hard-coded option
     np.testing.assert_allclose(behaviour.greedy(obs), [[-1.0], [-1.0]])
     assert behaviour.stats() == {"options/rl_fraction": 0.5}
+
+
+# --- past the paper: a residual RL option and a switching margin ------------------------
+
+
+class Recorder(nn.Module):
+    """A correction network that returns 0.5 and keeps the last input it saw."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        self.seen = x
+        return torch.full((*x.shape[:-1], 1), 0.5)
+
+
+def residual_options(option_q: nn.Module, actor: nn.Module, margin: float) -> OptionsBehaviour:
+    """As `greedy_options` (μ(s) = −1, box [−2, 2]), with a residual RL option, L = 4."""
+    return OptionsBehaviour(
+        option_q,
+        actor,
+        lambda obs: np.full((len(obs), 1), -1.0, np.float32),
+        option_length=3,
+        std=0.1,
+        low=np.array([-2.0]),
+        high=np.array([2.0]),
+        epsilon_start=0.0,
+        epsilon_end=0.0,
+        decay_env_steps=1,
+        num_actors=1,
+        residual_limit=4.0,
+        switch_margin=margin,
+    )
+
+
+def test_residual_rl_option_acts_the_tree_plus_a_correction_that_sees_the_tree():
+    actor = Recorder()
+    behaviour = residual_options(Table([[0.0, 1.0]]), actor, margin=0.0)
+    obs = np.zeros((1, 3), np.float32)
+    # Greedy: μ(s) + π([s, μ(s) / 2]) = −1 + 0.5.
+    np.testing.assert_allclose(behaviour.greedy(obs), [[-0.5]])
+    torch.testing.assert_close(actor.seen, torch.tensor([[0.0, 0.0, 0.0, -0.5]]))
+    action, columns = behaviour.act(obs, np.random.default_rng(0), warmup=False)
+    correction = columns["action"] - columns["hardcoded_action"]
+    np.testing.assert_allclose(columns["hardcoded_action"], [[-1.0]])
+    np.testing.assert_allclose(action, -1.0 + correction, rtol=1e-6)
+    # The recorded density is the correction's, N(0.5, 0.1²).
+    z = (correction[0, 0] - 0.5) / 0.1
+    expected = -0.5 * z**2 - math.log(0.1) - 0.5 * math.log(2 * math.pi)
+    assert columns["log_prob"][0] == pytest.approx(expected, rel=1e-5)
+    # Warm-up corrections are uniform over [−L, L] = [−4, 4].
+    behaviour.end_episodes(np.array([True]))
+    _, columns = behaviour.act(obs, np.random.default_rng(0), warmup=True)
+    assert columns["log_prob"][0] == pytest.approx(-math.log(8.0))
+
+
+@pytest.mark.parametrize("margin, option", [(0.0, RL), (0.4, RL), (0.6, HARDCODED)])
+def test_switching_margin_keeps_the_tree_unless_the_rl_option_is_clearly_better(margin, option):
+    behaviour = residual_options(Table([[0.0, 0.5]]), Recorder(), margin=margin)
+    _, columns = behaviour.act(np.zeros((1, 3), np.float32), np.random.default_rng(0), warmup=False)
+    assert columns["option"][0] == option
+
+
+def test_residual_options_learner_starts_as_the_tree_and_learns_the_correction():
+    from gymnasium import spaces
+
+    from learner.agent import Budget
+    from learner.dqn.config import DQNConfig
+    from learner.options.builder import OptionsBuilder
+    from learner.options.config import OptionsConfig
+    from learner.td3.builder import TD3Builder
+    from learner.td3.config import TD3Config
+
+    budget = Budget(
+        env_steps=2000, learning_starts=100, updates_per_env_step=1.0, slack_env_steps=0
+    )
+    td3 = TD3Builder(
+        spaces.Box(-8.0, 8.0, shape=(3,)),
+        spaces.Box(-2.0, 2.0, shape=(1,)),
+        config=TD3Config(hidden_sizes=(8,), batch_size=4),
+        method="options",
+        budget=budget,
+        seed=0,
+    )
+    builder = OptionsBuilder(
+        "actors.trees.pendulum:swing_up",
+        td3,
+        dqn=DQNConfig(hidden_sizes=(8,)),
+        config=OptionsConfig(option_length=3, residual_limit=4.0),
+    )
+    learner = builder.make_learner()
+    x = torch.randn(5, 4)  # [s, μ(s) / 2]
+    torch.testing.assert_close(learner.rl.actor(x), torch.zeros(5, 1))
+    window = {
+        "obs": torch.ones(1, 3, 3),
+        "action": torch.tensor([[[1.5], [0.5], [-2.0]]]),
+        "hardcoded_action": torch.tensor([[[2.0], [-2.0], [-2.0]]]),
+    }
+    view = learner.residual_view(window)
+    torch.testing.assert_close(view["action"], torch.tensor([[[-0.5], [2.5], [0.0]]]))
+    torch.testing.assert_close(view["rl_obs"][0, :, 3], torch.tensor([1.0, -1.0, -1.0]))
+    # The behaviour's RL actor has the learner's shape: it loads the broadcast weights.
+    behaviour = builder.make_behaviour(num_actors=1)
+    behaviour.load(learner.policy_state())
+
+
+def test_intra_option_learning_trains_the_rl_option_on_every_step_of_a_window():
+    from gymnasium import spaces
+
+    from learner.agent import Budget
+    from learner.dqn.config import DQNConfig
+    from learner.options.builder import OptionsBuilder
+    from learner.options.config import OptionsConfig
+    from learner.td3.builder import TD3Builder
+    from learner.td3.config import TD3Config
+
+    budget = Budget(
+        env_steps=2000, learning_starts=100, updates_per_env_step=1.0, slack_env_steps=0
+    )
+    td3 = TD3Builder(
+        spaces.Box(-8.0, 8.0, shape=(3,)),
+        spaces.Box(-2.0, 2.0, shape=(1,)),
+        config=TD3Config(hidden_sizes=(8,), batch_size=4),
+        method="options",
+        budget=budget,
+        seed=0,
+    )
+    config = OptionsConfig(option_length=3, residual_limit=4.0, intra_option=True)
+    learner = OptionsBuilder(
+        "actors.trees.pendulum:swing_up", td3, dqn=DQNConfig(hidden_sizes=(8,)), config=config
+    ).make_learner()
+    seen = []
+    learner.rl.update = lambda batch: seen.append(batch) or {}  # type: ignore[method-assign]
+    g = torch.Generator().manual_seed(0)
+    windows = {
+        "obs": torch.randn(2, 3, 3, generator=g),
+        "next_obs": torch.randn(2, 3, 3, generator=g),
+        "action": torch.randn(2, 3, 1, generator=g),
+        "hardcoded_action": torch.randn(2, 3, 1, generator=g),
+        "reward": torch.randn(2, 3, generator=g),
+        "terminated": torch.zeros(2, 3, dtype=torch.bool),
+        "option": torch.tensor([[HARDCODED] * 3, [RL] * 3]),  # tree steps train it too
+        "option_step": torch.tensor([[0, 1, 2], [0, 1, 2]]),
+        "log_prob": torch.zeros(2, 3),
+    }
+    learner.update(windows)
+    (batch,) = seen
+    assert batch["obs"].shape == (4, 4)  # k − 1 = 2 steps of each of 2 windows, [s, μ(s)/2]
+    # s_{t+1} is the next row of the window, μ(s_{t+1}) included.
+    torch.testing.assert_close(batch["next_obs"][0], batch["obs"][1])
+    torch.testing.assert_close(batch["obs"][0, :3], windows["obs"][0, 0])
+    expected = windows["action"][0, 0] - windows["hardcoded_action"][0, 0]
+    torch.testing.assert_close(batch["action"][0], expected)

@@ -36,6 +36,11 @@ BUDGETS = {
         "td3.burn_in_updates": 30,
         "td3.frozen_actor_updates": 30,
     },
+    "pendulum-options-residual": {
+        "env_steps": 300,
+        "td3.burn_in_updates": 30,
+        "td3.frozen_actor_updates": 30,
+    },
 }
 
 

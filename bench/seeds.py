@@ -1,0 +1,126 @@
+"""Runs a preset over seeds through the CLI (`graft train`, then `graft eval`) and summarises.
+
+Each seed is the documented pair of commands, each in its own process with its own local
+Ray instance, so up to `parallel` seeds run side by side. A seed whose `eval.json` exists
+is read back, not re-run, so an interrupted benchmark continues where it stopped; a seed
+folder without one is started afresh, so give each benchmark process its own `--out`.
+A seed whose run fails is reported with its log and left out; the others go on.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+GRAFT = [sys.executable, "-m", "service.run.cli"]
+
+
+@dataclass(frozen=True)
+class SeedResult:
+    """One seed's final policy, evaluated over `episodes` episodes."""
+
+    seed: int
+    mean: float
+    std: float
+    run_dir: Path
+    wall_s: float
+
+
+def bootstrap_ci(
+    values: Sequence[float], *, level: float = 0.95, resamples: int = 10_000, seed: int = 0
+) -> tuple[float, float, float]:
+    """(mean, low, high): the mean over seeds and its percentile bootstrap interval."""
+    x = np.asarray(values, dtype=float)
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, len(x), size=(resamples, len(x)))].mean(axis=1)
+    tail = 100 * (1 - level) / 2
+    low, high = np.percentile(means, [tail, 100 - tail])
+    return float(x.mean()), float(low), float(high)
+
+
+def format_ci(values: Sequence[float]) -> str:
+    """'mean [low, high]' with the 95 % bootstrap interval over seeds."""
+    mean, low, high = bootstrap_ci(values)
+    return f"{mean:.1f} [{low:.1f}, {high:.1f}]"
+
+
+def run_seed(
+    preset: str,
+    seed: int,
+    run_dir: Path,
+    *,
+    overrides: Sequence[str] = (),
+    env_steps: int | None = None,
+    episodes: int = 100,
+    eval_seed: int = 1000,
+) -> SeedResult:
+    """`graft train --preset P --seed S [--set ...]`, then `graft eval` of its final policy."""
+    done = run_dir / "eval.json"
+    if done.exists():
+        saved = json.loads(done.read_text())
+        return SeedResult(seed, saved["mean"], saved["std"], run_dir, saved.get("wall_s", 0.0))
+    if run_dir.exists():  # an interrupted run: start it again from an empty folder
+        subprocess.run(["rm", "-rf", str(run_dir)], check=True)
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    train = [*GRAFT, "train", "--preset", preset, "--seed", str(seed)]
+    train += ["--run-dir", str(run_dir), "--no-progress"]
+    train += [a for o in overrides for a in ("--set", o)]
+    if env_steps is not None:
+        train += ["--env-steps", str(env_steps)]
+    start = time.perf_counter()
+    with open(run_dir.parent / f"{run_dir.name}.log", "w") as log:
+        subprocess.run(train, check=True, stdout=log, stderr=subprocess.STDOUT)
+    wall_s = time.perf_counter() - start
+    evaluate = [*GRAFT, "eval", "--policy", str(run_dir), "--episodes", str(episodes)]
+    evaluate += ["--seed", str(eval_seed), "--json"]
+    out = subprocess.run(evaluate, check=True, capture_output=True, text=True).stdout
+    saved = json.loads(out.strip().splitlines()[-1])
+    saved["wall_s"] = wall_s
+    done.write_text(json.dumps(saved))
+    return SeedResult(seed, saved["mean"], saved["std"], run_dir, wall_s)
+
+
+def run_seeds(
+    preset: str,
+    seeds: Sequence[int],
+    out: Path,
+    *,
+    overrides: Sequence[str] = (),
+    env_steps: int | None = None,
+    parallel: int = 1,
+    episodes: int = 100,
+) -> list[SeedResult]:
+    """Runs every seed into `out/s<seed>`, `parallel` at a time, printing each as it ends."""
+    start = time.perf_counter()
+
+    def one(seed: int) -> SeedResult | None:
+        try:
+            r = run_seed(
+                preset,
+                seed,
+                out / f"s{seed}",
+                overrides=overrides,
+                env_steps=env_steps,
+                episodes=episodes,
+            )
+        except subprocess.CalledProcessError:
+            print(f"  seed {seed}: FAILED, see {out / f's{seed}.log'}", flush=True)
+            return None
+        print(
+            f"  seed {seed}: {r.mean:.1f} ± {r.std:.1f} over {episodes} episodes "
+            f"(train {r.wall_s:.0f} s; {time.perf_counter() - start:.0f} s elapsed)",
+            flush=True,
+        )
+        return r
+
+    with ThreadPoolExecutor(max_workers=parallel) as pool:
+        done = [r for r in pool.map(one, seeds) if r is not None]
+    return sorted(done, key=lambda r: r.seed)
