@@ -272,6 +272,10 @@ class EnvActor:
             "net/reconnects": self.stepper.reconnects,
             "replay/inserted": self.writer.inserted,
             "replay/insert_wait_s": self.writer.wait_s,
+            "replay/insert_call_s": self.writer.insert_s,
+            "replay/insert_calls": self.writer.insert_calls,
+            "replay/fastest_insert_s": self.writer.fastest_insert_s,
+            "perf/process_cpu_s": time.process_time(),
             "policy/version": self.weights.version,
             "policy/versions_adopted": len(self.versions_seen),
         }

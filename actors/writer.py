@@ -44,6 +44,11 @@ class BackgroundWriter:
         """Items the server acknowledged."""
         self.insert_s = 0.0
         """Time the sender spent in insert calls (including rate-limiter holds)."""
+        self.insert_calls = 0
+        """Insert calls the server acknowledged."""
+        self.fastest_insert_s = float("inf")
+        """The quickest acknowledged insert call: about the network and server cost of one
+        batch that no rate limiter held."""
         self.wait_s = 0.0
         """Time callers of ``insert``/``flush`` waited for the sender."""
         self._queue: collections.deque[tuple[str, Mapping[str, np.ndarray]]] = collections.deque()
@@ -141,8 +146,11 @@ class BackgroundWriter:
                     self._queue.clear()
                     self._cond.notify_all()
                 return
+            took = time.perf_counter() - t
             with self._cond:
-                self.insert_s += time.perf_counter() - t
+                self.insert_s += took
+                self.insert_calls += 1
+                self.fastest_insert_s = min(self.fastest_insert_s, took)
                 self.inserted += stored
                 self._in_flight = 0
                 self._cond.notify_all()
