@@ -173,7 +173,11 @@ def plan(
         batch_key = knob_key("batch_size", base.algorithm)
         section, _, field = batch_key.partition(".")
         batch = config_overrides.get(batch_key, getattr(getattr(base, section), field))
-        config = load_preset(preset, **_tuning_budget(config_overrides, int(batch)))
+        try:
+            config = load_preset(preset, **_tuning_budget(config_overrides, int(batch)))
+        except ConfigError as e:
+            knobs_known = sorted({*ALIASES, "batch_size", *COST_KNOBS})
+            raise ConfigError(f"{e}; tune's own knobs: {', '.join(knobs_known)}") from None
         if address == "local":
             need = config.num_actors * point_costs.actor_cpus
             have = local_cpus()

@@ -107,3 +107,21 @@ def test_tune_names_the_bottleneck(ray_local, case, overrides, costs, expected):
     detail = {k: row[k] for k in ("learner_wait", "actor_insert_wait", "publish_fraction")}
     assert row["bottleneck"] == expected, f"{case}: {row['bottleneck']} from {detail}"
     assert row["inserted_per_s"] > 0 and row["env_steps_per_s"] > 0
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--grid", "batchsize=64"], "graft tune: unknown field batchsize"),
+        (["--measure", "0"], "graft tune: --measure=0.0 must be > 0 seconds"),
+        (["--step-cost-ms", "-1"], "graft tune: step_cost_ms=-1.0 must be >= 0"),
+    ],
+)
+def test_graft_tune_refuses_bad_input_in_one_line(argv, message, capsys):
+    from service.run.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["tune", "--address", "local", *argv])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(message) and "\n" not in err
