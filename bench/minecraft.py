@@ -467,7 +467,9 @@ def clients_run(
     actor_cpu = sum(a["perf/process_cpu_s"] - b["perf/process_cpu_s"]
                     for b, a in zip(before, after, strict=True))  # fmt: skip
     seen = sum(r["perf/ticks_seen"] for r in after)
+    ticks = seen + sum(r["perf/ticks_skipped"] for r in after)
     row.update(
+        ticks_per_s=ticks / after[0]["perf/measure_s"] / clients,  # per client, not per actor
         clients=clients, actors=len(actors),
         actor_cpu_per_client=actor_cpu / args.measure / clients,
         actor_ms_per_tick=1000 * actor_cpu / max(seen, 1),
