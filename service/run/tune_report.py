@@ -48,7 +48,10 @@ def table(rows: Sequence[dict[str, Any]], knobs: Sequence[str]) -> str:
     head = [*knobs, *(h for _, h, _ in COLUMNS)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
-        cells = [str(row[k]) for k in knobs] + [fmt.format(row[key]) for key, _, fmt in COLUMNS]
+        cells = [str(row[k]) for k in knobs] + [
+            "-" if row[key] != row[key] else fmt.format(row[key])  # nan: not measured
+            for key, _, fmt in COLUMNS
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -143,10 +146,10 @@ def plot(rows: Sequence[dict[str, Any]], knobs: Sequence[str], path: Path, title
     axes[3].set_xticks(list(x))
     axes[3].set_xticklabels(labels, fontsize=8)
     handles = [matplotlib.patches.Patch(color=c, label=b) for b, c in colours.items()]
-    fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    fig.suptitle(title, y=0.995)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     fig.legend(handles=handles, title="bottleneck", fontsize=8, ncol=5, loc="upper center",
-               bbox_to_anchor=(0.5, 0.975))  # fmt: skip
+               bbox_to_anchor=(0.5, 0.97))  # fmt: skip
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     plt.close(fig)
