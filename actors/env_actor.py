@@ -298,7 +298,7 @@ class EnvActor:
             "net/connection_losses": self.stepper.connection_losses,
             "net/reconnects": self.stepper.reconnects,
             "replay/inserted": self.writer.inserted,
-            "replay/insert_wait_s": self.writer.wait_s,
+            "replay/insert_wait_s": self.writer.waited_s(),
             "replay/insert_call_s": self.writer.insert_s,
             "replay/insert_calls": self.writer.insert_calls,
             "replay/fastest_insert_s": self.writer.fastest_insert_s,

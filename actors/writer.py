@@ -54,10 +54,17 @@ class BackgroundWriter:
         self._queue: collections.deque[tuple[str, Mapping[str, np.ndarray]]] = collections.deque()
         self._in_flight = 0
         self._error: Optional[BaseException] = None
+        self._waiting_since: Optional[float] = None
         self._closing = False
         self._cond = threading.Condition()
         self._thread = threading.Thread(target=self._send_loop, name="replay-writer", daemon=True)
         self._thread.start()
+
+    def waited_s(self) -> float:
+        """`wait_s` including a wait still in progress (a rate limiter may hold one insert
+        longer than a measurement window)."""
+        since = self._waiting_since
+        return self.wait_s + (time.perf_counter() - since if since is not None else 0.0)
 
     def pending(self) -> int:
         """Batches given to ``insert`` and not yet acknowledged."""
@@ -109,7 +116,7 @@ class BackgroundWriter:
 
     def _wait(self, done: Callable[[], bool], timeout_s: Optional[float]) -> bool:
         # Called holding the condition; raises a background error as soon as it appears.
-        t0 = time.perf_counter()
+        t0 = self._waiting_since = time.perf_counter()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         try:
             while not done():
@@ -122,6 +129,7 @@ class BackgroundWriter:
             return True
         finally:
             self.wait_s += time.perf_counter() - t0
+            self._waiting_since = None
 
     def _raise_error(self) -> None:
         if self._error is not None:
