@@ -113,7 +113,7 @@ def test_tune_names_the_bottleneck(ray_local, case, overrides, costs, expected):
     row = run_point(_point(costs, **overrides), warmup_s=2.0, measure_s=4.0, address="local")
     detail = {k: row[k] for k in ("learner_wait", "actor_insert_wait", "publish_fraction")}
     assert row["bottleneck"] == expected, f"{case}: {row['bottleneck']} from {detail}"
-    assert row["inserted_per_s"] > 0 and row["env_steps_per_s"] > 0
+    assert row["learner_updates_per_s"] > 0  # the pipeline ran (a held actor may insert nothing)
 
 
 @pytest.mark.parametrize(
