@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, Optional, SupportsFloat
 
 import numpy as np
 import ray
@@ -34,6 +35,8 @@ from service.core import Behaviour, ReplayWriter, WeightSource
 
 RECONNECT_TIMEOUT_S = 60.0
 """How long a lost environment's resets are retried before the actor gives up."""
+StepOutcome = tuple[Any, SupportsFloat, bool, bool, dict[str, Any]] | ConnectionError
+"""One environment's step: (obs, reward, terminated, truncated, info), or its world gone."""
 MAX_BACKOFF_S = 5.0
 """The longest pause between two reset attempts (starting at 50 ms, doubling)."""
 FLUSH_TIMEOUT_S = 60.0
@@ -54,10 +57,18 @@ class VectorStepper:
     `streams[i]` names environment i's replay stream: the table links a stream's steps
     into episodes. A lost step ends no episode in the table, so the environment goes on
     in a new stream: the steps before and after the loss are never linked.
+
+    `concurrent`: the environments' `step` calls run at once, one thread each, instead
+    of one after another. For environments that wait on their own worlds (real-time
+    Minecraft clients, each waiting for its world's next frame) a step of all `n` then
+    takes the longest wait, not the sum; acting stays one batched policy call for all
+    `n`. What still runs one at a time (the GIL: decoding each observation) grows with
+    `n`, so a step's latency does too: see docs/tuning.md for clients per actor.
     """
 
-    def __init__(self, env: EnvSpec, n: int, seed: int) -> None:
+    def __init__(self, env: EnvSpec, n: int, seed: int, *, concurrent: bool = False) -> None:
         self.envs = [env.make() for _ in range(n)]
+        self._pool = ThreadPoolExecutor(n, thread_name_prefix="env-step") if concurrent else None
         self.meter = TickMeter(n)
         self.lost = np.zeros(n, bool)
         self.streams = np.arange(n, dtype=np.int64)
@@ -82,6 +93,17 @@ class VectorStepper:
         self._ready[i] = time.perf_counter()
         return obs
 
+    def _step_one(self, i: int, action: np.ndarray) -> tuple[float, StepOutcome]:
+        """Steps environment i: (the actor's own time before its action left, the step's
+        result or the ConnectionError of a world that went away)."""
+        own_s = time.perf_counter() - self._ready[i]  # from observation to action
+        try:
+            result = self.envs[i].step(action)
+        except ConnectionError as error:
+            return own_s, error
+        self._ready[i] = time.perf_counter()
+        return own_s, result
+
     def step(self, actions: np.ndarray) -> dict[str, np.ndarray]:
         obs = self.obs.copy()
         next_obs = np.empty_like(obs)
@@ -89,11 +111,13 @@ class VectorStepper:
         terminated = np.empty(len(self.envs), bool)
         truncated = np.empty(len(self.envs), bool)
         self.lost[:] = False
-        for i, env in enumerate(self.envs):
-            own_s = time.perf_counter() - self._ready[i]  # from observation to action
-            try:
-                next_obs[i], rewards[i], terminated[i], truncated[i], info = env.step(actions[i])
-            except ConnectionError:
+        indices = range(len(self.envs))
+        if self._pool is not None:
+            results = list(self._pool.map(self._step_one, indices, actions))
+        else:
+            results = [self._step_one(i, a) for i, a in zip(indices, actions, strict=True)]
+        for i, (own_s, result) in enumerate(results):
+            if isinstance(result, ConnectionError):
                 self.connection_losses += 1
                 self.lost[i], next_obs[i], rewards[i] = True, obs[i], 0.0
                 terminated[i], truncated[i] = False, True
@@ -102,7 +126,7 @@ class VectorStepper:
                 self.obs[i] = self._reset(i)
                 self.reconnects += 1
                 continue
-            self._ready[i] = time.perf_counter()
+            next_obs[i], rewards[i], terminated[i], truncated[i], info = result
             self.meter.step(i, info.get("tick"), own_s)
             self.episode_returns[i] += rewards[i]
             if terminated[i] or truncated[i]:
@@ -120,6 +144,8 @@ class VectorStepper:
         }
 
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
         for env in self.envs:
             env.close()
 
@@ -155,7 +181,7 @@ class EnvActor:
     15 (`RAY_worker_niceness`), below every ordinary process, so a real-time actor on a
     busy machine would be starved; 0 asks for an ordinary share. Lowering niceness needs
     CAP_SYS_NICE or RLIMIT_NICE; without them the actor keeps its niceness and reports it
-    (`actor/nice`).
+    (`actor/nice`). `concurrent_steps`: step the environments at once (`VectorStepper`).
     """
 
     def __init__(
@@ -169,9 +195,10 @@ class EnvActor:
         behaviour: Behaviour,
         steps_per_insert: int,
         nice: Optional[int] = None,
+        concurrent_steps: bool = False,
     ) -> None:
         torch.set_num_threads(1)
-        self.stepper = VectorStepper(env, num_envs, seed)
+        self.stepper = VectorStepper(env, num_envs, seed, concurrent=concurrent_steps)
         self.rng = np.random.default_rng(seed)
         self.writer = BackgroundWriter(replay)
         self.weights = weights
@@ -321,7 +348,11 @@ class EnvActor:
             "net/connection_losses": self.stepper.connection_losses,
             "net/reconnects": self.stepper.reconnects,
             "replay/inserted": self.writer.inserted,
-            "replay/insert_wait_s": self.writer.wait_s,
+            "replay/insert_wait_s": self.writer.waited_s(),
+            "replay/insert_call_s": self.writer.insert_s,
+            "replay/insert_calls": self.writer.insert_calls,
+            "replay/fastest_insert_s": self.writer.fastest_insert_s,
+            "perf/process_cpu_s": time.process_time(),
             "policy/version": self.weights.version,
             "policy/versions_adopted": len(self.versions_seen),
         }

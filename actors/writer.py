@@ -44,15 +44,27 @@ class BackgroundWriter:
         """Items the server acknowledged."""
         self.insert_s = 0.0
         """Time the sender spent in insert calls (including rate-limiter holds)."""
+        self.insert_calls = 0
+        """Insert calls the server acknowledged."""
+        self.fastest_insert_s = float("inf")
+        """The quickest acknowledged insert call: about the network and server cost of one
+        batch that no rate limiter held."""
         self.wait_s = 0.0
         """Time callers of ``insert``/``flush`` waited for the sender."""
         self._queue: collections.deque[tuple[str, Mapping[str, np.ndarray]]] = collections.deque()
         self._in_flight = 0
         self._error: Optional[BaseException] = None
+        self._waiting_since: Optional[float] = None
         self._closing = False
         self._cond = threading.Condition()
         self._thread = threading.Thread(target=self._send_loop, name="replay-writer", daemon=True)
         self._thread.start()
+
+    def waited_s(self) -> float:
+        """`wait_s` including a wait still in progress (a rate limiter may hold one insert
+        longer than a measurement window)."""
+        since = self._waiting_since
+        return self.wait_s + (time.perf_counter() - since if since is not None else 0.0)
 
     def pending(self) -> int:
         """Batches given to ``insert`` and not yet acknowledged."""
@@ -104,7 +116,7 @@ class BackgroundWriter:
 
     def _wait(self, done: Callable[[], bool], timeout_s: Optional[float]) -> bool:
         # Called holding the condition; raises a background error as soon as it appears.
-        t0 = time.perf_counter()
+        t0 = self._waiting_since = time.perf_counter()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         try:
             while not done():
@@ -117,6 +129,7 @@ class BackgroundWriter:
             return True
         finally:
             self.wait_s += time.perf_counter() - t0
+            self._waiting_since = None
 
     def _raise_error(self) -> None:
         if self._error is not None:
@@ -141,8 +154,11 @@ class BackgroundWriter:
                     self._queue.clear()
                     self._cond.notify_all()
                 return
+            took = time.perf_counter() - t
             with self._cond:
-                self.insert_s += time.perf_counter() - t
+                self.insert_s += took
+                self.insert_calls += 1
+                self.fastest_insert_s = min(self.fastest_insert_s, took)
                 self.inserted += stored
                 self._in_flight = 0
                 self._cond.notify_all()

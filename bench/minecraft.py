@@ -1,4 +1,4 @@
-"""Minecraft benchmarks: world server ticks per second, and the decoupling table.
+"""Minecraft benchmarks: world server ticks per second, the decoupling table, the clients sweep.
 
 1. Ticks per second of one simulated world server in synchronous mode (ideal timing),
    through the MalmoEnv protocol, without and with rendering. The server runs in its own process
@@ -13,8 +13,16 @@
    (``naive_loop.py``: each client trains its own TD3 between two steps). Reported: the
    fraction of world ticks the clients never observed (``TotalTime`` gaps).
 
-    python bench/minecraft.py                       # both parts, about 3 minutes
+3. The clients sweep: N real-time clients (default 8, 16, 24, 32, 48; 50 ms ticks, one
+   world server process each) driven by env actors of ``--per-actor`` clients each,
+   stepped at once with one batched policy call, beside a TD3 learner at full speed:
+   skipped ticks, world ticks/s, actor and world-server CPU per client, updates/s (CSV +
+   PNG). First, in the same run, actor CPU per tick before (one client per actor, the
+   per-block grid encoding, ``pooled_clients.encode_per_block``) and after.
+
+    python bench/minecraft.py                       # all parts
     python bench/minecraft.py --part decoupling [--warmup 20 --measure 40 --seed 1]
+    python bench/minecraft.py --part clients [--clients 8 16 24 32 48 --per-actor 8]
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from typing import Any
 import ray
 import torch
 from naive_loop import NaiveLoop  # bench/, beside this script (Ray workers import it too)
+from pooled_clients import actors_for
 
 from actors.behaviours.gaussian import GaussianBehaviour
 from actors.env_actor import EnvActor, Segment
@@ -340,10 +349,235 @@ def decoupling_table(args: argparse.Namespace) -> None:
             print(f"{name}: {r['losses']} connection losses")
 
 
+# ------------------------------------------------------------------ encoding cost
+def encoding_cost(args: argparse.Namespace) -> None:
+    """Part 0: decoding + encoding one observation, the per-block baseline against the
+    block-id table, on the sample mission's real observations, interleaved in one process."""
+    import json
+
+    from pooled_clients import encode_per_block
+
+    from actors.minecraft.agent import grid_encoding
+
+    with ServerPool(1, base_port=0, seed=args.seed, timing=IDEAL) as pool:
+        client = MalmoClient("127.0.0.1", pool.ports[0], synchronous=True, seed=args.seed)
+        client.init(mission_xml(width=None, time_limit_ms=None))
+        client.reset()
+        texts = []
+        for i in range(200):
+            r = client.step(["move 1\njump 1", "turn 0.5", "move 1\nattack 1"][(i // 20) % 3])
+            if r.info:
+                texts.append(json.dumps(r.info))
+        client.close()
+    grid = next(k for k, v in json.loads(texts[0]).items() if isinstance(v, list) and len(v) > 1000)
+
+    def per_tick_ms(encode: Any) -> float:
+        t = time.thread_time()
+        for text in texts:
+            encode(json.loads(text), k=8, grid=grid)
+        return 1000 * (time.thread_time() - t) / len(texts)
+
+    rounds = [(per_tick_ms(encode_per_block), per_tick_ms(grid_encoding.encode)) for _ in range(5)]
+    before = min(r[0] for r in rounds)
+    after = min(r[1] for r in rounds)
+    decode = min(per_tick_ms(lambda info, **_: info) for _ in range(5))
+    print(f"\nobservation decoding + encoding, {len(texts)} real observations "
+          f"({len(texts[0]):,} B of JSON, {grid} grid), CPU ms per observation, "
+          "best of 5:")  # fmt: skip
+    print("| encoding | JSON decode + encode (ms) | encode alone (ms) |\n|---|---|---|")
+    print(f"| per-block (before) | {before:.3f} | {before - decode:.3f} |")
+    print(f"| block-id table (after) | {after:.3f} | {after - decode:.3f} |")
+    print(f"ratio after / before: {after / before:.2f} (encode alone "
+          f"{(after - decode) / (before - decode):.2f}); load {os.getloadavg()}")  # fmt: skip
+
+
+# ------------------------------------------------------------------ clients sweep
+BENCH_DIR = os.path.dirname(os.path.abspath(__file__))
+
+
+def _proc_cpu_s(pid: int) -> float:
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def clients_run(
+    args: argparse.Namespace, td3: TD3Config, *, clients: int, per_actor: int, baseline: bool
+) -> dict[str, float]:
+    """`clients` real-time clients at 50 ms ticks, `per_actor` of them in each env actor
+    (stepped at once, the vectorised encoding) or, as `baseline`, one per actor with the
+    per-block encoding; a TD3 learner trains at full speed beside them."""
+    obs_space = observation_space(parse_mission(bench_mission(args.seed)))
+    low, high = ACTION_SPACE.low, ACTION_SPACE.high
+    network = make_actor_network(obs_space.shape[0], ACTION_SPACE.shape[0], low, high, td3)
+    behaviour = GaussianBehaviour(network, std=td3.exploration_noise, low=low, high=high)
+    table = {
+        "name": TABLE, "max_size": 50_000,
+        "signature": replay_signature(obs_space, behaviour.columns()),
+        "rate_limiter": {"kind": "min_size", "min_size": td3.batch_size},
+    }  # fmt: skip
+    segment = Segment(TABLE, steps=10**9, pending_inserts=PENDING_INSERTS)
+    groups = actors_for(clients, 1 if baseline else per_actor)
+    with ServerPool(clients, base_port=0, seed=args.seed, ms_per_tick=MS_PER_TICK) as pool:
+        with ReplayProcess([table]) as server:
+            replay = ReplayClient(server.address)
+            broadcaster = WeightBroadcaster.remote()
+            learner = FullSpeedLearner.remote(
+                replay, broadcaster, obs_dim=obs_space.shape[0], td3=td3, seed=args.seed,
+                threads=args.learner_threads, nice=args.learner_nice,
+            )  # fmt: skip
+            actors = []
+            for group in groups:
+                kwargs = {
+                    "addresses": [f"127.0.0.1:{pool.ports[c]}" for c in group],
+                    "mission_xml": bench_mission(args.seed), "world_seed": args.seed + group[0],
+                    "max_episode_steps": args.episode_steps, "per_block_encoding": baseline,
+                }  # fmt: skip
+                actors.append(
+                    EnvActor.options(num_cpus=0.01).remote(
+                        env=EnvSpec("pooled_clients:pooled_mission", kwargs, None, (BENCH_DIR,)),
+                        num_envs=len(group),
+                        seed=args.seed + group[0],
+                        replay=replay,
+                        weights=WeightSubscriber(broadcaster),
+                        behaviour=behaviour,
+                        steps_per_insert=max(1, INSERT_EVERY // len(group)),
+                        nice=0,
+                        concurrent_steps=not baseline,
+                    )  # fmt: skip
+                )
+            ray.get([a.report.remote() for a in actors])  # constructed, connected
+            training = learner.run.remote()
+            runs = [a.run.remote([segment]) for a in actors]
+            time.sleep(args.warmup)
+            ray.get([learner.mark.remote(), *(a.restart_meters.remote() for a in actors)])
+            before = ray.get([a.report.remote() for a in actors])
+            worlds0 = sum(_proc_cpu_s(p.pid) for p in pool.procs)
+            time.sleep(args.measure)
+            after = ray.get([a.report.remote() for a in actors])
+            worlds = sum(_proc_cpu_s(p.pid) for p in pool.procs) - worlds0
+            ray.get(broadcaster.stop.remote())
+            ray.get(runs)
+            ray.get(learner.stop.remote())
+            trained = ray.get(training)
+            ray.get([a.close.remote() for a in actors])
+            for handle in [*actors, learner, broadcaster]:
+                ray.kill(handle)
+            replay.close()
+    row = _summary(after, trained["updates_per_s"])
+    actor_cpu = sum(a["perf/process_cpu_s"] - b["perf/process_cpu_s"]
+                    for b, a in zip(before, after, strict=True))  # fmt: skip
+    seen = sum(r["perf/ticks_seen"] for r in after)
+    ticks = seen + sum(r["perf/ticks_skipped"] for r in after)
+    row.update(
+        ticks_per_s=ticks / after[0]["perf/measure_s"] / clients,  # per client, not per actor
+        clients=clients, actors=len(actors),
+        actor_cpu_per_client=actor_cpu / args.measure / clients,
+        actor_ms_per_tick=1000 * actor_cpu / max(seen, 1),
+        world_cpu_per_client=worlds / args.measure / clients,
+    )  # fmt: skip
+    return row
+
+
+CLIENTS_HEADER = (
+    "| clients | actors | ticks skipped | world ticks/s per client | actor CPU per client "
+    "(cores) | actor CPU per tick (ms) | world server CPU per client (cores) | own step "
+    "latency p99 (ms) | TD3 updates/s |\n|---|---|---|---|---|---|---|---|---|"
+)
+
+
+def _clients_line(r: dict[str, float]) -> str:
+    return (
+        f"| {r['clients']:.0f} | {r['actors']:.0f} | {100 * r['skipped']:.2f}% | "
+        f"{r['ticks_per_s']:.1f} | {r['actor_cpu_per_client']:.3f} | "
+        f"{r['actor_ms_per_tick']:.2f} | {r['world_cpu_per_client']:.3f} | {r['p99']:.1f} | "
+        f"{r['updates_per_s']:.1f} |"
+    )
+
+
+def clients_sweep(args: argparse.Namespace) -> None:
+    """Part 3: actor CPU per tick before vs after (same run), then the clients sweep."""
+    import csv
+
+    from tqdm import tqdm
+
+    td3 = TD3Config()
+    print(f"load before: {os.getloadavg()}")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    n0 = args.compare_clients
+    compare = {
+        f"before: {n0} actors x 1 client, per-block encoding, one step at a time": clients_run(
+            args, td3, clients=n0, per_actor=1, baseline=True
+        ),
+        f"after: clients stepped at once, {args.per_actor} per actor, block-id table": (
+            clients_run(args, td3, clients=n0, per_actor=args.per_actor, baseline=False)
+        ),
+    }
+    print(f"\n{n0} real-time clients at {MS_PER_TICK} ms ticks, learner at full speed:")
+    print(
+        CLIENTS_HEADER.replace("| clients |", "| setup | clients |", 1).replace(
+            "|---|", "|---|---|", 1
+        )
+    )
+    for name, r in compare.items():
+        print(f"| {name} " + _clients_line(r))
+    before, after = compare.values()
+    print(f"actor CPU per tick: {before['actor_ms_per_tick']:.2f} ms before, "
+          f"{after['actor_ms_per_tick']:.2f} ms after "
+          f"(ratio {after['actor_ms_per_tick'] / before['actor_ms_per_tick']:.2f})")  # fmt: skip
+    rows = []
+    for n in tqdm(args.clients, unit="point", desc="clients sweep"):
+        rows.append(clients_run(args, td3, clients=n, per_actor=args.per_actor, baseline=False))
+        print(f"load after {n} clients: {os.getloadavg()}")
+    ray.shutdown()
+    print(f"\nclients sweep, {args.per_actor} clients per actor, {MS_PER_TICK} ms ticks, "
+          f"{args.measure:.0f} s measured after {args.warmup:.0f} s:")  # fmt: skip
+    print(CLIENTS_HEADER)
+    for r in rows:
+        print(_clients_line(r))
+    out = os.path.join(args.out, "minecraft-clients")
+    os.makedirs(args.out, exist_ok=True)
+    with open(out + ".csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    plot_clients(rows, out + ".png")
+    print(f"results: {out}.csv\nfigure: {out}.png")
+
+
+def plot_clients(rows: list[dict[str, float]], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = [r["clients"] for r in rows]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    axes[0].plot(n, [100 * r["skipped"] for r in rows], "o-")
+    axes[0].axhline(1.0, color="k", linestyle="--", linewidth=0.8)
+    axes[0].set_ylabel("ticks skipped (%)")
+    axes[1].plot(n, [r["actor_cpu_per_client"] for r in rows], "o-", label="actor")
+    axes[1].plot(n, [r["world_cpu_per_client"] for r in rows], "s-", label="world server")
+    axes[1].set_ylabel("CPU per client (cores)")
+    axes[1].legend()
+    axes[2].plot(n, [r["updates_per_s"] for r in rows], "o-")
+    axes[2].set_ylabel("learner TD3 updates/s")
+    for ax in axes:
+        ax.set_xlabel("real-time clients (50 ms ticks)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def main() -> None:
     """Print the tables."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--part", choices=("all", "ticks", "decoupling"), default="all")
+    ap.add_argument(
+        "--part", choices=("all", "ticks", "decoupling", "encoding", "clients"), default="all"
+    )
+    ap.add_argument("--clients", type=int, nargs="+", default=[8, 16, 24, 32, 48])
+    ap.add_argument("--per-actor", type=int, default=8, help="clients per env actor (sweep)")
+    ap.add_argument("--compare-clients", type=int, default=8, help="clients, before vs after")
+    ap.add_argument("--out", default="runs/bench-minecraft")
     ap.add_argument("--ticks", type=int, default=3000, help="ticks without rendering")
     ap.add_argument("--render-ticks", type=int, default=300, help="ticks with rendering")
     ap.add_argument("--size", type=int, default=64, help="frame width = height")
@@ -359,6 +593,10 @@ def main() -> None:
         ticks_table(args)
     if args.part in ("all", "decoupling"):
         decoupling_table(args)
+    if args.part in ("all", "encoding"):
+        encoding_cost(args)
+    if args.part in ("all", "clients"):
+        clients_sweep(args)
 
 
 if __name__ == "__main__":

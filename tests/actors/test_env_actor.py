@@ -170,3 +170,17 @@ def test_a_slow_actor_meters_the_ticks_it_skipped(world) -> None:
     assert m["perf/ticks_skipped"] >= 15
     assert m["perf/ticks_skipped_fraction"] > 0.5
     stepper.close()
+
+
+def test_concurrent_steps_give_the_same_transitions_as_one_after_another() -> None:
+    spec = EnvSpec("Pendulum-v1", {"max_episode_steps": 5})
+    actions = np.random.default_rng(0).uniform(-2, 2, size=(12, 3, 1)).astype(np.float32)
+    records = []
+    for concurrent in (False, True):
+        stepper = VectorStepper(spec, 3, seed=7, concurrent=concurrent)
+        records.append([stepper.step(a) for a in actions])
+        stepper.close()
+    for one, other in zip(*records, strict=True):
+        for key in one:
+            np.testing.assert_array_equal(one[key], other[key])
+    assert any(r["truncated"].any() for r in records[1])  # episodes ended and reset

@@ -24,7 +24,7 @@ This module is the single source of the encoding: the mission environment's
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -39,7 +39,22 @@ ITEM_FIELDS = 4
 POSITION_SCALE = 64.0
 ITEM_SCALE = 16.0  # the mission's entity range
 
-_FULL: dict[str, float] = {name: float(B.SOLID[i]) for i, name in enumerate(B.NAMES)}
+
+class _BlockIds(dict[str, int]):
+    """Block name -> id: the simulator's ids (``blocks.ID``) for the names it knows, and
+    one more for any other name (``UNKNOWN_FULL``): a real Minecraft's blocks the
+    simulator lacks count as full."""
+
+    def __missing__(self, name: str) -> int:
+        return UNKNOWN_FULL
+
+
+BLOCK_IDS = _BlockIds(B.ID)
+"""Block name -> id, the table the grid's names are looked up in."""
+UNKNOWN_FULL = len(B.NAMES)
+"""The id of a block name the table does not know (a full block)."""
+FULL_BY_ID = np.append(B.SOLID.astype(np.float32), np.float32(1.0))
+"""Block id -> occupancy (1 = full): the solid blocks, and unknown names."""
 
 
 def size(k: int, cube_cells: int = CUBE_CELLS) -> int:
@@ -56,6 +71,12 @@ def cube_offset(dx: int, dy: int, dz: int) -> int:
 def items_offset(cube_cells: int = CUBE_CELLS) -> int:
     """Index of the first item field."""
     return len(STATS) + cube_cells
+
+
+def block_ids(names: Sequence[str]) -> np.ndarray:
+    """The grid's block names as ids (int16), looked up in C: ``map`` over the table's
+    ``__getitem__`` runs no Python bytecode per block (unknown names: ``UNKNOWN_FULL``)."""
+    return np.fromiter(map(BLOCK_IDS.__getitem__, names), dtype=np.int16, count=len(names))
 
 
 def encode(
@@ -87,9 +108,7 @@ def encode(
         ],
         dtype=np.float32,
     )
-    cube = np.fromiter(
-        (_FULL.get(n, 0.0 if n == "air" else 1.0) for n in info[grid]), dtype=np.float32
-    )
+    cube = FULL_BY_ID[block_ids(info[grid])]
     items = np.zeros((k, ITEM_FIELDS), dtype=np.float32)
     found = [
         (e["x"] - x, e["y"] - y, e["z"] - z)

@@ -72,3 +72,27 @@ def test_encodes_a_real_server_observation(sync_client) -> None:
     assert v[grid_encoding.cube_offset(0, 0, 0)] == 0.0  # the agent's own block
     assert v[grid_encoding.cube_offset(0, 1, 0)] == 0.0
     assert v[1] == GROUND / 64
+
+
+def test_block_ids_follow_the_block_table_and_unknown_names_are_full() -> None:
+    from actors.minecraft import blocks as B
+
+    names = ["air", "stone", "water", "no_such_block", "torch", "dirt"]
+    ids = grid_encoding.block_ids(names)
+    assert ids.dtype == np.int16
+    assert ids.tolist() == [B.ID["air"], B.ID["stone"], B.ID["water"],
+                            grid_encoding.UNKNOWN_FULL, B.ID["torch"], B.ID["dirt"]]  # fmt: skip
+    occupancy = grid_encoding.FULL_BY_ID[ids]
+    assert occupancy.tolist() == [0.0, 1.0, 0.0, 1.0, 0.0, 1.0]  # liquids, torches: empty
+
+
+def test_cube_matches_a_per_block_lookup_on_every_known_name() -> None:
+    from actors.minecraft import blocks as B
+
+    rng = np.random.default_rng(0)
+    names = [*B.NAMES, "unknown_a"]
+    grid = [names[i] for i in rng.integers(len(names), size=grid_encoding.CUBE_CELLS)]
+    info = {"XPos": 0, "YPos": 0, "ZPos": 0, "Yaw": 0, "Pitch": 0, "cube": grid}
+    cube = grid_encoding.encode(info, k=0)[len(grid_encoding.STATS) :]
+    expected = [float(B.SOLID[B.ID[n]]) if n in B.ID else 1.0 for n in grid]
+    assert cube.tolist() == expected

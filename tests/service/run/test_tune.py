@@ -1,0 +1,134 @@
+"""`graft tune`: the bottleneck rule, the grid, and the bottleneck named in three
+constructed cases run through the real pipeline (replay server, Ray actors, broadcast)."""
+
+from __future__ import annotations
+
+import pytest
+
+from service.run.tune import Costs, bottleneck, parse_grid, plan, run_point
+from service.run.tune_report import preset_lines
+from service.run.validation import ConfigError
+
+
+@pytest.mark.parametrize(
+    ("learner_wait", "publish", "actor_hold", "skipped", "expected"),
+    [
+        (0.02, 0.01, 0.60, None, "learner"),  # actors held, learner never waits
+        (0.90, 0.01, 0.03, None, "actors"),  # learner starves, actors never held
+        (0.90, 0.01, 0.70, None, "replay"),  # both held: the table is the constraint
+        (0.05, 0.01, 0.05, None, "none"),  # both busy
+        (0.02, 0.40, 0.60, None, "broadcast"),  # the learner mostly publishes
+        (0.02, 0.01, 0.60, 0.05, "actors"),  # real-time actors miss ticks first
+        (0.02, 0.01, 0.60, 0.005, "learner"),  # a few skipped ticks are tolerated
+    ],
+)
+def test_bottleneck_rule(learner_wait, publish, actor_hold, skipped, expected):
+    got = bottleneck(
+        learner_wait=learner_wait, publish=publish, actor_hold=actor_hold, skipped=skipped
+    )
+    assert got == expected
+
+
+def test_grid_is_the_product_of_the_knobs():
+    grid = parse_grid(["actors=1,2", "batch_size=64,128", "step_cost_ms=0.5"])
+    points = plan("pendulum-td3", grid, overrides={}, costs=Costs(), address="local")
+    assert [(p.config.num_actors, p.config.td3.batch_size) for p in points] == [
+        (1, 64), (1, 128), (2, 64), (2, 128)
+    ]  # fmt: skip
+    assert {p.costs.step_cost_ms for p in points} == {0.5}
+    assert points[0].config.learning_starts == 2 * 64  # sampling starts at two batches
+
+
+@pytest.mark.parametrize(
+    ("grid", "message"),
+    [
+        (["actors"], "expected name=v1,v2"),
+        (["actors=1", "actors=2"], "given twice"),
+        (["batchsize=64"], "batchsize"),
+        (["actors=0"], "num_actors=0 must be >= 1"),
+        (["learner=fast"], "learner='fast' is unknown"),
+        (["actors=4", "actor_cpus=1"], "need 4 CPUs"),
+    ],
+)
+def test_bad_grid_is_one_line_before_anything_starts(grid, message):
+    with pytest.raises(ConfigError, match=message):
+        plan("pendulum-td3", parse_grid(grid), overrides={}, costs=Costs(), address="local")
+
+
+def test_preset_lines_nest_section_fields_and_convert_samples_per_insert():
+    best = {"actors": 2, "batch_size": 128, "samples_per_insert": 64, "step_cost_ms": 1.0}
+    lines = preset_lines(best, list(best), "td3")
+    assert lines == [
+        "num_actors: 2",
+        "updates_per_env_step: 0.5",
+        "td3:",
+        "  batch_size: 128",
+        "# step_cost_ms: 1.0 (a property of the simulated parts)",
+    ]
+
+
+SMALL = {"td3.hidden_sizes": [16, 16], "num_actors": 1}
+
+
+def _point(costs: Costs, **overrides):
+    (point,) = plan(
+        "pendulum-td3", {}, overrides={**SMALL, **overrides}, costs=costs, address="local"
+    )
+    return point
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("case", "overrides", "costs", "expected"),
+    [
+        # 100 ms of CPU per update: the rate limiter holds the actors for the learner. (A
+        # slack of 32 env steps, one insert: with the preset's 200, actors slowed by a
+        # loaded machine may not have run that far ahead by the end of the window.)
+        (
+            "slow learner",
+            {"slack_env_steps": 32},
+            Costs(learner="cost", learner_cost_ms=100.0),
+            "learner",
+        ),
+        # One environment taking 20 ms a step: a learner that only draws batches starves.
+        # (Rare publishes: on a loaded machine each may take a large share of this learner's
+        # little time, which the rule would rightly call a broadcast bottleneck.)
+        (
+            "slow actor",
+            {"envs_per_actor": 1, "publish_every": 1000},
+            Costs(learner="drain", step_latency_ms=20.0),
+            "actors",
+        ),
+        # 2,048 samples per inserted item: the limiter holds inserts while the learner,
+        # which does no work, waits on sampling.
+        (
+            "rate limiter",
+            {"publish_every": 1000},
+            Costs(learner="drain", samples_per_insert=2048.0),
+            "replay",
+        ),
+    ],
+)
+def test_tune_names_the_bottleneck(ray_local, case, overrides, costs, expected):
+    row = run_point(_point(costs, **overrides), warmup_s=2.0, measure_s=4.0, address="local")
+    detail = {k: row[k] for k in ("learner_wait", "actor_insert_wait", "publish_fraction")}
+    assert row["bottleneck"] == expected, f"{case}: {row['bottleneck']} from {detail}"
+    assert row["learner_updates_per_s"] > 0  # the pipeline ran (a held actor may insert nothing)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--grid", "batchsize=64"], "graft tune: unknown field batchsize"),
+        (["--measure", "0"], "graft tune: --measure=0.0 must be > 0 seconds"),
+        (["--step-cost-ms", "-1"], "graft tune: step_cost_ms=-1.0 must be >= 0"),
+    ],
+)
+def test_graft_tune_refuses_bad_input_in_one_line(argv, message, capsys):
+    from service.run.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["tune", "--address", "local", *argv])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(message) and "\n" not in err
