@@ -292,3 +292,8 @@ class BroadcastPublisher:
     def stop(self) -> None:
         """Tells every subscriber to finish: pending and future polls answer 'stopped'."""
         ray.get(self._broadcaster.stop.remote())
+
+    def close(self) -> None:
+        """Ends the broadcaster actor (and the relays it owns) now, not when Ray collects
+        its last handle: a run that ends must give its CPU share back at once."""
+        ray.kill(self._broadcaster)

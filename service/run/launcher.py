@@ -315,6 +315,8 @@ def train(
     actors: Optional[ActorFleet] = None
     replay: Optional[SupervisedReplay] = None
     supervisor: Optional[Supervisor] = None
+    publisher: Optional[BroadcastPublisher] = None
+    evaluator: Optional[RemoteEvaluator] = None
     interrupted, release_sigint = False, _no_op
     restore_torch = deterministic(config.seed) if config.reproducible else _no_op
     try:
@@ -479,6 +481,10 @@ def train(
             supervisor.stop()
         if actors is not None:
             actors.kill()
+        if evaluator is not None:
+            evaluator.close()
+        if publisher is not None:
+            publisher.close()
         if replay is not None:
             replay.stop()
         if started_ray:

@@ -441,10 +441,7 @@ def run_point(
         finally:
             for actor in actors:
                 ray.kill(actor)
-            # The publisher has no close(): its broadcaster actor would outlive the point.
-            broadcaster = getattr(publisher, "_broadcaster", None)
-            if broadcaster is not None:
-                ray.kill(broadcaster)
+            publisher.close()
             client.close()
     row: dict[str, Any] = measure(before, after, learner.version)
     row["bottleneck"] = bottleneck(
