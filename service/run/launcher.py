@@ -15,6 +15,7 @@ instead (service/run/lockstep.py).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -24,7 +25,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -177,14 +178,31 @@ def connect_ray(address: str) -> bool:
     cluster ('auto', host:port, ray://host:port); True if we started it."""
     if ray.is_initialized():
         return False
-    if address == "local":
-        ray.init(
-            address="local", include_dashboard=False, log_to_driver=False, configure_logging=False
-        )
-        return True
-    _use_token_auth(address)
-    ray.init(address=address, log_to_driver=False)
-    return False
+    with _keeping_sigterm():
+        if address == "local":
+            ray.init(
+                address="local",
+                include_dashboard=False,
+                log_to_driver=False,
+                configure_logging=False,
+            )
+            return True
+        _use_token_auth(address)
+        ray.init(address=address, log_to_driver=False)
+        return False
+
+
+@contextlib.contextmanager
+def _keeping_sigterm() -> Iterator[None]:
+    """Ray's driver installs its own SIGTERM handler (it logs a stack and exits); put
+    back the one `graft train` set, so SIGTERM still stops a run as Ctrl-C does."""
+    on_main = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGTERM) if on_main else None
+    try:
+        yield
+    finally:
+        if callable(previous) or previous == signal.SIG_IGN:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def _use_token_auth(address: str) -> None:

@@ -67,7 +67,7 @@ def test_a_killed_replay_server_restarts_on_its_port_with_its_data(tmp_path) -> 
         replay.stop()
 
 
-@ray.remote(num_cpus=0)
+@ray.remote(num_cpus=0, max_concurrency=2)  # as env actors: `report` answers during `run`
 class ShareRecorder:
     """Stands in for an env actor: `run` records its share and holds until released, or
     returns at once when it is the replacement; `report` says what it stored."""

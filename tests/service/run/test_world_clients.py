@@ -5,10 +5,10 @@ client is refused in one line before Ray starts."""
 from __future__ import annotations
 
 import pytest
-import ray
 
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.sim.pool import ServerPool
+from service.run import launcher
 from service.run.cli import main
 from service.run.clients import actor_env, evaluator_env, world_clients
 from service.run.config import load_preset
@@ -26,10 +26,14 @@ def _no_ray_address(monkeypatch, tmp_path) -> None:
 
 def _refused(argv: list[str], capsys) -> str:
     """The one line `graft argv` printed when it refused, having started no Ray."""
-    with pytest.raises(SystemExit) as exit:
+
+    def no_ray(address: str) -> bool:
+        raise AssertionError(f"Ray was started ({address}) before the refusal")
+
+    with pytest.MonkeyPatch.context() as patch, pytest.raises(SystemExit) as exit:
+        patch.setattr(launcher, "connect_ray", no_ray)
         main(argv)
     assert exit.value.code == 2
-    assert not ray.is_initialized()
     err = capsys.readouterr().err
     assert err.endswith("\n") and err.count("\n") == 1, err  # one line, no traceback
     return err.rstrip("\n")

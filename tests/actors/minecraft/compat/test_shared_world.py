@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.sim.server import WorldServer
+from actors.minecraft.sim.timing import IDEAL
 
 SHARED = (Path(__file__).with_name("missions") / "two_agents_shared.xml").read_text()
 
@@ -38,9 +41,24 @@ def _same_world(servers: list[WorldServer]) -> None:
     assert worlds[1].blocks is worlds[0].blocks  # ... on the same blocks
 
 
+@pytest.fixture
+def two_ideal_servers() -> Iterator[list[WorldServer]]:
+    """Two world servers with graft's ideal pacing: every step's reply carries the
+    observation after its command. Real pacing may answer a step with empty info, and a
+    turn-based agent cannot then ask again until the other agent's turn has run (the
+    malmoenv test below plays the shared world in real pacing)."""
+    servers = [WorldServer(port=0, seed=9, timing=IDEAL) for _ in range(2)]
+    for s in servers:
+        s.start()
+    yield servers
+    for s in servers:
+        s.stop()
+
+
 def test_two_graft_clients_build_and_break_in_one_world(
-    two_servers: list[WorldServer], run_together: Callable[..., None]
+    two_ideal_servers: list[WorldServer], run_together: Callable[..., None]
 ) -> None:
+    two_servers = two_ideal_servers
     head = ("127.0.0.1", two_servers[0].port)
     builder, breaker = (
         MalmoClient("127.0.0.1", s.port, role=k, exp_uid="shared", head=head, timeout=10)
