@@ -9,14 +9,13 @@ does not implement instead of ignoring them.
 
 from __future__ import annotations
 
-import math
 import xml.etree.ElementTree as ET
 import zlib
 from dataclasses import dataclass, field
 from typing import Optional
 
 from actors.minecraft.malmo import schema
-from actors.minecraft.malmo.mission_rules import Rules, parse_rules
+from actors.minecraft.malmo.mission_rules import Rules, finite_attr, parse_rules
 
 # Handler element -> the verbs it implements (lower case, as Malmo compares them).
 HANDLER_VERBS: dict[str, frozenset[str]] = {
@@ -208,17 +207,14 @@ def _children(e: Optional[ET.Element], name: str) -> list[ET.Element]:
 
 
 def _num(e: ET.Element, attr: str, default: Optional[float] = None) -> float:
-    raw = e.get(attr)
-    if raw is None:
+    try:
+        v = finite_attr(e, attr)
+    except ValueError as error:
+        raise MissionError(str(error)) from None
+    if v is None:
         if default is None:
             raise MissionError(f"<{_tag(e)}> needs attribute {attr!r}")
         return default
-    try:
-        v = float(raw)
-    except ValueError:
-        v = math.nan
-    if not math.isfinite(v):
-        raise MissionError(f"<{_tag(e)}> {attr}={raw!r} is not a finite number")
     return v
 
 

@@ -145,10 +145,15 @@ def _tag(e: ET.Element) -> str:
     return e.tag.rsplit("}", 1)[-1]
 
 
-def _f(e: ET.Element, attr: str, default: float = 0.0) -> float:
+def finite_attr(e: ET.Element, attr: str) -> Optional[float]:
+    """The attribute as a finite float, None when absent.
+
+    Raises:
+        ValueError: it is not a finite number (naming the element and attribute).
+    """
     raw = e.get(attr)
     if raw is None:
-        return default
+        return None
     try:
         v = float(raw)
     except ValueError:
@@ -156,6 +161,11 @@ def _f(e: ET.Element, attr: str, default: float = 0.0) -> float:
     if not math.isfinite(v):
         raise ValueError(f"<{_tag(e)}> {attr}={raw!r} is not a finite number")
     return v
+
+
+def _f(e: ET.Element, attr: str, default: float = 0.0) -> float:
+    v = finite_attr(e, attr)
+    return default if v is None else v
 
 
 def _types(e: ET.Element) -> frozenset[str]:
