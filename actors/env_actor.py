@@ -349,7 +349,7 @@ class EnvActor:
             "net/reconnects": self.stepper.reconnects,
             "replay/inserted": self.writer.inserted,
             "replay/insert_wait_s": self.writer.waited_s(),
-            "replay/insert_call_s": self.writer.insert_s,
+            "replay/insert_call_s": self.writer.insert_call_s(),
             "replay/insert_calls": self.writer.insert_calls,
             "replay/fastest_insert_s": self.writer.fastest_insert_s,
             "perf/process_cpu_s": time.process_time(),

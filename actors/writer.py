@@ -43,7 +43,7 @@ class BackgroundWriter:
         self.inserted = 0
         """Items the server acknowledged."""
         self.insert_s = 0.0
-        """Time the sender spent in insert calls (including rate-limiter holds)."""
+        """Time the sender spent in acknowledged insert calls (including rate-limiter holds)."""
         self.insert_calls = 0
         """Insert calls the server acknowledged."""
         self.fastest_insert_s = float("inf")
@@ -55,6 +55,7 @@ class BackgroundWriter:
         self._in_flight = 0
         self._error: Optional[BaseException] = None
         self._waiting_since: Optional[float] = None
+        self._calling_since: Optional[float] = None
         self._closing = False
         self._cond = threading.Condition()
         self._thread = threading.Thread(target=self._send_loop, name="replay-writer", daemon=True)
@@ -65,6 +66,12 @@ class BackgroundWriter:
         longer than a measurement window)."""
         since = self._waiting_since
         return self.wait_s + (time.perf_counter() - since if since is not None else 0.0)
+
+    def insert_call_s(self) -> float:
+        """`insert_s` including a call still in progress, for the same reason."""
+        with self._cond:
+            since, done = self._calling_since, self.insert_s
+        return done + (time.perf_counter() - since if since is not None else 0.0)
 
     def pending(self) -> int:
         """Batches given to ``insert`` and not yet acknowledged."""
@@ -144,19 +151,21 @@ class BackgroundWriter:
                     return
                 table, batch = self._queue.popleft()
                 self._in_flight = 1
-            t = time.perf_counter()
+                t = self._calling_since = time.perf_counter()
             try:
                 stored = self.replay.insert(table, batch)
             except Exception as e:  # handed to the acting thread, raised there
                 with self._cond:
                     self._error = e
                     self._in_flight = 0
+                    self._calling_since = None
                     self._queue.clear()
                     self._cond.notify_all()
                 return
             took = time.perf_counter() - t
             with self._cond:
                 self.insert_s += took
+                self._calling_since = None
                 self.insert_calls += 1
                 self.fastest_insert_s = min(self.fastest_insert_s, took)
                 self.inserted += stored

@@ -66,6 +66,8 @@ def test_a_rate_limiter_holding_inserts_holds_the_actor_back() -> None:
         assert writer.pending() == 2
         time.sleep(0.3)
         assert not returned.is_set()  # acting waits: nothing is dropped to let it go on
+        # The held call counts while it is held, not only once it returns.
+        assert writer.insert_call_s() - writer.insert_s >= 0.3
         learner_side.sample("held", 4)  # the limiter admits the third batch ...
         assert returned.wait(30)  # ... so one batch waits again and acting goes on
         learner_side.sample("held", 4)  # ... and the fourth
