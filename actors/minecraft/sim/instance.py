@@ -73,7 +73,7 @@ class Instance:
         self.turn_key = self.last_turn_key = ""
         self.tokens: dict[str, int] = {}  # Malmo's initTokens: token -> integrated port
         self.token = ""  # this instance's mission token (dropped when the mission ends)
-        self._frame: tuple[tuple[int, int], bytes] = ((-1, -1), b"")
+        self._frame: tuple[int, bytes] = (-1, b"")  # (tick drawn, frame)
         self._info: tuple[int, str] = (-1, "")
         self.missions_started = 0
         self.failed = False  # the simulator raised on this mission: never draw or observe it
@@ -121,7 +121,7 @@ class Instance:
         self.commands = []
         self.frames_taken = self.info_taken = -1
         self.turn_key = self.last_turn_key = ""
-        self._frame, self._info = ((-1, -1), b""), (-1, "")
+        self._frame, self._info = (-1, b""), (-1, "")
         self.failed = False
         self.generation += 1
         self.missions_started += 1
@@ -273,12 +273,13 @@ class Instance:
         """A frame no step has consumed yet exists."""
         return self.frame_index(time.monotonic()) > self.frames_taken
 
-    def frame_bytes(self, index: int) -> bytes:
-        """Frame ``index``, drawn now (b"" without a VideoProducer)."""
+    def frame_bytes(self) -> bytes:
+        """The newest frame (b"" without a VideoProducer). The world changes only at
+        ticks, so frames between two ticks are the same picture: drawn once per tick."""
         w = self.world
         if w is None or not self._video():
             return b""
-        key = (index, w.tick_count)
+        key = w.tick_count
         if self._frame[0] != key and not self.failed:
             m = w.mission
             with w.lock:
@@ -344,7 +345,7 @@ class Instance:
         done = self.done
         have = self.frame_ready()
         index = self.frame_index(time.monotonic())
-        frame = self.frame_bytes(index) if have else b""
+        frame = self.frame_bytes() if have else b""
         sent, next_key = False, self.turn_key
         if not done and have:
             if not self.turn_key:
@@ -372,7 +373,7 @@ class Instance:
                     info = self.take_info()
                     if have and self._later(index):
                         index = self.frame_index(time.monotonic())
-                        frame = self.frame_bytes(index)
+                        frame = self.frame_bytes()
             if have:
                 self.frames_taken = index
         return StepReply(frame, reward, done, sent, info, next_key)
@@ -399,7 +400,7 @@ class Instance:
         if w is not None:
             reward, w.pending_reward = w.pending_reward, 0.0
         info = self.take_info() if with_info and w is not None else ""
-        frame = self.frame_bytes(self.frame_index(time.monotonic()))
+        frame = self.frame_bytes()
         return StepReply(frame, reward, self.done, True, info, "")
 
     def peek(self) -> tuple[bytes, str, bool]:
@@ -416,6 +417,6 @@ class Instance:
         if not self.done and not self.frame_ready():
             self.wait(lambda: self.frame_ready() or self.done, t.wait_s)
         index = self.frame_index(time.monotonic())
-        frame = self.frame_bytes(index) if index > self.frames_taken else b""
+        frame = self.frame_bytes() if index > self.frames_taken else b""
         info = self._observation() if self.minerl and self.phase in (RUNNING, ENDED) else ""
         return frame, info, self.done
