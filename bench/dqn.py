@@ -75,7 +75,7 @@ def main() -> None:
     means = [r.mean for r in results]
     hits = sum(m >= THRESHOLD for m in means)
     print(f"\n{hits} of {len(results)} seeds ≥ {THRESHOLD:.0f}")
-    print(f"mean over seeds [95 % bootstrap CI]: {format_ci(means)}")
+    print(f"over seeds: {format_ci(means)}")
     png = args.out / "dqn.png"
     plot(results, png, f"{args.preset} ({setting}): {hits}/{len(results)} seeds ≥ 475")
     print(f"figure: {png}")

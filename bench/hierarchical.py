@@ -103,7 +103,7 @@ def main() -> None:
         )
     means = [r.mean for r in results]
     above = sum(m > tree for m in means)
-    print(f"\nhierarchical, mean over seeds [95 % bootstrap CI]: {format_ci(means)}")
+    print(f"\nhierarchical, over seeds: {format_ci(means)}")
     print(f"minus the tree ({tree:.1f}): {format_ci([m - tree for m in means])}")
     print(f"{above} of {len(results)} seeds end above the tree")
     print(f"same runs, m = 0: {format_ci(no_margin)}; RL option alone: {format_ci(rl_alone)}")

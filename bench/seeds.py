@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
+from service.run.stats import summarize
 
 GRAFT = [sys.executable, "-m", "service.run.cli"]
 
@@ -34,22 +34,9 @@ class SeedResult:
     wall_s: float
 
 
-def bootstrap_ci(
-    values: Sequence[float], *, level: float = 0.95, resamples: int = 10_000, seed: int = 0
-) -> tuple[float, float, float]:
-    """(mean, low, high): the mean over seeds and its percentile bootstrap interval."""
-    x = np.asarray(values, dtype=float)
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, len(x), size=(resamples, len(x)))].mean(axis=1)
-    tail = 100 * (1 - level) / 2
-    low, high = np.percentile(means, [tail, 100 - tail])
-    return float(x.mean()), float(low), float(high)
-
-
 def format_ci(values: Sequence[float]) -> str:
-    """'mean [low, high]' with the 95 % bootstrap interval over seeds."""
-    mean, low, high = bootstrap_ci(values)
-    return f"{mean:.1f} [{low:.1f}, {high:.1f}]"
+    """'mean M [low, high], IQM …, N seeds (95 % bootstrap CI)', as `service.run.stats` prints."""
+    return summarize(values).line()
 
 
 def run_seed(
