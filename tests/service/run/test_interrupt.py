@@ -89,9 +89,12 @@ def test_a_stop_signal_checkpoints_summarises_and_leaves_no_process(
         "--set", "eval_every=200", "--set", "eval_episodes=1",
         "--set", "td3.hidden_sizes=[16, 16]", "--set", "td3.batch_size=32",
     ]  # fmt: skip
+    # A shell's background job inherits SIGINT ignored, and a Python started that way never
+    # raises KeyboardInterrupt: the run gets Ctrl-C's default, as from a terminal.
     process = subprocess.Popen(
-        argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+        argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.default_int_handler),
+    )  # fmt: skip
     started: set[int] = set()
     try:
         metrics, deadline = run_dir / "metrics.csv", time.monotonic() + STARTUP_LIMIT_S
