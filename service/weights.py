@@ -40,10 +40,8 @@ if TYPE_CHECKING:  # torch is imported only where tensors are made: a subscriber
 
 FANOUT = 64
 """Subscribers one broadcaster or relay answers directly; more on a node get a relay each.
-On one node a relay is one more hop and process for the same cores: in two consecutive
-`bench/fleet.py --processes 8` runs on 2 cores, groups of 16 gave 64 actors a version in
-62 ms (51 ms from one broadcaster without relays), and groups of 64 brought 256 actors
-from 1,948 ms (16 relays) to 375 ms (4)."""
+On one node a relay is one more hop and process on the same cores, so groups are large
+(README, "Weight broadcast at fleet scale": groups of 16 were slower than none)."""
 MAX_WAITERS = 10_000
 """Long-polls one broadcaster or relay holds at once (Ray's default for async actors is
 1,000, past which a publish would queue behind long-polls). The fan-out keeps them near
