@@ -20,134 +20,22 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Optional, SupportsFloat
+from typing import Any, Optional
 
 import numpy as np
 import ray
 import torch
 
+from actors.stepper import VectorStepper
 from actors.task import EnvSpec
-from actors.tick_meter import TickMeter
 from actors.writer import BackgroundWriter
 from service.core import Behaviour, ReplayWriter, WeightSource
 
-RECONNECT_TIMEOUT_S = 60.0
-"""How long a lost environment's resets are retried before the actor gives up."""
-StepOutcome = tuple[Any, SupportsFloat, bool, bool, dict[str, Any]] | ConnectionError
-"""One environment's step: (obs, reward, terminated, truncated, info), or its world gone."""
-MAX_BACKOFF_S = 5.0
-"""The longest pause between two reset attempts (starting at 50 ms, doubling)."""
+__all__ = ["EnvActor", "Segment", "VectorStepper"]
+
 FLUSH_TIMEOUT_S = 60.0
 """How long the end of a run waits for queued inserts."""
-
-
-class VectorStepper:
-    """Steps `n` environments side by side; resets each one when its episode ends.
-
-    Unlike gymnasium's vector autoreset, `next_obs` is always the true successor of
-    `obs` (the final observation of an episode, never the first of the next one).
-
-    An environment whose world went away raises `ConnectionError` from `step` or
-    `reset`. The unfinished step has no successor, so it is no transition: `lost[i]`
-    marks its row (filled with `obs`, truncated), and the environment is reset, retried
-    with exponential backoff for up to `RECONNECT_TIMEOUT_S`.
-
-    `streams[i]` names environment i's replay stream: the table links a stream's steps
-    into episodes. A lost step ends no episode in the table, so the environment goes on
-    in a new stream: the steps before and after the loss are never linked.
-
-    `concurrent`: the environments' `step` calls run at once, one thread each, instead
-    of one after another. For environments that wait on their own worlds (real-time
-    Minecraft clients, each waiting for its world's next frame) a step of all `n` then
-    takes the longest wait, not the sum; acting stays one batched policy call for all
-    `n`. What still runs one at a time (the GIL: decoding each observation) grows with
-    `n`, so a step's latency does too: see docs/tuning.md for clients per actor.
-    """
-
-    def __init__(self, env: EnvSpec, n: int, seed: int, *, concurrent: bool = False) -> None:
-        self.envs = [env.make() for _ in range(n)]
-        self._pool = ThreadPoolExecutor(n, thread_name_prefix="env-step") if concurrent else None
-        self.meter = TickMeter(n)
-        self.lost = np.zeros(n, bool)
-        self.streams = np.arange(n, dtype=np.int64)
-        self.connection_losses = self.reconnects = 0
-        self._ready = np.zeros(n)  # when each environment's latest observation arrived
-        self.obs = np.stack([self._reset(i, seed=seed + i) for i in range(n)])
-        self.episode_returns = np.zeros(n)
-        self.finished_returns: list[float] = []
-
-    def _reset(self, i: int, seed: Optional[int] = None) -> np.ndarray:
-        delay, deadline = 0.05, time.monotonic() + RECONNECT_TIMEOUT_S
-        while True:
-            try:
-                obs, info = self.envs[i].reset(seed=seed)
-                break
-            except ConnectionError:
-                if time.monotonic() >= deadline:
-                    raise
-                time.sleep(delay)
-                delay = min(2 * delay, MAX_BACKOFF_S)
-        self.meter.begin(i, info.get("tick"))
-        self._ready[i] = time.perf_counter()
-        return obs
-
-    def _step_one(self, i: int, action: np.ndarray) -> tuple[float, StepOutcome]:
-        """Steps environment i: (the actor's own time before its action left, the step's
-        result or the ConnectionError of a world that went away)."""
-        own_s = time.perf_counter() - self._ready[i]  # from observation to action
-        try:
-            result = self.envs[i].step(action)
-        except ConnectionError as error:
-            return own_s, error
-        self._ready[i] = time.perf_counter()
-        return own_s, result
-
-    def step(self, actions: np.ndarray) -> dict[str, np.ndarray]:
-        obs = self.obs.copy()
-        next_obs = np.empty_like(obs)
-        rewards = np.empty(len(self.envs), np.float32)
-        terminated = np.empty(len(self.envs), bool)
-        truncated = np.empty(len(self.envs), bool)
-        self.lost[:] = False
-        indices = range(len(self.envs))
-        if self._pool is not None:
-            results = list(self._pool.map(self._step_one, indices, actions))
-        else:
-            results = [self._step_one(i, a) for i, a in zip(indices, actions, strict=True)]
-        for i, (own_s, result) in enumerate(results):
-            if isinstance(result, ConnectionError):
-                self.connection_losses += 1
-                self.lost[i], next_obs[i], rewards[i] = True, obs[i], 0.0
-                terminated[i], truncated[i] = False, True
-                self.episode_returns[i] = 0.0
-                self.streams[i] += len(self.envs)
-                self.obs[i] = self._reset(i)
-                self.reconnects += 1
-                continue
-            next_obs[i], rewards[i], terminated[i], truncated[i], info = result
-            self.meter.step(i, info.get("tick"), own_s)
-            self.episode_returns[i] += rewards[i]
-            if terminated[i] or truncated[i]:
-                self.finished_returns.append(float(self.episode_returns[i]))
-                self.episode_returns[i] = 0.0
-                self.obs[i] = self._reset(i)
-            else:
-                self.obs[i] = next_obs[i]
-        return {
-            "obs": obs.astype(np.float32),
-            "reward": rewards,
-            "terminated": terminated,
-            "truncated": truncated,
-            "next_obs": next_obs.astype(np.float32),
-        }
-
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown()
-        for env in self.envs:
-            env.close()
 
 
 @dataclass(frozen=True)
@@ -181,7 +69,8 @@ class EnvActor:
     15 (`RAY_worker_niceness`), below every ordinary process, so a real-time actor on a
     busy machine would be starved; 0 asks for an ordinary share. Lowering niceness needs
     CAP_SYS_NICE or RLIMIT_NICE; without them the actor keeps its niceness and reports it
-    (`actor/nice`). `concurrent_steps`: step the environments at once (`VectorStepper`).
+    (`actor/nice`). `async_envs`: each environment steps at its own pace
+    (`VectorStepper`'s asynchronous mode, for real-time clients).
     """
 
     def __init__(
@@ -195,10 +84,10 @@ class EnvActor:
         behaviour: Behaviour,
         steps_per_insert: int,
         nice: Optional[int] = None,
-        concurrent_steps: bool = False,
+        async_envs: bool = False,
     ) -> None:
         torch.set_num_threads(1)
-        self.stepper = VectorStepper(env, num_envs, seed, concurrent=concurrent_steps)
+        self.stepper = VectorStepper(env, num_envs, seed, asynchronous=async_envs)
         self.rng = np.random.default_rng(seed)
         self.writer = BackgroundWriter(replay)
         self.weights = weights
@@ -241,9 +130,9 @@ class EnvActor:
         for segment in segments:
             done = 0
             while done < segment.steps and not self.weights.stopped:
-                buffer, steps = self._collect(segment, done)
+                buffer, steps, whole = self._collect(segment, done)
                 done += steps
-                if len(buffer) < self.steps_per_insert and done < segment.steps:
+                if not whole:
                     break  # stopped mid-batch: see below
                 self._insert(segment, buffer, max_pending=segment.pending_inserts)
         # A stopped run drops its unfinished batch: the learner no longer samples, and a
@@ -265,52 +154,69 @@ class EnvActor:
             return 0
         while self.weights.version < version and not self.weights.stopped:
             self._adopt_new_weights(block_s=5.0)
-        buffer, steps = self._collect(segment, done)
+        buffer, steps, _ = self._collect(segment, done)
         if not buffer:  # the learner said stop
             return 0
         self._advanced[segment.table] = done + steps
         self._insert(segment, buffer, max_pending=0)
         return steps
 
-    def _collect(self, segment: Segment, done: int) -> tuple[list[dict[str, np.ndarray]], int]:
-        """Acts up to one insert batch (`steps_per_insert` vector steps) of `segment`, from
-        its step `done`; fewer when the segment ends or the learner says stop. Returns the
-        per-step records and the env steps they hold."""
-        n = len(self.stepper.envs)
+    def _collect(
+        self, segment: Segment, done: int
+    ) -> tuple[list[dict[str, np.ndarray]], int, bool]:
+        """Acts up to one insert batch (`steps_per_insert` steps of every environment) of
+        `segment`, from its step `done`; fewer when the segment ends or the learner says
+        stop. Returns the per-step records, the env steps they hold, and whether the
+        batch is whole (False: the learner said stop first)."""
+        stepper = self.stepper
+        wanted = self.steps_per_insert * len(stepper.envs)
         buffer: list[dict[str, np.ndarray]] = []
         steps = 0
-        while (
-            len(buffer) < self.steps_per_insert
-            and done + steps < segment.steps
-            and not self.weights.stopped
-        ):
+        while steps < wanted and not self.weights.stopped:
+            room = done + steps + stepper.in_flight < segment.steps
+            envs = stepper.idle if room else np.zeros(0, np.int64)
+            if len(envs) == 0 and stepper.in_flight == 0:
+                break  # the segment is done
             warmup = done + steps < segment.warmup_steps
             if not warmup:
                 self._wait_for_first_weights()
             self._adopt_new_weights()
-            env_action, record = self.behaviour.act(self.stepper.obs, self.rng, warmup=warmup)
-            record.update(self.stepper.step(env_action))
+            env_action, record = self._act(envs, warmup)
+            record = stepper.step(env_action, envs, carry=record)
+            stepped, lost = stepper.stepped, stepper.lost
             # Columns computed on s' (e.g. the backbone's μ(s')); most add none.
-            record.update(self.behaviour.next_columns(record["next_obs"]))
-            lost = self.stepper.lost
-            self.behaviour.end_episodes(record["terminated"] | record["truncated"] | lost)
-            version = -1 if warmup else self.weights.version  # -1: the warm-up policy
-            record["policy_version"] = np.full(n, version, np.int64)
-            record["acted_at"] = np.full(n, time.time())
-            # Each environment is one stream: the table links its steps into episodes,
-            # so sampled windows never mix environments or cross an episode end.
-            record["_stream"] = self.stepper.streams.copy()
+            record.update(self.behaviour.next_columns(record["next_obs"], envs=stepped))
+            ended = record["terminated"] | record["truncated"] | lost
+            self.behaviour.end_episodes(ended, envs=stepped)
+            # Each environment is one stream (`_stream`): the table links its steps into
+            # episodes, so sampled windows never mix environments or cross an episode end.
             if lost.any():  # a world went away mid-step: no successor, no transition
                 record = {k: v[~lost] for k, v in record.items()}
-            buffer.append(record)
-            kept = n - int(lost.sum())
+            if len(record["reward"]):
+                buffer.append(record)
+            kept = len(record["reward"])
             steps += kept
             self.env_steps += kept
-        return buffer, steps
+        whole = steps >= wanted or done + steps >= segment.steps
+        return buffer, steps, whole
+
+    def _act(self, envs: np.ndarray, warmup: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The behaviour's actions for environments `envs`, and the columns their rows
+        keep: its own, the policy version acting (-1: the warm-up policy) and when."""
+        if len(envs) == 0:  # every environment is still stepping (asynchronous)
+            return np.zeros((0,)), {}
+        obs = self.stepper.obs[envs]
+        env_action, record = self.behaviour.act(obs, self.rng, warmup=warmup, envs=envs)
+        version = -1 if warmup else self.weights.version
+        record["policy_version"] = np.full(len(envs), version, np.int64)
+        record["acted_at"] = np.full(len(envs), time.time())
+        return env_action, record
 
     def _insert(
         self, segment: Segment, buffer: list[dict[str, np.ndarray]], *, max_pending: int
     ) -> None:
+        if not buffer:
+            return
         batch = {k: np.concatenate([r[k] for r in buffer]) for k in buffer[0]}
         self.writer.insert(segment.table, batch, max_pending=max_pending)
         if stats := self.behaviour.stats():

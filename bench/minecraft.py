@@ -442,7 +442,7 @@ def clients_run(
                         behaviour=behaviour,
                         steps_per_insert=max(1, INSERT_EVERY // len(group)),
                         nice=0,
-                        concurrent_steps=not baseline,
+                        async_envs=not baseline,
                     )  # fmt: skip
                 )
             ray.get([a.report.remote() for a in actors])  # constructed, connected

@@ -36,11 +36,15 @@ class Behaviour(Protocol):
     `EnvActor.run` (actors/env_actor.py) drives it, B environments at a time::
 
         behaviour.load(new_weights)  # when weights.poll() returns some
-        action, record = behaviour.act(obs, rng, warmup=steps < segment.warmup_steps)
-        record.update(stepper.step(action))      # obs, reward, ..., next_obs
-        record.update(behaviour.next_columns(record["next_obs"]))
-        behaviour.end_episodes(record["terminated"] | record["truncated"])
+        action, record = behaviour.act(obs[envs], rng, warmup=..., envs=envs)
+        record = stepper.step(action, envs, carry=record)   # obs, reward, ..., next_obs
+        record.update(behaviour.next_columns(record["next_obs"], envs=stepper.stepped))
+        behaviour.end_episodes(record["terminated"] | record["truncated"], envs=stepper.stepped)
         replay.insert(segment.table, batch)      # every few steps, then behaviour.stats()
+
+    `envs` says which environments the rows are (None: environments 0..B-1, in order).
+    Environments that step at their own pace (real-time clients) come in varying
+    subsets, so whatever a behaviour keeps per environment it keeps by `envs`.
 
     `Evaluator.evaluate` (actors/evaluator.py) calls `load(weights)`, then `greedy(obs)`.
     """
@@ -52,16 +56,21 @@ class Behaviour(Protocol):
         """Adopts published learner weights."""
 
     def act(
-        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+        self,
+        obs: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        warmup: bool,
+        envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
         """Actions to apply for obs [B, ...] (`warmup`: the warm-up policy's), and columns
         holding at least `action`, the sampled action UNCLIPPED (importance ratios are
         taken on it; the environment clips), and `log_prob`, its log-likelihood."""
 
-    def next_columns(self, next_obs: np.ndarray) -> Columns:
+    def next_columns(self, next_obs: np.ndarray, envs: Optional[np.ndarray] = None) -> Columns:
         """Columns computed on s' (e.g. the backbone's μ(s')); {} for most behaviours."""
 
-    def end_episodes(self, ended: np.ndarray) -> None:
+    def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
         """Told after each step which environments' episodes ended ([B] bool)."""
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:

@@ -85,8 +85,9 @@ class BackboneBehaviour:
         """
         self.correction = correction.eval()
         self.observe_backbone = observe_backbone
-        self._next_mu: Optional[tuple[np.ndarray, np.ndarray]] = None
-        """(s', μ(s')) from `next_columns`: s' is the next step's s unless an episode ended."""
+        self._next_mu: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        """Per environment, (s', μ(s')) from `next_columns`: s' is its next step's s unless
+        its episode ended."""
         self.gate = gate
         self.backbone = backbone
         self.limit = float(limit)
@@ -110,16 +111,21 @@ class BackboneBehaviour:
     def load(self, weights: Weights) -> None:
         self.correction.load_state_dict(weights)
 
-    def _mu(self, obs: np.ndarray) -> np.ndarray:
+    def _mu(self, obs: np.ndarray, envs: Optional[np.ndarray] = None) -> np.ndarray:
         obs = np.asarray(obs)
-        if self._next_mu is None or self._next_mu[0].shape != obs.shape:
-            return np.asarray(self.backbone(obs), dtype=np.float32)
+        rows = range(len(obs)) if envs is None else envs.tolist()
+        known = [self._next_mu.get(e) for e in rows]
         # μ(s') was computed for the previous step's columns: tick the backbone only on the
-        # rows whose episode restarted.
-        seen, mu = self._next_mu[0], self._next_mu[1].copy()
-        fresh = ~np.all(seen == obs, axis=-1)
+        # rows whose episode restarted (or that it has not seen yet).
+        fresh = np.array(
+            [k is None or not np.array_equal(k[0], o) for k, o in zip(known, obs, strict=True)]
+        )
+        mu = np.empty((len(obs), *self.low.shape), dtype=np.float32)
         if fresh.any():
             mu[fresh] = np.asarray(self.backbone(obs[fresh]), dtype=np.float32)
+        for j, k in enumerate(known):
+            if not fresh[j] and k is not None:
+                mu[j] = k[1]
         return mu
 
     def _pi(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
@@ -130,24 +136,31 @@ class BackboneBehaviour:
             return self.correction(x).numpy()
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
-        mu = self._mu(obs)
+        mu = np.asarray(self.backbone(obs), dtype=np.float32)
         correction = self._pi(obs, mu)
         if self.gate is not None:
             correction = correction * self.gate(obs)[..., None]
         return compose_action(mu, correction, limit=self.limit, low=self.low, high=self.high)
 
-    def next_columns(self, next_obs: np.ndarray) -> Columns:
+    def next_columns(self, next_obs: np.ndarray, envs: Optional[np.ndarray] = None) -> Columns:
         """Columns about s' the learner needs: μ(s') when π observes the backbone."""
         if not self.observe_backbone:
             return {}
-        mu = self._mu(next_obs)
-        self._next_mu = (np.array(next_obs, copy=True), mu)
+        mu = self._mu(next_obs, envs)
+        rows = range(len(next_obs)) if envs is None else envs.tolist()
+        for j, e in enumerate(rows):
+            self._next_mu[e] = (np.array(next_obs[j], copy=True), mu[j])
         return {"next_backbone_action": mu}
 
     def act(
-        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+        self,
+        obs: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        warmup: bool,
+        envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
-        mu = self._mu(obs)
+        mu = self._mu(obs, envs)
         mean = np.zeros_like(mu) if warmup else self._pi(obs, mu)
         std = self.prefill_std if warmup else self.std
         # Noise on the correction only; the sample is stored unclipped (ratios are taken on it).
@@ -156,8 +169,8 @@ class BackboneBehaviour:
         action = compose_action(mu, correction, limit=self.limit, low=self.low, high=self.high)
         return action, {"action": correction, "backbone_action": mu, "log_prob": log_prob}
 
-    def end_episodes(self, ended: np.ndarray) -> None:
-        pass  # memoryless
+    def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
+        pass  # a new episode's first s differs from the cached s': μ is ticked anew
 
     def stats(self) -> dict[str, float]:
         return {}

@@ -115,7 +115,12 @@ class EpsilonGreedyBehaviour:
         return self._q(obs).argmax(axis=1)
 
     def act(
-        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+        self,
+        obs: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        warmup: bool,
+        envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
         self.steps += len(obs)
         extra: Columns = {}
@@ -132,10 +137,10 @@ class EpsilonGreedyBehaviour:
         action, log_prob = epsilon_greedy(q, epsilon, rng)
         return action, {"action": action, **extra, "log_prob": log_prob}
 
-    def next_columns(self, next_obs: np.ndarray) -> Columns:
+    def next_columns(self, next_obs: np.ndarray, envs: Optional[np.ndarray] = None) -> Columns:
         return {}  # nothing about s'
 
-    def end_episodes(self, ended: np.ndarray) -> None:
+    def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
         pass  # memoryless
 
     def stats(self) -> dict[str, float]:

@@ -76,7 +76,12 @@ class GaussianBehaviour:
             return self.network(torch.as_tensor(obs, dtype=torch.float32)).numpy()
 
     def act(
-        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+        self,
+        obs: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        warmup: bool,
+        envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
         extra: Columns = {}
         if self.hardcoded is not None:
@@ -91,10 +96,10 @@ class GaussianBehaviour:
         columns = {"action": action, **extra, "log_prob": log_prob.astype(np.float32)}
         return self.exploration.clip(action), columns
 
-    def next_columns(self, next_obs: np.ndarray) -> Columns:
+    def next_columns(self, next_obs: np.ndarray, envs: Optional[np.ndarray] = None) -> Columns:
         return {}  # nothing about s'
 
-    def end_episodes(self, ended: np.ndarray) -> None:
+    def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
         pass  # memoryless
 
     def stats(self) -> dict[str, float]:

@@ -142,11 +142,28 @@ class OptionsBehaviour:
                 option[due] = epsilon_greedy(q, epsilon, rng)[0]
         return option, clock
 
+    def _rows(self, envs: Optional[np.ndarray], n: int) -> np.ndarray:
+        """The environments of n rows; the per-environment option state grown to hold
+        them (a new environment starts with its clock at 0: a fresh option)."""
+        rows = np.arange(n) if envs is None else np.asarray(envs, dtype=np.int64)
+        size = int(rows.max()) + 1 if len(rows) else 0
+        if len(self._option) < size:
+            grow = size - len(self._option)
+            self._option = np.concatenate([self._option, np.zeros(grow, np.int64)])
+            self._clock = np.concatenate([self._clock, np.zeros(grow, np.int64)])
+        return rows
+
     def act(
-        self, obs: np.ndarray, rng: np.random.Generator, *, warmup: bool
+        self,
+        obs: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        warmup: bool,
+        envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
         epsilon = 1.0 if warmup else self.epsilon
-        self._option, self._clock = self._choose(obs, self._option, self._clock, epsilon, rng)
+        rows = self._rows(envs, len(obs))
+        option, clock = self._choose(obs, self._option[rows], self._clock[rows], epsilon, rng)
         self.steps += len(obs)
         mu = np.asarray(self.hardcoded(obs), dtype=np.float32)
         if self.residual_limit is not None:
@@ -162,14 +179,14 @@ class OptionsBehaviour:
             rl_action, rl_log_prob = self.uniform.sample(len(obs), rng)
         else:
             rl_action, rl_log_prob = self.exploration.sample(self._net(self.actor, obs), rng)
-        use_rl = self._option == RL
+        use_rl = option == RL
         action = np.where(use_rl[:, None], rl_action, mu).astype(np.float32)
         log_prob = np.where(use_rl, rl_log_prob, 0.0).astype(np.float32)
         columns: Columns = {
             "action": action,
             "log_prob": log_prob,
-            "option": self._option.copy(),
-            "option_step": self._clock.copy(),
+            "option": option.copy(),
+            "option_step": clock.copy(),
         }
         if self.residual_limit is not None:
             columns["hardcoded_action"] = mu
@@ -177,14 +194,15 @@ class OptionsBehaviour:
             columns["action"] = np.where(use_rl[:, None], mu + correction, mu).astype(np.float32)
         if not warmup:
             self._used.append(use_rl)
-        self._clock = (self._clock + 1) % self.k
+        self._option[rows], self._clock[rows] = option, (clock + 1) % self.k
         return self.exploration.clip(action), columns
 
-    def next_columns(self, next_obs: np.ndarray) -> Columns:
+    def next_columns(self, next_obs: np.ndarray, envs: Optional[np.ndarray] = None) -> Columns:
         return {}  # nothing about s'
 
-    def end_episodes(self, ended: np.ndarray) -> None:
-        self._clock[ended] = 0  # a new episode starts a new option
+    def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
+        rows = self._rows(envs, len(ended))
+        self._clock[rows[ended]] = 0  # a new episode starts a new option
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
         """Greedy options, each held k calls; a change of batch size restarts the clocks."""

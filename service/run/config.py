@@ -77,6 +77,10 @@ class TrainConfig:
     """A file listing `clients`, one ``host:port`` a line (``#`` comments allowed)."""
     envs_per_actor: int = 4
     """Environments each actor steps side by side (one batched policy call per step)."""
+    async_envs: bool = False
+    """Each of an actor's environments steps at its own pace (real-time Minecraft clients,
+    each world ticking on its own): the actor acts, batched, for whichever have their next
+    observation. Off: in lock-step, every step waits for all of them (docs/tuning.md)."""
     steps_per_insert: int = 8
     """Vectorised steps an actor collects before one insert (batch = steps × envs)."""
     replay_max_size: int = 1_000_000
@@ -164,6 +168,11 @@ class TrainConfig:
             raise ValueError(f"clients={self.clients!r} must be a list of host:port")
         if self.clients and self.clients_file:
             raise ValueError(f"clients and clients_file={self.clients_file!r}: give one of them")
+        if self.async_envs and self.reproducible:
+            raise ValueError(
+                "async_envs=true with reproducible=true: the reproducible mode steps an "
+                "actor's environments in lock-step; turn one of them off"
+            )
         if not isinstance(self.import_path, list) or not all(
             isinstance(p, str) for p in self.import_path
         ):

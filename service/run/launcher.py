@@ -388,6 +388,7 @@ def train(
                 weights=publisher.subscriber(),
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
+                async_envs=config.async_envs,
             )
 
         # Asynchronous: every actor acts its segments on its own, and a dead one is

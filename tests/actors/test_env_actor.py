@@ -6,11 +6,13 @@ killed and restarted."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import ray
@@ -172,15 +174,61 @@ def test_a_slow_actor_meters_the_ticks_it_skipped(world) -> None:
     stepper.close()
 
 
-def test_concurrent_steps_give_the_same_transitions_as_one_after_another() -> None:
+def test_asynchronous_steps_give_each_environment_the_same_transitions() -> None:
     spec = EnvSpec("Pendulum-v1", {"max_episode_steps": 5})
     actions = np.random.default_rng(0).uniform(-2, 2, size=(12, 3, 1)).astype(np.float32)
-    records = []
-    for concurrent in (False, True):
-        stepper = VectorStepper(spec, 3, seed=7, concurrent=concurrent)
-        records.append([stepper.step(a) for a in actions])
+    per_env: list[dict[int, list[np.ndarray]]] = []
+    for asynchronous in (False, True):
+        stepper = VectorStepper(spec, 3, seed=7, asynchronous=asynchronous)
+        rows: dict[int, list[np.ndarray]] = {0: [], 1: [], 2: []}
+        steps = [0, 0, 0]  # each environment takes its own actions, in its own order
+        while min(steps) < len(actions):
+            envs = np.array([e for e in stepper.idle if steps[e] < len(actions)], np.int64)
+            record = stepper.step(np.stack([actions[steps[e], e] for e in envs]), envs)
+            for e in envs:
+                steps[e] += 1
+            for j, e in enumerate(stepper.stepped):
+                fields = ("obs", "reward", "terminated", "truncated", "next_obs")
+                rows[e].append(np.concatenate([np.ravel(record[k][j]) for k in fields]))
+        while stepper.in_flight:
+            stepper.step(np.zeros((0, 1), np.float32), np.zeros(0, np.int64))
+        per_env.append(rows)
         stepper.close()
-    for one, other in zip(*records, strict=True):
-        for key in one:
-            np.testing.assert_array_equal(one[key], other[key])
-    assert any(r["truncated"].any() for r in records[1])  # episodes ended and reset
+    for e in range(3):
+        np.testing.assert_array_equal(np.stack(per_env[0][e]), np.stack(per_env[1][e]))
+    assert sum(bool(r[3]) for r in per_env[1][0]) >= 2  # episodes ended and reset
+
+
+_WORLDS: list[str] = []
+"""Addresses `pooled_mission` hands out, one world server per environment."""
+_made = itertools.count()
+
+
+def pooled_mission(*, max_episode_steps: int) -> gym.Env:
+    """The next of `_WORLDS`' real-time mission environments (this process only)."""
+    address = _WORLDS[next(_made) % len(_WORLDS)]
+    mission = flat_mission(grid_radius=1, ms_per_tick=50)
+    return gym.make(ENV_ID, address=address, mission_xml=mission, world_seed=5,
+                    max_episode_steps=max_episode_steps)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_asynchronous_clients_skip_no_ticks_where_lock_step_ones_wait_for_each_other() -> None:
+    """Four real-time clients (real Malmo timing: 20 ticks/s, 60 frames/s, a mission loads
+    for a second) with short episodes. In lock-step each step waits for every client's
+    next tick and for any client's reset, so the others skip ticks meanwhile."""
+    spec = EnvSpec(f"{__name__}:pooled_mission", {"max_episode_steps": 30})
+    skipped = {}
+    with ServerPool(4, base_port=0, seed=5, ms_per_tick=50) as pool:
+        _WORLDS[:] = [f"127.0.0.1:{p}" for p in pool.ports]
+        for asynchronous in (False, True):
+            stepper = VectorStepper(spec, 4, seed=0, asynchronous=asynchronous)
+            stepper.meter.restart()
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 6.0:
+                envs = stepper.idle
+                stepper.step(np.zeros((len(envs), 6), np.float32), envs)
+            skipped[asynchronous] = stepper.meter.metrics()["perf/ticks_skipped_fraction"]
+            assert len(stepper.finished_returns) >= 4  # every client's episode restarted
+            stepper.close()
+    assert skipped[True] <= 0.02 and skipped[False] >= 0.1, skipped

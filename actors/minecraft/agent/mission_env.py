@@ -6,7 +6,7 @@ mission_xml=..., max_episode_steps=600)`` connects to a world server (graft's si
 or a real Malmo Minecraft) and plays the mission there::
 
     obs = encode(reset().info)                      # ConnectionError: the world is away
-    reply = client.step(commands(clip(action)))     # real time: waits for the next tick
+    reply = client.step(commands(clip(action)))     # between two ticks: then observe()
     next_obs = encode(reply.info); info["tick"] = reply.info["TotalTime"]
 
 * Observation: the sec. III-D vector of ``grid_encoding`` without item slots (position,
@@ -15,10 +15,12 @@ or a real Malmo Minecraft) and plays the mission there::
 * Action: the box ``[-1, 1]^6``: move, strafe, turn, pitch (ContinuousMovementCommands
   speeds), then jump and attack, on when their component is positive. The environment
   clips; the actor stores the unclipped action.
-* Timing (Malmo's): a step's reply shows the world *before* that step's commands ran
-  (they apply at the next tick), as in ``malmoenv``; continuous commands persist, so an
-  action's effect shows one observation later. ``info["tick"]`` is the world's clock, so
-  an actor meters the ticks it skipped.
+* Timing (Malmo's): a step's commands apply at the world's next tick. Frames come
+  faster than ticks, so a step that lands between two ticks waits for that tick's
+  observation (the reply then shows the commands' effect); a step after a tick it has
+  not seen gets that observation at once (the effect shows one observation later, as
+  in ``malmoenv``). Continuous commands persist. ``info["tick"]`` is the world's clock,
+  so an actor meters the ticks it skipped.
 * Endings: death or a mission goal (``AgentQuitFrom...``) terminates; the mission's time
   limit truncates (so does gymnasium's ``max_episode_steps``).
 * A world server that goes away (refused, reset, closed, hung) raises
@@ -166,6 +168,13 @@ class MissionEnv(gym.Env):
         assert self._obs is not None, "call reset() first"
         try:
             reply = self.client.step(action_commands(action))
+            if not reply.info and not reply.done:
+                # Between two ticks (frames come faster than ticks): the step's commands
+                # apply at the next tick, so this transition ends at that tick's
+                # observation, not at a frame of the same world state.
+                later = self.client.observe()
+                later.reward += reply.reward
+                reply = later
         except _LOST as e:
             self.client.close()
             self._obs = None

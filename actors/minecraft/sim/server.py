@@ -30,8 +30,8 @@ from typing import Optional
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.malmo.mission import Mission, MissionError, parse_mission
 from actors.minecraft.malmo.roles import RoleMission, role_mission
+from actors.minecraft.sim import render, support
 from actors.minecraft.sim import session as S
-from actors.minecraft.sim import support
 from actors.minecraft.sim.instance import LOADING, RUNNING, Instance
 from actors.minecraft.sim.limits import DEFAULT_LIMITS, Limits
 from actors.minecraft.sim.timing import REAL, Timing
@@ -77,6 +77,7 @@ class WorldServer:
     # ------------------------------------------------------------- lifecycle
     def start(self) -> int:
         """Bind, listen and start the accept and tick threads; returns the port."""
+        render.warm_up()
         s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         s.bind((self.host, self._requested_port))

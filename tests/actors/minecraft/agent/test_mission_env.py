@@ -17,7 +17,7 @@ from actors.minecraft.agent.mission_env import (
 from actors.minecraft.malmo.mission import parse_mission
 from actors.minecraft.malmo.mission_xml import mission_xml
 from actors.minecraft.sim.server import WorldServer
-from tests.actors.minecraft.conftest import flat_mission
+from tests.actors.minecraft.conftest import FAST, flat_mission
 
 MISSION = flat_mission(grid_radius=1, ms_per_tick=20)
 OBS_DIM = 8 + 27
@@ -61,6 +61,29 @@ def test_ticks_in_info_and_the_time_limit_truncates(server: WorldServer) -> None
     assert np.diff(ticks).tolist() == [1] * len(endings)  # synchronous: a tick a step
     assert ticks[-1] == 10 and endings[-1] == (False, True)  # time up: truncated
     env.close()
+
+
+def test_a_real_time_step_ends_at_a_new_tick_and_keeps_every_reward() -> None:
+    """Frames come at 60/s and ticks at 20/s: a step landing between two ticks waits for
+    the next tick's observation instead of returning the same world again, and the
+    rewards of the steps it took meanwhile are summed into its own."""
+    per_tick = '<RewardForTimeTaken initialReward="0" delta="-1" density="PER_TICK"/>'
+    with WorldServer(port=0, seed=7, ms_per_tick=50, timing=FAST) as server:
+        env = gym.make(
+            ENV_ID,
+            address=f"127.0.0.1:{server.port}",
+            mission_xml=flat_mission(grid_radius=1, ms_per_tick=50, rewards=per_tick),
+        )
+        _, info = env.reset(seed=0)
+        ticks, rewards = [info["tick"]], []
+        for _ in range(20):
+            _, reward, *_, info = env.step(np.zeros(6, np.float32))
+            ticks.append(info["tick"])
+            rewards.append(reward)
+        env.close()
+    assert all(np.diff(ticks) >= 1), ticks  # every step brings a newer tick
+    # -1 a tick; a tick's reward may come one reply before its observation does.
+    assert abs(sum(rewards) + (ticks[-1] - ticks[0])) <= 1, (ticks, rewards)
 
 
 def test_a_world_server_going_away_is_a_connection_error() -> None:
