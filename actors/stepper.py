@@ -76,7 +76,13 @@ class VectorStepper:
         self.streams = np.arange(n, dtype=np.int64)
         self.connection_losses = self.reconnects = 0
         self._ready_at = np.zeros(n)  # when each environment's latest observation arrived
-        self.obs = np.stack([self._begin(i, self._reset(i, seed=seed + i)) for i in range(n)])
+        # Asynchronous: the first missions load side by side (a real one takes seconds).
+        resets = (
+            list(self._pool.map(lambda i: self._reset(i, seed=seed + i), range(n)))
+            if self._pool is not None
+            else [self._reset(i, seed=seed + i) for i in range(n)]
+        )
+        self.obs = np.stack([self._begin(i, reset) for i, reset in enumerate(resets)])
         self.episode_returns = np.zeros(n)
         self.finished_returns: list[float] = []
         self.idle = np.arange(n)
