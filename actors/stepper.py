@@ -34,6 +34,10 @@ RECONNECT_TIMEOUT_S = 60.0
 MAX_BACKOFF_S = 5.0
 """The longest pause between two reset attempts (starting at 50 ms, doubling)."""
 
+GATHER_S = 0.002
+"""Asynchronous: after the first environment finishes, how long to wait for each next one
+before acting (a step's latency grows by this much per environment gathered)."""
+
 Reset = tuple[Any, Optional[int]]
 """A new episode's first observation and its world clock (None: the env reports none)."""
 
@@ -157,7 +161,15 @@ class VectorStepper:
         if not self._in_flight:
             self.idle = self.stepped = np.zeros(0, np.int64)
             return self._rows([], [])
-        finished, _ = wait(self._in_flight, return_when=FIRST_COMPLETED)
+        finished, waiting = wait(self._in_flight, return_when=FIRST_COMPLETED)
+        # Worlds that tick in step (missions started together) finish within a few
+        # milliseconds of each other: gather them into one batch (one policy call for
+        # all), waiting at most GATHER_S for each next one.
+        while waiting:
+            more, waiting = wait(waiting, timeout=GATHER_S, return_when=FIRST_COMPLETED)
+            if not more:
+                break
+            finished |= more
         rows = [self._in_flight.pop(f) for f in finished]
         return self._rows([f.result() for f in finished], rows)
 
