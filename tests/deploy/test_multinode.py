@@ -36,6 +36,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -243,9 +244,9 @@ class Run:
         self.deadline = time.monotonic() + RUN_LIMIT_S
         self.out, self.err = "", ""
 
-    def wait_for(self, ready: object, what: str) -> None:
+    def wait_for(self, ready: Callable[[], object], what: str) -> None:
         """Polls `ready()` until it is true; fails if the run ends or takes too long first."""
-        while not ready():  # type: ignore[operator]
+        while not ready():
             assert self.process.poll() is None, self.finish()
             assert time.monotonic() < self.deadline, f"the run did not {what}"
             time.sleep(0.5)
