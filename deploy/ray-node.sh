@@ -3,7 +3,10 @@
 #
 #   deploy/ray-node.sh head   --ip HEAD_IP [--port 6379] [--num-cpus N] [RAY START OPTIONS...]
 #   deploy/ray-node.sh worker --head HEAD_IP:6379 --ip WORKER_IP [--num-cpus N] [--labels k=v] ...
-#   deploy/ray-node.sh copy-token USER@WORKER       # scp the token file, mode 600
+#   deploy/ray-node.sh copy-token USER@HOST         # scp the token file, mode 600
+#
+# copy-token gives the token to a worker, or to a machine outside the cluster that runs
+# `graft train --address ray://HEAD_IP:10001` (Ray Client, whose server the head starts).
 #
 # Ray 2.60 authenticates every node and driver with a shared token when RAY_AUTH_MODE=token.
 # The token lives in a file (~/.ray/auth_token, or $RAY_AUTH_TOKEN_PATH), never on a command
@@ -25,7 +28,7 @@ shift
 case "$role" in
   copy-token)
     target=${1:-}
-    [ -n "$target" ] || die "copy-token needs USER@HOST"
+    [ -n "$target" ] || die "copy-token needs USER@HOST (a worker, or a ray:// client machine)"
     [ -s "$TOKEN_FILE" ] || die "no token at $TOKEN_FILE: start the head first"
     ssh "$target" 'umask 077 && mkdir -p ~/.ray'
     scp -q -p "$TOKEN_FILE" "$target:.ray/auth_token"

@@ -206,13 +206,15 @@ def _keeping_sigterm() -> Iterator[None]:
 
 
 def _use_token_auth(address: str) -> None:
-    """Joins a cluster at HOST:PORT with Ray's token auth when this machine holds a token.
+    """Joins a cluster at HOST:PORT or ray://HOST:PORT with Ray's token auth when this
+    machine holds a token.
 
     Ray turns token auth on by itself only for 'auto'; with an explicit address a
     cluster whose nodes require the token (RAY_AUTH_MODE=token) would refuse us after
-    many retries. An explicit RAY_AUTH_MODE (e.g. 'disabled') is left as it is.
+    many retries (Ray Client's server too: "ray client connection timeout"). An
+    explicit RAY_AUTH_MODE (e.g. 'disabled') is left as it is.
     """
-    if address.startswith("ray://") or "RAY_AUTH_MODE" in os.environ:
+    if "RAY_AUTH_MODE" in os.environ:
         return
     token_file = os.environ.get("RAY_AUTH_TOKEN_PATH") or str(Path.home() / ".ray" / "auth_token")
     if os.environ.get("RAY_AUTH_TOKEN") or Path(token_file).is_file():

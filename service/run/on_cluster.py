@@ -10,6 +10,7 @@ run folder is written on that node.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional
 
@@ -18,6 +19,7 @@ from ray.exceptions import RayTaskError
 
 from service.run.config import TrainConfig
 from service.run.placement import LearnerPlacement, check_placement, cluster_nodes
+from service.run.preflight import default_run_dir
 from service.run.validation import ConfigError
 
 if TYPE_CHECKING:
@@ -42,11 +44,22 @@ def _run_there(
     """The Ray task: the run, on the node Ray placed it, joined to its cluster."""
     from service.run.launcher import train
 
-    folder = Path(run_dir).expanduser() if run_dir else None
-    if folder is not None and not folder.is_absolute():
+    folder = Path(run_dir).expanduser() if run_dir else default_run_dir(config)
+    if not folder.is_absolute():
         folder = Path.home() / folder  # a Ray worker's working folder is Ray's own
     result = train(config, address="auto", run_dir=folder, resume=resume, progress=False)
     return result, ray.util.get_node_ip_address()
+
+
+def _unreachable(address: str, error: ConnectionError) -> str:
+    """One line for a Ray Client that found no server, or one that refused its token."""
+    token = os.environ.get("RAY_AUTH_TOKEN_PATH") or "~/.ray/auth_token"
+    return (
+        f"--address {address}: Ray Client could not connect ({error}); the head must run "
+        "Ray Client's server on that port (`ray start --head` opens 10001), and on a "
+        f"cluster with token auth this machine needs the cluster's token in {token} "
+        "(deploy/ray-node.sh copy-token USER@THIS_MACHINE)"
+    )
 
 
 def train_on_cluster(
@@ -55,11 +68,16 @@ def train_on_cluster(
     """Runs `config` as a Ray task in the cluster at `address` (``ray://...``).
 
     Raises:
-        ConfigError: the learner cannot be placed, or the run refuses a value there.
+        ConfigError: no Ray Client server at `address` takes this machine (none there,
+            or no or a wrong token), the learner cannot be placed, or the run refuses a
+            value there.
     """
     from service.run.launcher import connect_ray
 
-    connect_ray(address)
+    try:
+        connect_ray(address)
+    except ConnectionError as error:
+        raise ConfigError(_unreachable(address, error)) from None
     try:
         options = learner_options(config.learner)
         placed = LearnerPlacement(

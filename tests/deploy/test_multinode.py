@@ -1,15 +1,27 @@
-"""A real multi-node run: Ray nodes in Linux network namespaces joined by a bridge.
+"""Real multi-node runs: Ray nodes in Linux network namespaces joined by a bridge.
 
-The test builds a head namespace (no CPUs: actors cannot run there) and worker namespaces,
-each with its own address on a private bridge, starts Ray in them with `deploy/ray-node.sh`
-(the commands of deploy/README.md, token auth on), and runs a tiny `pendulum-td3` from the
-head with `--address HEAD_IP:6379` and its actors forced onto nodes labelled as workers.
-Mid-run it kills one env actor and the replay server (SIGKILL); the run must finish its
-update budget with replay data that holds no item twice.
+One cluster per module (Ray's start on three nodes is slow): a head namespace (no CPUs:
+actors cannot run there), two worker namespaces labelled ``graft-node=worker``, and a
+client namespace on the same bridge that is not a Ray node. Ray starts in them with
+`deploy/ray-node.sh` (token auth on, the token in a file of this test's own). The test
+runs the commands of deploy/README.md ("The same on one Linux machine"), with tiny
+budgets added and the test's own namespace names and addresses:
 
-Everything it creates carries this process's pid in its name (namespaces, bridge, Ray's
-temp folder) and is torn down even when the test fails: the processes in its namespaces
-(by pid), then the namespaces and the bridge.
+- ``ray-node.sh head ...`` and ``ray-node.sh worker ...`` (the cluster fixture);
+- ``graft train --preset pendulum-td3 --address HEAD:6379 ...`` from the head: SIGKILL
+  one env actor and the replay server mid-run; the run must finish its update budget
+  with replay data that holds no item twice;
+- ``graft train --preset minecraft-backbone --address HEAD:6379 --clients 2 ...`` from the
+  head: its actors and their simulated world servers run on the workers, one actor is
+  SIGKILLed mid-run and replaced, the run finishes its updates;
+- ``graft train --preset pendulum-td3 --address ray://HEAD:10001 ...`` from the client
+  namespace, with a copy of the token (RAY_AUTH_TOKEN_PATH): the run goes into the
+  cluster, its replay server runs on the head, its folder is where graft says.
+
+`test_the_readme_shows_the_commands_this_module_runs` keeps README and test in sync.
+Everything made carries this process's pid in its name (namespaces, bridge, Ray's temp
+folder) and is torn down even when a test fails: the processes in the namespaces (by
+pid), then the namespaces and the bridge.
 """
 
 from __future__ import annotations
@@ -17,11 +29,14 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
+import shlex
 import shutil
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -29,13 +44,33 @@ import pytest
 
 from service.replay.server import durability
 
-pytestmark = pytest.mark.slow
-
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
+README = ROOT / "deploy" / "README.md"
 WORKERS = 2
-RUN_LIMIT_S = 900.0
-"""Only a guard against a hang: how long the run may take on a loaded machine."""
+RUN_LIMIT_S = 600.0
+"""Only a guard against a hang: how long one run may take on a loaded machine."""
+START_LIMIT_S = 900.0
+"""Only a guard against a hang: how long Ray's start on three nodes may take."""
+REPLAY_SERVER = "service.run.replay_cli serve"
+"""What the replay server's command line holds."""
+
+# The commands of deploy/README.md's namespace walk-through, with {head}, {worker} and
+# {client} for the addresses. The test adds only tiny budgets (and --temp-dir / --run-dir).
+HEAD_CMD = "deploy/ray-node.sh head --ip {head} --num-cpus 0"
+WORKER_CMD = (
+    "deploy/ray-node.sh worker --head {head}:6379 --ip {worker} --num-cpus 2 "
+    "--labels graft-node=worker"
+)
+ON_WORKERS = "--set 'actors.label_selector={{graft-node: worker}}'"
+PENDULUM_CMD = f"graft train --preset pendulum-td3 --address {{head}}:6379 --actors 2 {ON_WORKERS}"
+MINECRAFT_CMD = (
+    f"graft train --preset minecraft-backbone --address {{head}}:6379 --clients 2 {ON_WORKERS}"
+)
+RAY_CLIENT_CMD = (
+    f"graft train --preset pendulum-td3 --address ray://{{head}}:10001 --actors 2 {ON_WORKERS}"
+)
+README_ADDRESSES = {"head": "10.99.0.1", "worker": "10.99.0.2", "client": "10.99.0.3"}
 
 
 def _ip(*args: str) -> None:
@@ -43,17 +78,27 @@ def _ip(*args: str) -> None:
 
 
 class NamespaceCluster:
-    """A head and `workers` worker namespaces on one bridge, each running a Ray node."""
+    """A head and `workers` worker namespaces, each running a Ray node, and one client
+    namespace (no Ray node), all on one bridge."""
 
     def __init__(self, workers: int) -> None:
         pid = os.getpid()
         self.bridge = f"gb{pid}"
-        self.namespaces = [f"gn{pid}n{i}" for i in range(workers + 1)]
+        self.namespaces = [f"gn{pid}n{i}" for i in range(workers + 2)]
         self.addresses = [
-            f"10.{200 + pid % 50}.{pid // 50 % 250}.{i + 1}" for i in range(workers + 1)
+            f"10.{200 + pid % 50}.{pid // 50 % 250}.{i + 1}" for i in range(workers + 2)
         ]
+        self.head_ns, self.client_ns = self.namespaces[0], self.namespaces[-1]
+        self.worker_ns = self.namespaces[1:-1]
+        self.head_ip = self.addresses[0]
+        self.head = f"{self.head_ip}:6379"
         self.temp_dir = f"/tmp/graft-ray-{pid}"
-        self.head = f"{self.addresses[0]}:6379"
+        self.home = Path(self.temp_dir) / "home"
+        """The nodes' home folder: a ray:// run writes its folder there by default."""
+        # The cluster's token, in a file of this test's own; the client namespace gets a
+        # copy, as `deploy/ray-node.sh copy-token` gives one to a client machine.
+        self.token = Path(self.temp_dir) / "auth_token"
+        self.client_token = Path(self.temp_dir) / "client" / "auth_token"
 
     def build(self) -> None:
         """The bridge and namespaces; skips the test where namespaces cannot be made."""
@@ -75,34 +120,45 @@ class NamespaceCluster:
             _ip("-n", ns, "link", "set", "eth0", "up")
             _ip("-n", ns, "link", "set", "lo", "up")
 
-    def env(self) -> dict[str, str]:
+    def env(self, token: Path) -> dict[str, str]:
         return {
             **os.environ,
             "PATH": f"{BIN}:{os.environ.get('PATH', '')}",
             "PYTHONPATH": str(ROOT),
             "RAY": str(BIN / "ray"),
+            "RAY_AUTH_TOKEN_PATH": str(token),
+            "HOME": str(self.home),
             # A raylet gives its agents 30 s to start by default; on a machine loaded by
             # other jobs their Python start-up takes longer.
             "RAY_agent_register_timeout_ms": "180000",
         }
 
-    def exec(self, ns: str, argv: list[str], **kwargs: object) -> subprocess.Popen:
-        return subprocess.Popen(["ip", "netns", "exec", ns, *argv], env=self.env(), **kwargs)  # type: ignore[call-overload]
+    def exec(
+        self, ns: str, argv: list[str], *, token: Path | None = None, **kwargs: object
+    ) -> subprocess.Popen:
+        """Starts `argv` in namespace `ns`, its token file the node's or the client's copy."""
+        if token is None:
+            token = self.client_token if ns == self.client_ns else self.token
+        return subprocess.Popen(  # type: ignore[call-overload]
+            ["ip", "netns", "exec", ns, *argv], env=self.env(token), **kwargs
+        )
 
     def start_ray(self) -> None:
-        """deploy/ray-node.sh on every node, as deploy/README.md says."""
-        script = str(ROOT / "deploy" / "ray-node.sh")
-        head = [script, "head", "--ip", self.addresses[0], "--num-cpus", "0",
-                "--temp-dir", self.temp_dir]  # fmt: skip
-        self._start(self.namespaces[0], head)
-        for ns, address in zip(self.namespaces[1:], self.addresses[1:], strict=True):
-            worker = [script, "worker", "--head", self.head, "--ip", address, "--num-cpus", "2",
-                      "--labels", "graft-node=worker", "--temp-dir", self.temp_dir]  # fmt: skip
-            self._start(ns, worker)
+        """deploy/ray-node.sh on every node, as deploy/README.md says; then the token's
+        copy for the client."""
+        self.home.mkdir(parents=True)
+        extra = ["--temp-dir", self.temp_dir]
+        self._start(self.head_ns, _command(HEAD_CMD, head=self.head_ip) + extra)
+        for ns, address in zip(self.worker_ns, self.addresses[1:-1], strict=True):
+            worker = _command(WORKER_CMD, head=self.head_ip, worker=address)
+            self._start(ns, worker + extra)
+        self.client_token.parent.mkdir(mode=0o700)
+        shutil.copy2(self.token, self.client_token)
 
     def _start(self, ns: str, argv: list[str], attempts: int = 5) -> None:
         """Starts a node; again (its namespace emptied first) if Ray's fixed 30 s wait for
         its raylet ran out on a loaded machine."""
+        argv = [str(ROOT / argv[0]), *argv[1:]]
         # Ray waits a fixed 30 s for a new raylet to register; on a machine loaded by other
         # jobs that runs out, so the nodes' control processes get a slightly higher priority.
         for attempt in range(attempts):
@@ -133,6 +189,17 @@ class NamespaceCluster:
         """Pids in namespace `ns` whose command line contains `text`."""
         return [p for p in self.pids(ns) if text in _cmdline(p)]
 
+    def listening(self, ns: str) -> dict[int, list[str]]:
+        """The TCP addresses each process of namespace `ns` listens on, by pid."""
+        out = subprocess.run(["ip", "netns", "exec", ns, "ss", "-Hltnp"], capture_output=True,
+                             text=True, check=True).stdout  # fmt: skip
+        found: dict[int, list[str]] = {}
+        for line in out.splitlines():
+            fields = line.split()
+            for pid in re.findall(r"pid=(\d+)", line):
+                found.setdefault(int(pid), []).append(fields[3])
+        return found
+
     def tear_down(self) -> None:
         """Every process in the namespaces (by pid), then the namespaces and the bridge."""
         self._kill([p for ns in self.namespaces for p in self.pids(ns)])
@@ -140,6 +207,16 @@ class NamespaceCluster:
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
         subprocess.run(["ip", "link", "del", self.bridge], capture_output=True)
         shutil.rmtree(self.temp_dir, ignore_errors=True)
+
+
+def _command(template: str, **addresses: str) -> list[str]:
+    """One of the README's commands, as argv, at the given addresses."""
+    return shlex.split(template.format(**addresses))
+
+
+def _graft(template: str, cluster: NamespaceCluster, *tiny: str) -> list[str]:
+    argv = _command(template, head=cluster.head_ip)
+    return [str(BIN / "graft"), *argv[1:], "--no-progress", *tiny]
 
 
 def _cmdline(pid: int) -> str:
@@ -154,7 +231,45 @@ def _metric(csv_path: Path, key: str) -> list[float]:
         return [float(row["value"]) for row in csv.DictReader(f) if row["key"] == key]
 
 
-@pytest.fixture
+class Run:
+    """A `graft train` started in a namespace, its output collected when it ends."""
+
+    def __init__(
+        self, cluster: NamespaceCluster, ns: str, argv: list[str], cwd: Path, **kwargs: object
+    ) -> None:
+        self.process = cluster.exec(
+            ns, argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            **kwargs,
+        )  # fmt: skip
+        self.deadline = time.monotonic() + RUN_LIMIT_S
+        self.out, self.err = "", ""
+
+    def wait_for(self, ready: Callable[[], object], what: str) -> None:
+        """Polls `ready()` until it is true; fails if the run ends or takes too long first."""
+        while not ready():
+            assert self.process.poll() is None, self.finish()
+            assert time.monotonic() < self.deadline, f"the run did not {what}"
+            time.sleep(0.5)
+
+    def finish(self) -> tuple[str, str]:
+        """Waits for the run to end (kills it past the deadline); its stdout and stderr."""
+        try:
+            self.out, self.err = self.process.communicate(
+                timeout=max(self.deadline - time.monotonic(), 1)
+            )
+        finally:
+            if self.process.poll() is None:
+                self.process.kill()
+                self.out, self.err = self.process.communicate()
+        return self.out, self.err
+
+
+def _training(metrics: Path) -> bool:
+    """The learner trains: its first metrics rows are written."""
+    return metrics.exists() and len(metrics.read_text().splitlines()) > 4
+
+
+@pytest.fixture(scope="module")
 def cluster():
     made = NamespaceCluster(WORKERS)
     try:
@@ -165,44 +280,41 @@ def cluster():
         made.tear_down()
 
 
-@pytest.mark.timeout(RUN_LIMIT_S + 600)  # Ray's start on three nodes, then the run
+def test_the_readme_shows_the_commands_this_module_runs():
+    text = README.read_text().replace("\\\n", " ")
+    text = re.sub(r"[ \t]+", " ", re.sub(r"\.venv/bin/|\$PWD/", "", text))
+    for template in (HEAD_CMD, WORKER_CMD, PENDULUM_CMD, MINECRAFT_CMD, RAY_CLIENT_CMD):
+        command = template.format(**README_ADDRESSES)
+        assert command in text, f"deploy/README.md lacks: {command}"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(START_LIMIT_S + RUN_LIMIT_S + 120)
 def test_a_run_on_three_nodes_survives_a_dead_actor_and_replay_server(cluster, tmp_path):
     run_dir, env_steps, learning_starts = tmp_path / "run", 2000, 200
-    argv = [
-        str(BIN / "graft"), "train", "--preset", "pendulum-td3", "--address", cluster.head,
-        "--run-dir", str(run_dir), "--no-progress", "--env-steps", str(env_steps),
-        "--actors", "2", "--set", "envs_per_actor=2",
-        "--set", f"learning_starts={learning_starts}", "--set", "eval_every=100000",
-        "--set", "eval_episodes=1", "--set", "td3.hidden_sizes=[16, 16]",
-        "--set", "td3.batch_size=32", "--set", "actors.label_selector={graft-node: worker}",
-    ]  # fmt: skip
-    train = cluster.exec(
-        cluster.namespaces[0], argv, cwd=tmp_path, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True,
+    argv = _graft(
+        PENDULUM_CMD, cluster, "--run-dir", str(run_dir), "--env-steps", str(env_steps),
+        "--set", "envs_per_actor=2", "--set", f"learning_starts={learning_starts}",
+        "--set", "eval_every=100000", "--set", "eval_episodes=1",
+        "--set", "td3.hidden_sizes=[16, 16]", "--set", "td3.batch_size=32",
     )  # fmt: skip
+    train = Run(cluster, cluster.head_ns, argv, tmp_path)
+    metrics = run_dir / "metrics.csv"
     try:
-        deadline = time.monotonic() + RUN_LIMIT_S
-        metrics = run_dir / "metrics.csv"
-        # Faults strike once the learner trains (its first metrics rows are written).
-        while not (metrics.exists() and len(metrics.read_text().splitlines()) > 4):
-            assert train.poll() is None, train.communicate()
-            assert time.monotonic() < deadline, "the run did not start training"
-            time.sleep(0.5)
+        # Faults strike once the learner trains.
+        train.wait_for(lambda: _training(metrics), "start training")
         actors = {ns: cluster.find(ns, "ray::EnvActor") for ns in cluster.namespaces}
-        assert actors[cluster.namespaces[0]] == [], "an actor ran on the 0-CPU head"
-        on_workers = [p for ns in cluster.namespaces[1:] for p in actors[ns]]
+        assert actors[cluster.head_ns] == [], "an actor ran on the 0-CPU head"
+        on_workers = [p for ns in cluster.worker_ns for p in actors[ns]]
         assert len(on_workers) == 2, actors
         os.kill(on_workers[0], signal.SIGKILL)
         time.sleep(2)
-        (replay,) = cluster.find(cluster.namespaces[0], "service.run.replay_cli serve")
+        (replay,) = cluster.find(cluster.head_ns, REPLAY_SERVER)
         os.kill(replay, signal.SIGKILL)
-        _, err = train.communicate(timeout=max(deadline - time.monotonic(), 1))
     finally:
-        if train.poll() is None:
-            train.kill()
-            train.wait()
+        _, err = train.finish()
 
-    assert train.returncode == 0, err
+    assert train.process.returncode == 0, err
     assert "env actor" in err and "restarted it" in err, err
     assert "replay server died" in err and "restarted from its checkpoint folder" in err, err
     assert _metric(metrics, "faults/actor_restarts")[-1] >= 1
@@ -222,3 +334,97 @@ def test_a_run_on_three_nodes_survives_a_dead_actor_and_replay_server(cluster, t
     )
     assert len(rows) == table["meta"]["inserts"] >= learning_starts
     assert len(np.unique(rows, axis=0)) == len(rows)
+
+
+MINECRAFT_TINY = [
+    "--env-steps", "1200", "--set", "learning_starts=200", "--set", "slack_env_steps=64",
+    "--set", "steps_per_insert=16", "--set", "publish_every=20",
+    "--set", "eval_every=100000", "--set", "eval_episodes=1", "--set", "checkpoint_every=100000",
+    "--set", "td3.hidden_sizes=[32, 32]", "--set", "td3.batch_size=32",
+    "--set", "env_kwargs.ticks_per_step=2",
+]  # fmt: skip
+MINECRAFT_UPDATES = int((1200 - 200) * 0.5)
+"""The tiny run's update budget: (env_steps - learning_starts) × updates_per_env_step."""
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(START_LIMIT_S + RUN_LIMIT_S + 120)
+def test_minecraft_actors_and_their_worlds_run_on_workers_and_a_dead_one_is_replaced(
+    cluster, tmp_path
+):
+    run_dir = tmp_path / "run"
+    argv = _graft(MINECRAFT_CMD, cluster, "--run-dir", str(run_dir), *MINECRAFT_TINY)
+    train = Run(cluster, cluster.head_ns, argv, tmp_path)
+    metrics = run_dir / "metrics.csv"
+    try:
+        train.wait_for(lambda: _training(metrics), "start training")
+        actors = {ns: cluster.find(ns, "ray::EnvActor") for ns in cluster.namespaces}
+        assert actors[cluster.head_ns] == [], "an actor ran on the 0-CPU head"
+        on_workers = {p: ns for ns in cluster.worker_ns for p in actors[ns]}
+        assert len(on_workers) == 2, actors
+        # Each actor serves its own simulated world on its node's loopback.
+        for pid, ns in on_workers.items():
+            listens = cluster.listening(ns).get(pid, [])
+            assert any(a.startswith("127.0.0.1:") for a in listens), (pid, ns, listens)
+        os.kill(next(iter(on_workers)), signal.SIGKILL)
+    finally:
+        _, err = train.finish()
+
+    assert train.process.returncode == 0, err
+    assert "env actor" in err and "restarted it" in err, err
+    assert _metric(metrics, "faults/actor_restarts")[-1] >= 1
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["updates"] == MINECRAFT_UPDATES
+    assert np.isfinite(summary["final_eval_return_mean"])
+
+
+PENDULUM_TINY = [
+    "--env-steps", "1000", "--set", "learning_starts=200", "--set", "eval_every=100000",
+    "--set", "eval_episodes=1", "--set", "td3.hidden_sizes=[16, 16]",
+    "--set", "td3.batch_size=32",
+]  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(START_LIMIT_S + RUN_LIMIT_S + 120)
+def test_a_ray_client_run_from_a_machine_outside_the_cluster_runs_inside_it(cluster, tmp_path):
+    # No --run-dir: the run's default folder, under the home folder of the head's Ray.
+    runs = cluster.home / "runs"
+    argv = _graft(RAY_CLIENT_CMD, cluster, *PENDULUM_TINY)
+    train = Run(cluster, cluster.client_ns, argv, tmp_path)
+    try:
+        train.wait_for(
+            lambda: cluster.find(cluster.head_ns, f"{runs}/"), "start a replay server on the head"
+        )
+        (replay,) = cluster.find(cluster.head_ns, f"{runs}/")
+        assert REPLAY_SERVER in _cmdline(replay)
+        # The client runs only `graft train` (a Ray Client): no replay server, no Ray node.
+        client = [_cmdline(p) for p in cluster.pids(cluster.client_ns)]
+        assert not any(REPLAY_SERVER in c or "ray::" in c or "raylet" in c for c in client)
+    finally:
+        out, err = train.finish()
+
+    assert train.process.returncode == 0, err
+    said = re.search(f"the run ran on {re.escape(cluster.head_ip)}; its folder is there: (.+)", out)
+    assert said is not None, out
+    run_dir = Path(said[1])
+    assert run_dir.parent == runs and run_dir.name.startswith("pendulum-td3-s0-"), run_dir
+    assert f"run folder: {run_dir} " in out, out
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["updates"] == 1000 - 200
+    assert (run_dir / "replay").is_dir()  # the replay server's checkpoints, on the head
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(START_LIMIT_S + 300)
+def test_a_ray_client_without_the_token_is_refused_in_one_line(cluster, tmp_path):
+    missing = tmp_path / "no-token"
+    argv = _graft(RAY_CLIENT_CMD, cluster, "--run-dir", str(tmp_path / "run"))
+    train = Run(cluster, cluster.client_ns, argv, tmp_path, token=missing)
+    _, err = train.finish()
+    assert train.process.returncode == 2, err
+    (line,) = [line for line in err.splitlines() if line.startswith("graft train:")]
+    assert f"--address ray://{cluster.head_ip}:10001: Ray Client could not connect" in line
+    assert f"the cluster's token in {missing}" in line
+    assert "Traceback" not in err
+    assert not (tmp_path / "run").exists()
