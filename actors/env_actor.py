@@ -31,7 +31,7 @@ import torch
 from actors.task import EnvSpec
 from actors.tick_meter import TickMeter
 from actors.writer import BackgroundWriter
-from service.core import Behaviour, ReplayWriter, WeightSource
+from service.core import Behaviour, ReplayWriter, StepClaims, WeightSource
 
 RECONNECT_TIMEOUT_S = 60.0
 """How long a lost environment's resets are retried before the actor gives up."""
@@ -233,15 +233,23 @@ class EnvActor:
                 pass  # not permitted: `actor/nice` shows what the actor got
         self.acting_nice = os.getpriority(os.PRIO_PROCESS, 0)
 
-    def run(self, segments: list[Segment]) -> dict[str, Any]:
-        """Steps through `segments` in order (or until the learner says stop)."""
+    def run(self, segments: list[Segment], claims: Optional[StepClaims] = None) -> dict[str, Any]:
+        """Steps through `segments` in order (or until the learner says stop).
+
+        Without `claims` each segment is this actor's own share. With them a segment is
+        the whole phase, whose steps all actors share: the actor claims one insert batch
+        at a time and acts exactly the steps it was given, until the phase is claimed.
+        """
         self._set_priority()
         self.restart_meters()
         self._start = time.perf_counter()
         for segment in segments:
+            if claims is not None:
+                self._act_claimed(segment, claims)
+                continue
             done = 0
             while done < segment.steps and not self.weights.stopped:
-                buffer, steps = self._collect(segment, done)
+                buffer, steps = self._collect(segment, done, segment.steps)
                 done += steps
                 if len(buffer) < self.steps_per_insert and done < segment.steps:
                     break  # stopped mid-batch: see below
@@ -249,6 +257,19 @@ class EnvActor:
         # A stopped run drops its unfinished batch: the learner no longer samples, and a
         # rate-limited table could hold its insert forever. Queued batches still go out.
         return self.finish()
+
+    def _act_claimed(self, segment: Segment, claims: StepClaims) -> None:
+        """Acts claimed chunks of `segment` until its phase is claimed or the learner stops."""
+        want = self.steps_per_insert * len(self.stepper.envs)
+        while not self.weights.stopped:
+            # What the writer acknowledged so far: claims past it go back if we die.
+            start, count = claims.claim(segment.table, want, stored=self.writer.inserted)
+            if count == 0:
+                return
+            buffer, steps = self._collect(segment, start, start + count, exact=True)
+            if steps < count:
+                return  # stopped mid-batch (as in `run`)
+            self._insert(segment, buffer, max_pending=segment.pending_inserts)
 
     def advance(self, segment: Segment, version: int) -> int:
         """Reproducible mode: acts one insert batch of `segment` with policy `version`
@@ -265,24 +286,26 @@ class EnvActor:
             return 0
         while self.weights.version < version and not self.weights.stopped:
             self._adopt_new_weights(block_s=5.0)
-        buffer, steps = self._collect(segment, done)
+        buffer, steps = self._collect(segment, done, segment.steps)
         if not buffer:  # the learner said stop
             return 0
         self._advanced[segment.table] = done + steps
         self._insert(segment, buffer, max_pending=0)
         return steps
 
-    def _collect(self, segment: Segment, done: int) -> tuple[list[dict[str, np.ndarray]], int]:
+    def _collect(
+        self, segment: Segment, done: int, end: int, *, exact: bool = False
+    ) -> tuple[list[dict[str, np.ndarray]], int]:
         """Acts up to one insert batch (`steps_per_insert` vector steps) of `segment`, from
-        its step `done`; fewer when the segment ends or the learner says stop. Returns the
-        per-step records and the env steps they hold."""
+        its step `done` towards `end`; fewer when `end` is reached or the learner says
+        stop. Steps below `segment.warmup_steps` use the warm-up policy. `exact`: keep no
+        step past `end` (a claimed chunk); else the last vector step may pass it. Returns
+        the per-step records and the env steps they hold."""
         n = len(self.stepper.envs)
         buffer: list[dict[str, np.ndarray]] = []
         steps = 0
         while (
-            len(buffer) < self.steps_per_insert
-            and done + steps < segment.steps
-            and not self.weights.stopped
+            len(buffer) < self.steps_per_insert and done + steps < end and not self.weights.stopped
         ):
             warmup = done + steps < segment.warmup_steps
             if not warmup:
@@ -292,7 +315,12 @@ class EnvActor:
             record.update(self.stepper.step(env_action))
             # Columns computed on s' (e.g. the backbone's μ(s')); most add none.
             record.update(self.behaviour.next_columns(record["next_obs"]))
-            lost = self.stepper.lost
+            lost = self.stepper.lost.copy()
+            if exact:  # steps past the claimed chunk are not ours to keep: dropped as lost
+                past = np.flatnonzero(~lost)[end - done - steps :]
+                lost[past] = True
+                # Their environments go on in new streams, as after a lost step.
+                self.stepper.streams[past] += n
             self.behaviour.end_episodes(record["terminated"] | record["truncated"] | lost)
             version = -1 if warmup else self.weights.version  # -1: the warm-up policy
             record["policy_version"] = np.full(n, version, np.int64)
