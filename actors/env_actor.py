@@ -7,6 +7,9 @@ acts with is a `Behaviour` (service/core.py); the actor itself knows no algorith
 Any environment, including a real-time one (a Minecraft client whose world ticks on its
 own), runs the same loop:
 
+* in a run the steps of each phase are claimed from a budget all actors share
+  (`StepClaims`), one insert batch at a time, so every actor acts until the phase is
+  spent; alone (or driven by the learner in reproducible mode) a segment is its own share;
 * inserts go out from a background thread (`BackgroundWriter`); a segment says how many
   insert batches may wait while acting goes on (0: wait for each, so a table's rate
   limiter paces acting exactly);

@@ -3,6 +3,7 @@
 graft train --preset pendulum-td3
   ├─ replay server      (child process, gRPC on loopback; one table per phase)
   ├─ weight broadcaster (Ray actor behind the learner's BroadcastPublisher)
+  ├─ step budget        (Ray actor: each phase's env steps, claimed by the actors)
   ├─ N env actors       (Ray actors, the algorithm's behaviour) ──insert──▶ replay
   ├─ evaluator          (Ray actor, the behaviour's greedy policy)
   └─ learner loop       (this process) ◀──sample── replay, ──publish──▶ broadcaster
