@@ -11,10 +11,10 @@ Ray actor. Every env actor gets a `WeightSubscriber` (a `WeightSource`)::
                           subscribers on that node
 
 Announcements (a version number and an object ref) travel down this tree by long-poll,
-so no broadcaster or relay answers more than FANOUT subscribers (plus its relays) per
-version, however large the fleet. The weights themselves never pass through it: each
-subscriber fetches the ref from its node's object store (Ray pulls an object to a node
-once), zero-copy for numpy arrays.
+so no broadcaster or relay answers more than FANOUT long-polls (one per subscribing
+process, plus its relays) per version, however large the fleet. The weights themselves
+never pass through it: each subscribing process fetches the ref from its node's object
+store (Ray pulls an object to a node once), zero-copy for numpy arrays.
 
 Subscribers follow their relay from a background thread, one per process and
 broadcaster however many subscribers the process holds: it long-polls, fetches each
@@ -42,7 +42,8 @@ if TYPE_CHECKING:  # torch is imported only where tensors are made: a subscriber
     from service.core import Weights  # process need not load it to follow the weights
 
 FANOUT = 64
-"""Subscribers one broadcaster or relay answers directly; more on a node get a relay each.
+"""Long-polls (one per process that subscribes) one broadcaster or relay answers directly;
+more on a node get a relay each.
 On one node a relay is one more hop and process on the same cores, so groups are large
 (README, "Weight broadcast at fleet scale": groups of 16 were slower than none)."""
 MAX_WAITERS = 10_000
@@ -133,8 +134,9 @@ class WeightBroadcaster(_Latest):
         self._announce(self._version, self._weights_ref, True)
 
     async def attach(self, node_id: str) -> BroadcasterHandle:
-        """Where a subscriber on `node_id` long-polls: this broadcaster for the first
-        `fanout` on its own node, else that node's relay for its group of `fanout`."""
+        """Where a process on `node_id` long-polls (its subscribers share one): this
+        broadcaster for the first `fanout` on its own node, else that node's relay for
+        its group of `fanout`."""
         count = self._attached.get(node_id, 0)
         self._attached[node_id] = count + 1
         group = count // self._fanout
