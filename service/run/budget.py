@@ -4,16 +4,18 @@ insert-batch chunks from one small Ray actor, instead of fixed shares per actor.
 A fast actor simply claims more chunks, so every actor acts (and adopts weights) until
 its phase's budget is spent. A dead actor's claims past what it is known to have stored
 go back to the budget (`release`), to be claimed by the others and its replacement: at
-most its chunk in flight (claimed, stored, not yet reported) is acted twice.
+most its chunk in flight (claimed, stored, not yet reported) is acted twice. An actor
+asks for its next chunk while it acts the current one (`BudgetClaims`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Optional
 
 import ray
+from ray import ObjectRef
 
 Range = tuple[int, int]
 """Steps [start, end) of one phase."""
@@ -91,11 +93,27 @@ BudgetHandle = Any
 
 
 class BudgetClaims:
-    """One actor incarnation's `StepClaims` on a `StepBudget`, under its lease name."""
+    """One actor incarnation's `StepClaims` on a `StepBudget`, under its lease name.
+
+    Each claim that gets steps asks for the next chunk at once, so the round trip to the
+    budget overlaps acting: an actor holds at most its chunk and the next one.
+    """
 
     def __init__(self, budget: BudgetHandle, lease: str) -> None:
         self.budget, self.lease = budget, lease
+        self._next: Optional[tuple[str, int, ObjectRef[Range]]] = None
+
+    def __reduce__(self) -> tuple[type[BudgetClaims], tuple[BudgetHandle, str]]:
+        return BudgetClaims, (self.budget, self.lease)  # a claim in flight stays here
 
     def claim(self, table: str, want: int, *, stored: int) -> tuple[int, int]:
-        start, count = ray.get(self.budget.claim.remote(self.lease, table, want, stored))
+        ahead, self._next = self._next, None
+        if ahead is not None and ahead[:2] == (table, want):
+            start, count = ray.get(ahead[2])
+        else:
+            if ahead is not None:  # its steps would never be acted: a caller's bug
+                raise RuntimeError(f"a claim on {ahead[0]!r} is still held; act it first")
+            start, count = ray.get(self.budget.claim.remote(self.lease, table, want, stored))
+        if count:
+            self._next = (table, want, self.budget.claim.remote(self.lease, table, want, stored))
         return int(start), int(count)

@@ -21,7 +21,7 @@ from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network
 from learner.td3.config import TD3Config
 from service.replay.client import ReplayClient
-from service.run.budget import Budget, StepBudget
+from service.run.budget import Budget, BudgetClaims, StepBudget
 from service.run.replay_process import ReplayProcess
 from service.run.supervision import ActorFleet
 from service.weights import WeightBroadcaster, WeightSubscriber
@@ -54,6 +54,21 @@ def test_claims_hand_out_each_step_once_and_a_release_gives_back_the_unstored() 
     assert budget.left() == {"demos": 0, "online": 3}
     with pytest.raises(ValueError, match="want=0"):
         budget.claim("c.0", "online", 0, stored=0)
+
+
+def test_an_actors_claims_ask_for_the_next_chunk_while_it_acts(ray_local) -> None:
+    budget = StepBudget.remote({"reach": 10})
+    claims = BudgetClaims(budget, "a.0")
+    assert claims.claim("reach", 4, stored=0) == (0, 4)
+    assert ray.get(budget.left.remote()) == {"reach": 2}  # [4, 8) is on its way
+    assert claims.claim("reach", 4, stored=4) == (4, 4)
+    assert claims.claim("reach", 4, stored=8) == (8, 2)
+    assert claims.claim("reach", 4, stored=10) == (0, 0)
+    # The last request went out with stored=8 (when [8, 10) was handed over): dying now
+    # gives back [8, 10), the chunk in flight, unless the supervisor saw it stored.
+    assert ray.get(budget.release.remote("a.0", 0)) == 8
+    assert ray.get(budget.left.remote()) == {"reach": 2}
+    ray.kill(budget)
 
 
 def behaviour() -> GaussianBehaviour:
