@@ -7,6 +7,9 @@ acts with is a `Behaviour` (service/core.py); the actor itself knows no algorith
 Any environment, including a real-time one (a Minecraft client whose world ticks on its
 own), runs the same loop:
 
+* in a run the steps of each phase are claimed from a budget all actors share
+  (`StepClaims`), one insert batch at a time, so every actor acts until the phase is
+  spent; alone (or driven by the learner in reproducible mode) a segment is its own share;
 * inserts go out from a background thread (`BackgroundWriter`); a segment says how many
   insert batches may wait while acting goes on (0: wait for each, so a table's rate
   limiter paces acting exactly);
@@ -30,7 +33,7 @@ import torch
 from actors.stepper import VectorStepper
 from actors.task import EnvSpec
 from actors.writer import BackgroundWriter
-from service.core import Behaviour, ReplayWriter, WeightSource
+from service.core import Behaviour, ReplayWriter, StepClaims, WeightSource
 
 __all__ = ["EnvActor", "Segment", "VectorStepper"]
 
@@ -122,15 +125,23 @@ class EnvActor:
                 pass  # not permitted: `actor/nice` shows what the actor got
         self.acting_nice = os.getpriority(os.PRIO_PROCESS, 0)
 
-    def run(self, segments: list[Segment]) -> dict[str, Any]:
-        """Steps through `segments` in order (or until the learner says stop)."""
+    def run(self, segments: list[Segment], claims: Optional[StepClaims] = None) -> dict[str, Any]:
+        """Steps through `segments` in order (or until the learner says stop).
+
+        Without `claims` each segment is this actor's own share. With them a segment is
+        the whole phase, whose steps all actors share: the actor claims one insert batch
+        at a time and acts exactly the steps it was given, until the phase is claimed.
+        """
         self._set_priority()
         self.restart_meters()
         self._start = time.perf_counter()
         for segment in segments:
+            if claims is not None:
+                self._act_claimed(segment, claims)
+                continue
             done = 0
             while done < segment.steps and not self.weights.stopped:
-                buffer, steps, whole = self._collect(segment, done)
+                buffer, steps, whole = self._collect(segment, done, segment.steps)
                 done += steps
                 if not whole:
                     break  # stopped mid-batch: see below
@@ -138,6 +149,19 @@ class EnvActor:
         # A stopped run drops its unfinished batch: the learner no longer samples, and a
         # rate-limited table could hold its insert forever. Queued batches still go out.
         return self.finish()
+
+    def _act_claimed(self, segment: Segment, claims: StepClaims) -> None:
+        """Acts claimed chunks of `segment` until its phase is claimed or the learner stops."""
+        want = self.steps_per_insert * len(self.stepper.envs)
+        while not self.weights.stopped:
+            # What the writer acknowledged so far: claims past it go back if we die.
+            start, count = claims.claim(segment.table, want, stored=self.writer.inserted)
+            if count == 0:
+                return
+            buffer, steps, _ = self._collect(segment, start, start + count, exact=True)
+            if steps < count:
+                return  # stopped mid-batch (as in `run`)
+            self._insert(segment, buffer, max_pending=segment.pending_inserts)
 
     def advance(self, segment: Segment, version: int) -> int:
         """Reproducible mode: acts one insert batch of `segment` with policy `version`
@@ -154,7 +178,7 @@ class EnvActor:
             return 0
         while self.weights.version < version and not self.weights.stopped:
             self._adopt_new_weights(block_s=5.0)
-        buffer, steps, _ = self._collect(segment, done)
+        buffer, steps, _ = self._collect(segment, done, segment.steps)
         if not buffer:  # the learner said stop
             return 0
         self._advanced[segment.table] = done + steps
@@ -162,30 +186,40 @@ class EnvActor:
         return steps
 
     def _collect(
-        self, segment: Segment, done: int
+        self, segment: Segment, done: int, end: int, *, exact: bool = False
     ) -> tuple[list[dict[str, np.ndarray]], int, bool]:
         """Acts up to one insert batch (`steps_per_insert` steps of every environment) of
-        `segment`, from its step `done`; fewer when the segment ends or the learner says
-        stop. Returns the per-step records, the env steps they hold, and whether the
-        batch is whole (False: the learner said stop first)."""
+        `segment`, from its step `done` towards `end`; fewer when `end` is reached or the
+        learner says stop. Steps below `segment.warmup_steps` use the warm-up policy.
+        `exact`: keep no step past `end` (a claimed chunk); else the last step of the
+        environments may pass it. Returns the per-step records, the env steps they hold,
+        and whether the batch is whole (False: the learner said stop first)."""
         stepper = self.stepper
-        wanted = self.steps_per_insert * len(stepper.envs)
+        n = len(stepper.envs)
+        wanted = self.steps_per_insert * n
         buffer: list[dict[str, np.ndarray]] = []
         steps = 0
         while steps < wanted and not self.weights.stopped:
-            room = done + steps + stepper.in_flight < segment.steps
-            envs = stepper.idle if room else np.zeros(0, np.int64)
+            left = end - (done + steps + stepper.in_flight)
+            envs = stepper.idle if left > 0 else np.zeros(0, np.int64)
+            if exact and stepper.asynchronous:  # never more in flight than the chunk has left
+                envs = envs[: max(left, 0)]
             if len(envs) == 0 and stepper.in_flight == 0:
-                break  # the segment is done
+                break  # `end` is reached
             warmup = done + steps < segment.warmup_steps
             if not warmup:
                 self._wait_for_first_weights()
             self._adopt_new_weights()
             env_action, record = self._act(envs, warmup)
             record = stepper.step(env_action, envs, carry=record)
-            stepped, lost = stepper.stepped, stepper.lost
+            stepped, lost = stepper.stepped, stepper.lost.copy()
             # Columns computed on s' (e.g. the backbone's μ(s')); most add none.
             record.update(self.behaviour.next_columns(record["next_obs"], envs=stepped))
+            if exact:  # steps past the claimed chunk are not ours to keep: dropped as lost
+                past = np.flatnonzero(~lost)[max(end - done - steps, 0) :]
+                lost[past] = True
+                # Their environments go on in new streams, as after a lost step.
+                stepper.streams[stepped[past]] += n
             ended = record["terminated"] | record["truncated"] | lost
             self.behaviour.end_episodes(ended, envs=stepped)
             # Each environment is one stream (`_stream`): the table links its steps into
@@ -197,7 +231,7 @@ class EnvActor:
             kept = len(record["reward"])
             steps += kept
             self.env_steps += kept
-        whole = steps >= wanted or done + steps >= segment.steps
+        whole = steps >= wanted or done + steps >= end
         return buffer, steps, whole
 
     def _act(self, envs: np.ndarray, warmup: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:

@@ -98,6 +98,11 @@ class VectorStepper:
         self._in_flight: dict[Future[_Outcome], dict[str, np.ndarray]] = {}
 
     @property
+    def asynchronous(self) -> bool:
+        """Each environment at its own pace (module docstring)."""
+        return self._pool is not None
+
+    @property
     def in_flight(self) -> int:
         """Environments stepping now (asynchronous only), their rows not returned yet."""
         return len(self._in_flight)

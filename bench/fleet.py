@@ -5,14 +5,17 @@ one run on one machine.
 For each fleet size N, N simulated actors follow the broadcast the way env actors do:
 every step they check for new weights without waiting (the per-step cost is timed), then
 "act" for ``--step-ms`` by waiting in ``poll`` (so an arrival ends the step at once and
-adoption times are not rounded to steps). Each has its own subscriber and long-poll; they
-run in lightweight Ray actor processes (num_cpus=0, no torch), one each up to
-``--processes`` (default 64; a Ray worker holds about 40 MB and takes a second of CPU to
-start), past that several to a process, a thread each: they then share their process's
-object-store fetch and core worker, which flatters neither broadcast more than the other.
+adoption times are not rounded to steps). Each has its own subscriber; they run in
+lightweight Ray actor processes (num_cpus=0, no torch), one each up to ``--processes``
+(default 64; a Ray worker holds about 40 MB and takes a second of CPU to start), past
+that several to a process, a thread each. Several in one process share its core worker;
+the fan-out's subscribers also share one long-poll and fetch per process (as the
+service's do), while the baseline's each keep their own. With ``--processes`` at least
+the fleet size every actor has a process to itself, as env actors do, and nothing is
+shared.
 This process, as the learner, publishes ``--versions`` versions of Minecraft-sized weights
 (3.7 MB of float32) every ``--interval`` seconds. An actor holds a version from the end
-of its fetch: inside `poll` on the acting thread for the baseline, on the subscriber's
+of its fetch: inside `poll` on the acting thread for the baseline, on its process's
 background thread for the fan-out (the acting thread takes it at its next step). Both
 broadcasts carry the same numpy payload (the old one published tensors, whose unpickling
 each actor paid as well).

@@ -113,6 +113,25 @@ class WeightSource(Protocol):
         """Weights newer than `version` if they arrived (waiting up to `block_s`), else None."""
 
 
+class StepClaims(Protocol):
+    """One actor's draw on the env-step budget all actors share (`BudgetClaims`,
+    service/run/budget.py): a phase's steps are claimed one insert batch at a time, so no
+    actor idles while another still has steps to act.
+
+    `EnvActor.run` (actors/env_actor.py) claims each batch before it acts it::
+
+        start, count = claims.claim(segment.table, steps_per_insert * B, stored=inserted)
+        while count:  # steps [start, start + count) of the phase; below warmup_steps: warm-up
+            act and insert exactly `count` steps, then claim again
+    """
+
+    def claim(self, table: str, want: int, *, stored: int) -> tuple[int, int]:
+        """Up to `want` steps of `table`'s phase: (index of the first in the phase, how
+        many); (0, 0) once the phase's budget is claimed. `stored` is how many items
+        this actor's inserts have had acknowledged so far (all tables): what a dead
+        actor claimed beyond it goes back to the budget."""
+
+
 UpdateStep = Callable[["Algorithm", TensorBatch], Metrics]
 """One learning step on a batch. Each phase carries the step its batches go to:
 `learner.agent.update_step` (the algorithm's `update`) unless it names another."""

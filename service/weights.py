@@ -11,14 +11,16 @@ Ray actor. Every env actor gets a `WeightSubscriber` (a `WeightSource`)::
                           subscribers on that node
 
 Announcements (a version number and an object ref) travel down this tree by long-poll,
-so no broadcaster or relay answers more than FANOUT subscribers (plus its relays) per
-version, however large the fleet. The weights themselves never pass through it: each
-subscriber fetches the ref from its node's object store (Ray pulls an object to a node
-once), zero-copy for numpy arrays.
+so no broadcaster or relay answers more than FANOUT long-polls (one per subscribing
+process, plus its relays) per version, however large the fleet. The weights themselves
+never pass through it: each subscribing process fetches the ref from its node's object
+store (Ray pulls an object to a node once), zero-copy for numpy arrays.
 
-A subscriber follows its relay from a background thread, which fetches each announced
-version as it comes (versions announced while a fetch runs are skipped, not queued).
-The acting thread's `poll()` only compares two integers unless new weights have arrived.
+Subscribers follow their relay from a background thread, one per process and
+broadcaster however many subscribers the process holds: it long-polls, fetches each
+announced version as it comes (versions announced while a fetch runs are skipped, not
+queued) and hands it to every subscriber of the process. The acting thread's `poll()`
+only compares two integers unless new weights have arrived.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import asyncio
 import threading
 import time
 import warnings
+import weakref
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Optional
 
@@ -39,7 +42,8 @@ if TYPE_CHECKING:  # torch is imported only where tensors are made: a subscriber
     from service.core import Weights  # process need not load it to follow the weights
 
 FANOUT = 64
-"""Subscribers one broadcaster or relay answers directly; more on a node get a relay each.
+"""Long-polls (one per process that subscribes) one broadcaster or relay answers directly;
+more on a node get a relay each.
 On one node a relay is one more hop and process on the same cores, so groups are large
 (README, "Weight broadcast at fleet scale": groups of 16 were slower than none)."""
 MAX_WAITERS = 10_000
@@ -130,8 +134,9 @@ class WeightBroadcaster(_Latest):
         self._announce(self._version, self._weights_ref, True)
 
     async def attach(self, node_id: str) -> BroadcasterHandle:
-        """Where a subscriber on `node_id` long-polls: this broadcaster for the first
-        `fanout` on its own node, else that node's relay for its group of `fanout`."""
+        """Where a process on `node_id` long-polls (its subscribers share one): this
+        broadcaster for the first `fanout` on its own node, else that node's relay for
+        its group of `fanout`."""
         count = self._attached.get(node_id, 0)
         self._attached[node_id] = count + 1
         group = count // self._fanout
@@ -184,13 +189,79 @@ def as_tensors(payload: Payload) -> Weights:
         }
 
 
+class _ProcessFollower:
+    """The one long-poll of a process on a broadcaster, shared by the process's subscribers.
+
+    Its thread attaches once, long-polls, fetches each announced version once and
+    delivers it to every live subscriber of the process: N actors in one process cost
+    one long-poll, one reply and one fetch per version, not N.
+    """
+
+    def __init__(self, broadcaster: BroadcasterHandle, key: str) -> None:
+        self._broadcaster, self._key = broadcaster, key
+        self._lock = threading.Lock()
+        self._subscribers: weakref.WeakSet[WeightSubscriber] = weakref.WeakSet()
+        self._latest: tuple[int, Optional[Payload], float] = (-1, None, float("nan"))
+        self._stopped = False
+        self._error: Optional[BaseException] = None
+        self._thread = threading.Thread(target=self._follow, name="weights", daemon=True)
+        self._thread.start()
+
+    @classmethod
+    def join(cls, subscriber: WeightSubscriber) -> None:
+        """Adds `subscriber` to its process's follower of its broadcaster (started if none)."""
+        # The actor id names the broadcaster across pickled copies of its handle.
+        key = subscriber._broadcaster._actor_id.hex()
+        with _FOLLOWERS_LOCK:
+            follower = _FOLLOWERS.get(key)
+            if follower is None:
+                follower = _FOLLOWERS[key] = cls(subscriber._broadcaster, key)
+            with follower._lock:
+                follower._subscribers.add(subscriber)
+                version, payload, at = follower._latest
+                subscriber._deliver(version, payload, at, follower._stopped, follower._error)
+
+    def _deliver(self) -> None:
+        with self._lock:
+            version, payload, at = self._latest
+            for subscriber in list(self._subscribers):
+                subscriber._deliver(version, payload, at, self._stopped, self._error)
+
+    def _follow(self) -> None:
+        try:
+            node = ray.get_runtime_context().get_node_id()
+            source = ray.get(self._broadcaster.attach.remote(node))
+            known = -1
+            while not self._stopped:
+                reply: _Published = ray.get(source.wait_newer.remote(known))
+                version, weights_ref, stopped = reply
+                if version > known and weights_ref:
+                    payload = ray.get(weights_ref[0])
+                    self._latest, known = (version, payload, time.time()), version
+                self._stopped = stopped
+                self._deliver()
+        except BaseException as e:  # surfaces on the acting threads, at their next poll
+            self._error = e
+            self._deliver()
+        finally:
+            with _FOLLOWERS_LOCK:  # a later subscriber starts afresh (and learns the end)
+                if _FOLLOWERS.get(self._key) is self:
+                    del _FOLLOWERS[self._key]
+
+
+_FOLLOWERS: dict[str, _ProcessFollower] = {}
+"""This process's followers, by broadcaster actor id."""
+_FOLLOWERS_LOCK = threading.Lock()
+
+
 class WeightSubscriber:
     """An actor's `WeightSource`: `poll()` never blocks; it returns new weights when they arrived.
 
-    A background thread follows the broadcast and fetches each announced version; the
-    acting thread's `poll` compares version numbers and returns what the thread fetched.
-    It pickles as its broadcaster's handle, so each Ray actor it is handed to gets a
-    fresh subscriber; its thread starts at the first `poll`, in the process that polls.
+    A background thread (its process's `_ProcessFollower`) follows the broadcast and
+    fetches each announced version; the acting thread's `poll` compares version numbers
+    and returns what the thread fetched. It pickles as its broadcaster's handle, so each
+    Ray actor it is handed to gets a fresh subscriber; it joins its process's follower
+    at the first `poll`, in the process that polls.
     """
 
     def __init__(self, broadcaster: BroadcasterHandle) -> None:
@@ -206,35 +277,27 @@ class WeightSubscriber:
         self._payload: Optional[Payload] = None
         self._error: Optional[BaseException] = None
         self._cond = threading.Condition()
-        self._thread: Optional[threading.Thread] = None
+        self._joined = False
 
     def __reduce__(self) -> tuple[type[WeightSubscriber], tuple[BroadcasterHandle]]:
         return WeightSubscriber, (self._broadcaster,)
 
-    def _follow(self) -> None:
-        try:
-            node = ray.get_runtime_context().get_node_id()
-            source = ray.get(self._broadcaster.attach.remote(node))
-            known = -1
-            while True:
-                reply: _Published = ray.get(source.wait_newer.remote(known))
-                version, weights_ref, stopped = reply
-                if version > known and weights_ref:
-                    payload = ray.get(weights_ref[0])
-                    with self._cond:
-                        self._payload, self.fetched = payload, version
-                        self.fetched_at = time.time()
-                        self._cond.notify_all()
-                    known = version
-                if stopped:
-                    with self._cond:
-                        self.stopped = True
-                        self._cond.notify_all()
-                    return
-        except BaseException as e:  # surfaces on the acting thread, at its next poll
-            with self._cond:
-                self._error = e
-                self._cond.notify_all()
+    def _deliver(
+        self,
+        version: int,
+        payload: Optional[Payload],
+        at: float,
+        stopped: bool,
+        error: Optional[BaseException],
+    ) -> None:
+        """Called by the follower's thread with its newest state."""
+        with self._cond:
+            if version > self.fetched and payload is not None:
+                self._payload, self.fetched, self.fetched_at = payload, version, at
+            self.stopped = self.stopped or stopped
+            if error is not None:
+                self._error = error
+            self._cond.notify_all()
 
     def poll_payload(self, *, block_s: float = 0.0) -> Optional[Payload]:
         """Like `poll`, as published (numpy arrays): for processes without torch.
@@ -242,9 +305,9 @@ class WeightSubscriber:
         Raises:
             RuntimeError: the broadcast was lost (its actor died) before the learner stopped.
         """
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._follow, name="weights", daemon=True)
-            self._thread.start()
+        if not self._joined:
+            self._joined = True
+            _ProcessFollower.join(self)
         if self.fetched <= self.version and self._error is None:  # the per-step cost
             if block_s <= 0:
                 return None

@@ -3,6 +3,7 @@
 graft train --preset pendulum-td3
   ├─ replay server      (child process, gRPC on loopback; one table per phase)
   ├─ weight broadcaster (Ray actor behind the learner's BroadcastPublisher)
+  ├─ step budget        (Ray actor: each phase's env steps, claimed by the actors)
   ├─ N env actors       (Ray actors, the algorithm's behaviour) ──insert──▶ replay
   ├─ evaluator          (Ray actor, the behaviour's greedy policy)
   └─ learner loop       (this process) ◀──sample── replay, ──publish──▶ broadcaster
@@ -45,6 +46,7 @@ from learner.loop import LearnerLoop, Lockstep, LoopSettings, LoopState
 from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.replay.client import ReplayClient
+from service.run.budget import StepBudget
 from service.run.clients import actor_env, evaluator_env, world_clients
 from service.run.config import TrainConfig
 from service.run.lockstep import ActorRing, deterministic, stalled
@@ -158,9 +160,10 @@ PENDING_INSERTS = 8
 
 
 def _segments(phases: list[Phase], num_actors: int) -> list[Segment]:
-    """Each actor's share of every phase's env steps (rounded up). A phase whose table
-    holds a samples-per-insert ratio has each insert waited for, so the rate limiter
-    paces acting; a `min_size` table takes a queue of inserts."""
+    """Each actor's share of every phase's env steps (rounded up); with `num_actors=1`
+    the whole phases, as actors drawing on a shared `StepBudget` are given them. A phase
+    whose table holds a samples-per-insert ratio has each insert waited for, so the rate
+    limiter paces acting; a `min_size` table takes a queue of inserts."""
     return [
         Segment(
             p.name,
@@ -393,18 +396,25 @@ def train(
                 async_envs=config.async_envs,
             )
 
-        # Asynchronous: every actor acts its segments on its own, and a dead one is
-        # replaced. Reproducible: the learner asks them for one insert batch at a time
-        # (ActorRing) and draws each batch only when it needs it; wall-clock metrics go to
-        # timing.csv, not metrics.csv. A dead actor there ends the run (a replacement
-        # would change what the seed computes).
+        # Asynchronous: every actor claims the steps of each phase from one shared budget,
+        # an insert batch at a time, until the phase's budget is spent (so none idles
+        # while others act); a dead one is replaced. Reproducible: each has a fixed share,
+        # and the learner asks them for one insert batch at a time (ActorRing) and draws
+        # each batch only when it needs it; wall-clock metrics go to timing.csv, not
+        # metrics.csv. A dead actor there ends the run (a replacement would change what
+        # the seed computes).
         segments = _segments(phases, config.num_actors)
+        budget = None
+        if not config.reproducible:
+            # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
+            budget = StepBudget.remote({s.table: s.steps for s in _segments(phases, 1)})  # type: ignore[attr-defined]
         actors = ActorFleet(
             make_actor,
-            segments,
+            segments if budget is None else _segments(phases, 1),
             config.num_actors,
             max_restarts=0 if config.reproducible else config.actors.max_restarts,
             start=not config.reproducible,
+            budget=budget,
         )
         supervisor = Supervisor(replay, actors, say)
         lockstep = (

@@ -1,5 +1,6 @@
 """Keeping a run alive through faults: the replay server restarted from its checkpoint
-folder, dead env actors replaced by new ones that take over the rest of their share.
+folder, dead env actors replaced by new ones that take over the rest of their work (of
+the run's shared step budget, or of a fixed share when no budget is given).
 
 A `Supervisor` thread checks both twice a second while the learner trains. Every
 restart is said in one line (`note`) and counted (`faults/replay_restarts`,
@@ -21,6 +22,7 @@ import ray
 from ray.exceptions import RayActorError
 
 from actors.env_actor import Segment
+from service.run.budget import BudgetClaims, BudgetHandle
 from service.run.replay_process import ReplayProcess
 
 CHECK_EVERY_S = 0.5
@@ -125,16 +127,23 @@ class _Slot:
 
 class ActorFleet:
     """The run's env actors; a dead one is replaced by a new actor that takes over the
-    rest of its share (what its predecessor stored is known from its reports, polled
-    by `check()`; at most the batch in flight at its death is acted again).
+    rest of its work (what its predecessor stored is known from its reports, polled
+    by `check()`, and from its claims; at most the batch in flight at its death is acted
+    again).
+
+    With a `budget` (a `StepBudget`) every actor draws the steps of each phase from it,
+    one insert batch at a time: a dead actor's claims past what it stored go back to the
+    budget, and its replacement claims like any other actor. Without one, each actor acts
+    its own fixed share and a replacement gets the rest of it.
 
     Args:
         make_actor: (actor index, incarnation) -> a started actor handle.
-        segments: each actor's share.
+        segments: each actor's share, or with a budget the whole phases.
         count: how many actors.
         max_restarts: restarts allowed over all actors.
         start: start each actor's `run` on its share; False when someone else drives
             the actors (reproducible mode), and then they are not supervised.
+        budget: the run's shared step budget (None: fixed shares).
     """
 
     def __init__(
@@ -145,13 +154,22 @@ class ActorFleet:
         *,
         max_restarts: int,
         start: bool = True,
+        budget: Optional[BudgetHandle] = None,
     ) -> None:
         self._make, self.max_restarts, self.restarts = make_actor, max_restarts, 0
+        self.budget = budget
         self.slots = []
         for i in range(count):
             actor = make_actor(i, 0)
-            run = actor.run.remote(segments) if start else None
-            self.slots.append(_Slot(actor, run, list(segments)))
+            slot = _Slot(actor, None, list(segments))
+            if start:
+                slot.run = self._start(i, slot)
+            self.slots.append(slot)
+
+    def _start(self, i: int, slot: _Slot) -> Any:
+        if self.budget is None:
+            return slot.actor.run.remote(slot.segments)
+        return slot.actor.run.remote(slot.segments, BudgetClaims(self.budget, _lease(i, slot)))
 
     @property
     def handles(self) -> list[Any]:
@@ -197,11 +215,21 @@ class ActorFleet:
             )
         self.restarts += 1
         ray.kill(slot.actor)
+        if self.budget is not None:
+            # Its claims past what it stored go back; the budget may know of more stored.
+            slot.stored = int(ray.get(self.budget.release.remote(_lease(i, slot), slot.stored)))
+        else:
+            slot.segments = remaining_segments(slot.segments, slot.stored)
         slot.stored_before += slot.stored
-        slot.segments = remaining_segments(slot.segments, slot.stored)
         slot.stored, slot.report, slot.incarnation = 0, None, slot.incarnation + 1
         slot.actor = self._make(i, slot.incarnation)
-        slot.run = slot.actor.run.remote(slot.segments)
+        slot.run = self._start(i, slot)
+        if self.budget is not None:
+            left = sum(ray.get(self.budget.left.remote()).values())
+            return (
+                f"env actor {i} died ({_first_line(error)}); restarted it, {left:,} env steps "
+                f"of the shared budget left to claim (actor restart {self.restarts})"
+            )
         left = sum(s.steps for s in slot.segments)
         return (
             f"env actor {i} died ({_first_line(error)}); restarted it with {left:,} env "
@@ -247,6 +275,13 @@ class ActorFleet:
     def kill(self) -> None:
         for slot in self.slots:
             ray.kill(slot.actor)
+        if self.budget is not None:
+            ray.kill(self.budget)
+
+
+def _lease(i: int, slot: _Slot) -> str:
+    """The name one incarnation of actor `i` claims under."""
+    return f"actor-{i}.{slot.incarnation}"
 
 
 def _first_line(error: BaseException) -> str:

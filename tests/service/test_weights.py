@@ -65,18 +65,20 @@ def test_stop_reaches_every_subscriber_and_old_versions_are_refused(ray_local):
 
 def test_subscribers_past_the_fanout_follow_relays_and_all_get_the_newest_version(ray_local):
     @ray.remote(num_cpus=0)
-    def follow(
-        subscriber: WeightSubscriber, last: int
-    ) -> tuple[list[int], dict[str, torch.Tensor]]:
-        versions, weights = [], None
-        while subscriber.version < last:
-            if (new := subscriber.poll(block_s=1.0)) is not None:
-                versions.append(subscriber.version)
-                weights = new
-        return versions, weights
+    class Follower:  # an actor each: five processes, five long-polls
+        def follow(
+            self, subscriber: WeightSubscriber, last: int
+        ) -> tuple[list[int], dict[str, torch.Tensor]]:
+            versions, weights = [], None
+            while subscriber.version < last:
+                if (new := subscriber.poll(block_s=1.0)) is not None:
+                    versions.append(subscriber.version)
+                    weights = new
+            return versions, weights
 
     publisher = BroadcastPublisher(fanout=2)
-    runs = [follow.remote(publisher.subscriber(), 2) for _ in range(5)]
+    followers = [Follower.remote() for _ in range(5)]
+    runs = [f.follow.remote(publisher.subscriber(), 2) for f in followers]
     for version in range(3):
         publisher.publish(version, {"w": torch.full((3,), float(version))})
     for versions, weights in ray.get(runs, timeout=60):
@@ -85,6 +87,29 @@ def test_subscribers_past_the_fanout_follow_relays_and_all_get_the_newest_versio
     # One node: the broadcaster answers the first 2 subscribers, a relay each further 2.
     assert len(ray.get(publisher.broadcaster.relays.remote())) == 2
     publisher.stop()
+    for f in followers:
+        ray.kill(f)
+
+
+def test_subscribers_in_one_process_share_one_long_poll(ray_local):
+    # Fan-out 1: were each of the three its own long-poll, two would need relays.
+    publisher = BroadcastPublisher(fanout=1)
+    subscribers = [publisher.subscriber() for _ in range(3)]
+    for version in range(2):
+        publisher.publish(version, {"w": torch.full((2,), float(version))})
+        for subscriber in subscribers:
+            while subscriber.version < version:
+                adopt(subscriber)
+    assert {s.version for s in subscribers} == {1}
+    assert ray.get(publisher.broadcaster.relays.remote()) == []
+    # A subscriber that joins later gets the newest version at once, and the end.
+    late = publisher.subscriber()
+    assert torch.equal(adopt(late)["w"], torch.ones(2)) and late.version == 1
+    publisher.stop()
+    for subscriber in [*subscribers, late]:
+        while not subscriber.stopped:
+            assert subscriber.poll(block_s=1.0) is None
+    publisher.close()
 
 
 def test_an_actor_whose_broadcast_died_fails_instead_of_acting_on_stale_weights(ray_local):
