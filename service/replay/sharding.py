@@ -175,15 +175,12 @@ class ShardedSampleStream:
         ]
         self.wait_s = 0.0
         self.table_size = 0
+        self.table_inserts = 0
+        """Items inserted over all shards, as of each shard's newest batch."""
 
     def _wake(self) -> None:
         with self._arrived:
             self._arrived.notify_all()
-
-    @property
-    def table_inserts(self) -> int:
-        """Items inserted into the table over all shards, as of each shard's newest batch."""
-        return sum(s.seen_inserts for s in self._streams)
 
     @property
     def shard_sizes(self) -> list[int]:
@@ -213,6 +210,7 @@ class ShardedSampleStream:
         shard = ready[int(self._client._rng.choice(len(ready), p=sizes / sizes.sum()))]
         batch = self._streams[shard].next_within(0)  # ready: returns at once
         self.table_size = sum(self.shard_sizes)
+        self.table_inserts = sum(s.seen_inserts for s in self._streams)
         return self._client._tag(batch, shard)
 
     def close(self) -> None:

@@ -1,0 +1,140 @@
+"""Replay shards in a run (`replay.shards`): each shard's share of the table, refused
+shard counts, and a tiny run on two real replay servers that survives one's SIGKILL."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from service.run.config import load_preset
+from service.run.launcher import train
+from service.run.replay_shards import shard_tables
+from service.run.validation import ConfigError
+
+TABLE = {
+    "name": "transitions",
+    "max_size": 1000,
+    "signature": {},
+    "seed": 7,
+    "rate_limiter": {
+        "kind": "sample_to_insert_ratio", "samples_per_insert": 256.0, "min_size": 1000,
+        "error_buffer": 51200.0, "sample_credit": 300.0,
+    },
+}  # fmt: skip
+
+
+def test_one_shard_is_the_run_table_unchanged() -> None:
+    assert shard_tables([TABLE], 1) == [[TABLE]]
+
+
+def test_shards_split_size_minimum_buffer_and_credit_so_the_sums_hold() -> None:
+    shards = [tables[0] for tables in shard_tables([TABLE], 3)]
+    limiters = [s["rate_limiter"] for s in shards]
+    assert [s["max_size"] for s in shards] == [334, 334, 334]
+    assert [r["min_size"] for r in limiters] == [334, 333, 333]  # sums to 1000
+    assert [r["error_buffer"] for r in limiters] == pytest.approx([51200 / 3] * 3)
+    assert [r["sample_credit"] for r in limiters] == pytest.approx([100.0] * 3)
+    assert {r["samples_per_insert"] for r in limiters} == {256.0}  # the ratio is the preset's
+    assert len({s["seed"] for s in shards}) == 3  # each shard samples with its own seed
+    assert TABLE["rate_limiter"]["min_size"] == 1000  # the run's table is left as it was
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"replay.shards": 0}, "replay.shards=0 must lie in [1, 255]"),
+        ({"replay.shards": 3}, "replay.shards=3 needs num_actors >= 3"),
+        ({"replay.shards": 2, "slack_env_steps": 1}, "replay.shards=2 needs slack_env_steps >= 2"),
+        ({"replay.shards": 2, "reproducible": True}, "replay.shards=2: a reproducible run"),
+        ({"replay.shards": 2, "replay.port": 65535}, "replay.port=65535 with shards=2"),
+    ],
+)
+def test_a_shard_count_the_run_cannot_use_is_one_line(overrides, message) -> None:
+    with pytest.raises(ConfigError) as caught:
+        load_preset("pendulum-td3", **overrides)
+    assert str(caught.value).startswith(message) and "\n" not in str(caught.value)
+
+
+def _own_shard_server(run_dir: Path, shard: int) -> int:
+    """The PID of this process's replay server child for `shard` of the run in `run_dir`."""
+    folder = str(run_dir / "replay" / f"shard-{shard}")
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().split(b"\0")
+            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == os.getpid() and b"service.run.replay_cli" in argv and folder.encode() in argv:
+            return int(entry.name)
+    raise AssertionError(f"no replay server of {folder} among this process's children")
+
+
+def _metric(path: Path, key: str) -> list[float]:
+    with path.open() as f:
+        return [float(row["value"]) for row in csv.DictReader(f) if row["key"] == key]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_a_run_on_two_shards_fills_both_and_survives_a_killed_shard(
+    ray_local, tmp_path, capsys
+) -> None:
+    env_steps, learning_starts = 1200, 200
+    config = load_preset(
+        "pendulum-td3",
+        env_steps=env_steps,
+        learning_starts=learning_starts,
+        eval_every=100_000,
+        eval_episodes=1,
+        publish_every=20,
+        checkpoint_every=500,
+        num_actors=2,
+        envs_per_actor=2,
+        steps_per_insert=4,
+        slack_env_steps=32,
+        # Samples are not logged: a restarted shard forgets those since its checkpoint,
+        # and its limiter then holds its writers' last inserts by as many.
+        **{"replay.shards": 2, "replay.checkpoint_every_s": 1.0, "td3.hidden_sizes": [32, 32]},
+    )
+    outcome: dict[str, object] = {}
+
+    def run() -> None:
+        try:
+            outcome["result"] = train(config, run_dir=tmp_path, progress=False)
+        except BaseException as error:  # raised below, on the test's thread
+            outcome["error"] = error
+
+    runner = threading.Thread(target=run)
+    runner.start()
+    metrics = tmp_path / "metrics.csv"
+    deadline = time.monotonic() + 300
+    # The fault strikes once the learner trains (its first metrics rows are written).
+    while not (metrics.exists() and len(metrics.read_text().splitlines()) > 4):
+        assert runner.is_alive(), outcome
+        assert time.monotonic() < deadline, "the run did not start training"
+        time.sleep(0.2)
+    os.kill(_own_shard_server(tmp_path, 1), signal.SIGKILL)
+    runner.join(timeout=max(deadline - time.monotonic(), 1))
+    assert not runner.is_alive(), "the run did not finish"
+    if "error" in outcome:
+        raise outcome["error"]  # type: ignore[misc]
+
+    summary = outcome["result"].summary  # type: ignore[attr-defined]
+    assert summary["updates"] == env_steps - learning_starts  # the learner's whole budget
+    assert sum(summary["actor_env_steps"]) == env_steps
+    inserts = summary["replay_shard_inserts"]
+    assert len(inserts) == 2 and min(inserts) > 0, inserts  # every shard got inserts
+    err = capsys.readouterr().err
+    assert "shard 1: replay server died (exit code -9); restarted" in err, err
+    assert _metric(metrics, "faults/replay_restarts")[-1] == 1
+    for k in (0, 1):  # each shard kept its own checkpoint folder and log
+        assert (tmp_path / "replay" / f"shard-{k}").is_dir()
+        assert (tmp_path / f"replay-shard-{k}.log").stat().st_size > 0
