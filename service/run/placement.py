@@ -109,6 +109,8 @@ class ReplaySettings:
     learner samples all; shard K listens on ``port + K`` when a port is fixed."""
 
     def __post_init__(self) -> None:
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port={self.port} must lie in [0, 65535] (0: a free port)")
         if not 1 <= self.shards <= 255:
             raise ValueError(f"shards={self.shards} must lie in [1, 255]")
         if self.port and self.port + self.shards - 1 > 65535:
@@ -116,8 +118,6 @@ class ReplaySettings:
                 f"port={self.port} with shards={self.shards}: shard K listens on port + K, "
                 "which must stay <= 65535"
             )
-        if not 0 <= self.port < 65536:
-            raise ValueError(f"port={self.port} must lie in [0, 65535] (0: a free port)")
         if self.checkpoint_every_s <= 0:
             raise ValueError(f"checkpoint_every_s={self.checkpoint_every_s} must be > 0")
         if self.max_restarts < 0:
