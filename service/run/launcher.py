@@ -555,7 +555,8 @@ def _check_actors(runs: list[Any]) -> None:
     if len(finished) == len(runs):
         raise RuntimeError(
             "every actor finished, but the learner is still waiting for sampled batches: "
-            "the rate limiter and the update budget disagree (see replay.log, or replay-shard-K.log)"
+            "the rate limiter and the update budget disagree (see replay.log, or each "
+            "shard's replay-shard-K.log)"
         )
 
 
