@@ -3,6 +3,7 @@ shard counts, and a tiny run on two real replay servers that survives one's SIGK
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
 import signal
@@ -10,12 +11,17 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from service.replay.client import DeadlineExceeded
+from service.replay.sharding import ShardedReplayClient
 from service.run.config import load_preset
 from service.run.launcher import train
+from service.run.replay_process import ReplayProcess
 from service.run.replay_shards import shard_tables
 from service.run.validation import ConfigError
+from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
 
 TABLE = {
     "name": "transitions",
@@ -59,6 +65,55 @@ def test_a_shard_count_the_run_cannot_use_is_one_line(overrides, message) -> Non
     with pytest.raises(ConfigError) as caught:
         load_preset("pendulum-td3", **overrides)
     assert str(caught.value).startswith(message) and "\n" not in str(caught.value)
+
+
+def test_two_shards_hold_the_ratio_over_the_whole_replay() -> None:
+    # 4 samples per inserted item over two real shards, the learner slower than the
+    # writers (so both limiters hold inserts at the top of their buffers): each limiter
+    # holds its share, so the sums hold the one server's balance, not twice its buffer.
+    spi, min_size, buffer = 4.0, 20, 160.0
+    run_table = {
+        "name": "t", "max_size": 10_000, "signature": SCALAR_SIGNATURE,
+        "rate_limiter": {"kind": "sample_to_insert_ratio", "samples_per_insert": spi,
+                         "min_size": min_size, "error_buffer": buffer},
+    }  # fmt: skip
+    with contextlib.ExitStack() as stack:
+        servers = [
+            stack.enter_context(ReplayProcess(tables)) for tables in shard_tables([run_table], 2)
+        ]
+        addresses = [s.address for s in servers]
+        stop = threading.Event()
+
+        def write(home: int, pause_s: float) -> None:
+            client, start = ShardedReplayClient(addresses, home=home), 0
+            while not stop.is_set():
+                try:
+                    client.insert("t", scalar_batch(np.arange(start, start + 4)), timeout=0.2)
+                    start += 4
+                except DeadlineExceeded:
+                    pass  # held by its shard's limiter
+                time.sleep(pause_s)
+
+        writers = [threading.Thread(target=write, args=(k, 0.001)) for k in (0, 1)]
+        for w in writers:
+            w.start()
+        stream = ShardedReplayClient(addresses, seed=0).sample_stream("t", 8, prefetch=2)
+        try:
+            for _ in range(150):
+                stream.next_within(10.0)
+                time.sleep(0.005)  # the learner's update
+        finally:
+            stream.close()
+            stop.set()
+            for w in writers:
+                w.join()
+        status = [ShardedReplayClient(addresses).info()[k][0] for k in (0, 1)]
+    assert min(s.inserts for s in status) > min_size  # both writers got past their share
+    inserts, samples = sum(s.inserts for s in status), sum(s.samples for s in status)
+    assert samples >= 150 * 8
+    imbalance = inserts * spi - samples - min_size * spi
+    # Within the preset's buffer, but for each shard's overshoot by one batch.
+    assert -buffer - 2 * 8 <= imbalance <= buffer + 2 * 4 * spi, (inserts, samples)
 
 
 def _own_shard_server(run_dir: Path, shard: int) -> int:
