@@ -329,6 +329,8 @@ class SampleStream:
     the table's rate limiter then sees the learner's true pace. `wait_s` adds up the
     time the consumer waited for a batch (time lost to the replay server). If the
     server becomes UNAVAILABLE (restart), the stream reconnects with backoff.
+    `on_arrival` is called (from the prefetch thread) after each batch arrives, so a
+    consumer of several streams can wait for whichever is `ready()` first.
     """
 
     def __init__(
@@ -339,10 +341,16 @@ class SampleStream:
         *,
         prefetch: int,
         sequence_length: int = 1,
+        on_arrival: Optional[Callable[[], None]] = None,
     ) -> None:
         self.table_inserts = 0
         self.table_size = 0
+        self.seen_inserts = 0
+        """The table's inserts as of the newest batch received (consumed or not)."""
+        self.seen_size = 0
+        """The table's size as of the newest batch received (consumed or not)."""
         self.wait_s = 0.0
+        self._on_arrival = on_arrival
         self._client = client
         self._prefetch = max(prefetch, 1)
         self._batches: queue.Queue[_Sampled] = queue.Queue()
@@ -378,7 +386,8 @@ class SampleStream:
                 for response in self._call:
                     attempt = 0
                     batch = decode_batch(response.batch, max_bytes=self._client.max_message_bytes)
-                    self._batches.put((batch, response.table_inserts, response.table_size))
+                    self.seen_inserts, self.seen_size = response.table_inserts, response.table_size
+                    self._put((batch, response.table_inserts, response.table_size))
                 break
             except grpc.RpcError as error:
                 if self._closed.is_set() or error.code() == grpc.StatusCode.CANCELLED:
@@ -387,12 +396,22 @@ class SampleStream:
                     error.code() != grpc.StatusCode.UNAVAILABLE
                     or attempt >= self._client.max_retries
                 ):
-                    self._batches.put(_typed(error))
+                    self._put(_typed(error))
                     break
                 time.sleep(min(0.05 * 2**attempt, 2.0))
                 attempt += 1
                 self._call = self._open()
-        self._batches.put(None)
+        self._put(None)
+
+    def _put(self, item: _Sampled) -> None:
+        self._batches.put(item)
+        if self._on_arrival is not None:
+            self._on_arrival()
+
+    def ready(self) -> bool:
+        """A batch (or the stream's end, or its error) waits to be taken: `next_within(0)`
+        returns it at once."""
+        return not self._batches.empty()
 
     def __iter__(self) -> Iterator[Batch]:
         return self

@@ -1,14 +1,23 @@
 """Several replay servers as one: writers are routed to a shard, samples drawn across shards.
 
-Each writer always inserts into the same shard (chosen from its writer id), so its
-batches stay in order and its episodes, and the windows cut from them, stay whole.
-A sampled batch comes from one shard chosen with probability proportional to the
-shard's size, so every stored item is equally likely overall. Keys carry their shard
-in the top byte, so priority updates find their way back.
+Each writer always inserts into the same shard (its `home`: given, or chosen from its
+writer id), so its batches stay in order and its episodes, and the windows cut from
+them, stay whole. A sampled batch comes from one shard chosen with probability
+proportional to the shard's size, so every stored item is equally likely overall;
+a stream chooses among the shards that have a batch ready, so a shard whose rate
+limiter holds samples back never stalls the learner while another shard has one.
+Keys carry their shard in the top byte, so priority updates find their way back.
+
+Each shard's rate limiter sees only its own inserts and samples. Its ratio is the
+preset's, and its error buffer, minimum size and sample credit are the preset's shares
+(`service/run/replay_shards.py` splits them), so the sums over shards hold the preset's
+samples-per-insert ratio overall (see `ShardedSampleStream`).
 """
 
 from __future__ import annotations
 
+import threading
+import time
 import uuid
 import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -16,7 +25,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from service.replay.client import OnDemandStream, ReplayClient, SampleStream, TableStatus
+from service.replay.client import ReplayClient, SampleStream, TableStatus
 from service.replay.codec import Batch
 
 SHARD_SHIFT = np.uint64(56)
@@ -24,7 +33,17 @@ KEY_MASK = np.uint64((1 << 56) - 1)
 
 
 class ShardedReplayClient:
-    """The ReplayClient interface over `addresses`; pickles as its addresses."""
+    """The ReplayClient interface over `addresses`; pickles as its addresses, retries and home.
+
+    Args:
+        addresses: "host:port" of each shard, in shard order.
+        token: shared secret of servers bound beyond loopback.
+        writer_id: this writer's id on every shard (default: a fresh one).
+        seed: seeds the choice of shard per sampled batch.
+        max_retries: retries of an UNAVAILABLE call per shard (`ReplayClient`).
+        home: the shard this writer inserts into (default: from its writer id); a run
+            gives actor i shard i mod N, so every shard has writers.
+    """
 
     def __init__(
         self,
@@ -33,20 +52,31 @@ class ShardedReplayClient:
         token: Optional[str] = None,
         writer_id: Optional[str] = None,
         seed: Optional[int] = None,
+        max_retries: int = 8,
+        home: Optional[int] = None,
     ) -> None:
         if not addresses:
             raise ValueError("a sharded client needs at least one address")
         if len(addresses) > 255:
             raise ValueError("at most 255 shards: the shard index lives in the key's top byte")
+        if home is not None and not 0 <= home < len(addresses):
+            raise ValueError(f"home={home} must lie in [0, {len(addresses) - 1}]")
         self.addresses = list(addresses)
         self.token = token
+        self.max_retries = max_retries
         self.writer_id = writer_id or uuid.uuid4().hex
-        self.shards = [ReplayClient(a, token=token, writer_id=self.writer_id) for a in addresses]
-        self.home = zlib.crc32(self.writer_id.encode()) % len(self.shards)
+        self.shards = [
+            ReplayClient(a, token=token, writer_id=self.writer_id, max_retries=max_retries)
+            for a in addresses
+        ]
+        self._home = home
+        self.home = (
+            home if home is not None else zlib.crc32(self.writer_id.encode()) % len(self.shards)
+        )
         self._rng = np.random.default_rng(seed)
 
     def __reduce__(self) -> tuple[Callable[..., ShardedReplayClient], tuple[Any, ...]]:
-        return (_rebuild, (self.addresses, self.token))
+        return (_rebuild, (self.addresses, self.token, self.max_retries, self._home))
 
     def insert(
         self, table: str, columns: Mapping[str, np.ndarray], *, timeout: Optional[float] = None
@@ -78,11 +108,11 @@ class ShardedReplayClient:
 
     def sample_stream(self, table: str, batch_size: int, *, prefetch: int = 4,
                       sequence_length: int = 1) -> ShardedSampleStream:  # fmt: skip
-        streams = [
-            s.sample_stream(table, batch_size, prefetch=prefetch, sequence_length=sequence_length)
-            for s in self.shards
-        ]
-        return ShardedSampleStream(self, streams, self._sizes(table))
+        """Batches from every shard (`ShardedSampleStream`); `prefetch` batches in flight
+        over all shards (at least one per shard: prefetch 0 is taken as 1 per shard)."""
+        return ShardedSampleStream(
+            self, table, batch_size, prefetch=prefetch, sequence_length=sequence_length
+        )
 
     def update_priorities(self, table: str, keys: np.ndarray, priorities: np.ndarray) -> int:
         keys = np.asarray(keys, dtype=np.uint64).reshape(-1)
@@ -106,35 +136,81 @@ class ShardedReplayClient:
 
 
 class ShardedSampleStream:
-    """Prefetching streams from every shard; each batch comes from a size-weighted shard."""
+    """Prefetching streams from every shard; each batch comes from a shard that has one
+    ready, chosen with probability proportional to the shard's size.
+
+    Why among the ready ones: every shard's rate limiter admits samples only as its own
+    inserts arrive. Blocking on a size-chosen shard whose actors are behind would stall
+    the learner while another shard has batches waiting. Choosing among ready shards,
+    the learner's samples follow what each limiter admits, so every shard holds the
+    ratio within its error buffer and, summed, the whole replay holds it within the
+    preset's buffer. While no limiter holds (all ready), the choice is proportional to
+    size: uniform over every stored item, as one server would sample. Sizes come with
+    each batch received (`SampleStream.seen_size`); a shard that has sent nothing yet is
+    below its minimum size and not ready anyway.
+    """
 
     def __init__(
         self,
         client: ShardedReplayClient,
-        streams: list[SampleStream | OnDemandStream],
-        sizes: np.ndarray,
+        table: str,
+        batch_size: int,
+        *,
+        prefetch: int,
+        sequence_length: int = 1,
     ) -> None:
-        self._client, self._streams = client, streams
-        self._sizes = np.maximum(sizes, 0.0)
+        self._client = client
+        self._arrived = threading.Condition()
+        each = max(-(-prefetch // len(client.shards)), 1)
+        self._streams = [
+            SampleStream(
+                shard,
+                table,
+                batch_size,
+                prefetch=each,
+                sequence_length=sequence_length,
+                on_arrival=self._wake,
+            )
+            for shard in client.shards
+        ]
+        self.wait_s = 0.0
+        self.table_size = 0
+        self.table_inserts = 0
+        """Items inserted over all shards, as of each shard's newest batch."""
+
+    def _wake(self) -> None:
+        with self._arrived:
+            self._arrived.notify_all()
 
     @property
-    def wait_s(self) -> float:
-        return sum(s.wait_s for s in self._streams)
-
-    @property
-    def table_inserts(self) -> int:
-        return sum(s.table_inserts for s in self._streams)
+    def shard_sizes(self) -> list[int]:
+        """Each shard's table size, as of its newest batch."""
+        return [s.seen_size for s in self._streams]
 
     def __iter__(self) -> Iterator[Batch]:
         return self
 
     def __next__(self) -> Batch:
-        total = self._sizes.sum()
-        p = self._sizes / total if total > 0 else None
-        shard = int(self._client._rng.choice(len(self._streams), p=p))
-        batch = next(self._streams[shard])
-        # Keep the weights current: each response reports its shard's size.
-        self._sizes[shard] = max(self._streams[shard].table_size, 1)
+        return self.next_within(None)
+
+    def next_within(self, timeout: Optional[float]) -> Batch:
+        """The next batch; raises TimeoutError if no shard has one within `timeout` s."""
+        start = time.perf_counter()
+        deadline = None if timeout is None else time.monotonic() + timeout
+        try:
+            with self._arrived:
+                while not (ready := [k for k, s in enumerate(self._streams) if s.ready()]):
+                    remaining = None if deadline is None else deadline - time.monotonic()
+                    if remaining is not None and remaining <= 0:
+                        raise TimeoutError(f"no sampled batch within {timeout} s")
+                    self._arrived.wait(remaining)
+        finally:
+            self.wait_s += time.perf_counter() - start
+        sizes = np.array([max(self._streams[k].seen_size, 1) for k in ready], float)
+        shard = ready[int(self._client._rng.choice(len(ready), p=sizes / sizes.sum()))]
+        batch = self._streams[shard].next_within(0)  # ready: returns at once
+        self.table_size = sum(self.shard_sizes)
+        self.table_inserts = sum(s.seen_inserts for s in self._streams)
         return self._client._tag(batch, shard)
 
     def close(self) -> None:
@@ -142,5 +218,7 @@ class ShardedSampleStream:
             s.close()
 
 
-def _rebuild(addresses: list[str], token: Optional[str]) -> ShardedReplayClient:
-    return ShardedReplayClient(addresses, token=token)
+def _rebuild(
+    addresses: list[str], token: Optional[str], max_retries: int, home: Optional[int]
+) -> ShardedReplayClient:
+    return ShardedReplayClient(addresses, token=token, max_retries=max_retries, home=home)

@@ -119,7 +119,7 @@ class TrainConfig:
     learner: LearnerPlacement = field(default_factory=LearnerPlacement)
     """What the learner reserves where it runs as a Ray task (``ray://`` addresses)."""
     replay: ReplaySettings = field(default_factory=ReplaySettings)
-    """The replay server's port, checkpoint interval and restarts."""
+    """The replay servers: port, checkpoint interval, restarts and shards."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -173,10 +173,32 @@ class TrainConfig:
                 "async_envs=true with reproducible=true: the reproducible mode steps an "
                 "actor's environments in lock-step; turn one of them off"
             )
+        self._check_shards()
         if not isinstance(self.import_path, list) or not all(
             isinstance(p, str) for p in self.import_path
         ):
             raise ValueError(f"import_path={self.import_path!r} must be a list of folders")
+
+    def _check_shards(self) -> None:
+        """Refuses a shard count the run cannot use: each shard needs a writer, a share
+        of the table's minimum size and of the rate limiter's slack of at least one."""
+        n = self.replay.shards
+        if n == 1:
+            return
+        if self.reproducible:
+            raise ValueError(
+                f"replay.shards={n}: a reproducible run uses one replay server (replay.shards: 1)"
+            )
+        for name, value in (
+            ("num_actors", self.num_actors),
+            ("learning_starts", self.learning_starts),
+            ("slack_env_steps", self.slack_env_steps),
+        ):
+            if value < n:
+                raise ValueError(
+                    f"replay.shards={n} needs {name} >= {n} (each shard gets its share), "
+                    f"got {name}={value}"
+                )
 
     @property
     def online_env_steps(self) -> int:

@@ -1,7 +1,8 @@
 """Orchestration of one training run: Ray, the replay server, actors, evaluator and learner.
 
 graft train --preset pendulum-td3
-  ├─ replay server      (child process, gRPC on loopback; one table per phase)
+  ├─ replay server      (child process, gRPC on loopback; one table per phase;
+  │                      `replay.shards` of them: service/run/replay_shards.py)
   ├─ weight broadcaster (Ray actor behind the learner's BroadcastPublisher)
   ├─ step budget        (Ray actor: each phase's env steps, claimed by the actors)
   ├─ N env actors       (Ray actors, the algorithm's behaviour) ──insert──▶ replay
@@ -45,7 +46,6 @@ from learner.checkpoint import load_checkpoint
 from learner.loop import LearnerLoop, Lockstep, LoopSettings, LoopState
 from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
-from service.replay.client import ReplayClient
 from service.run.budget import StepBudget
 from service.run.clients import actor_env, evaluator_env, world_clients
 from service.run.config import TrainConfig
@@ -53,7 +53,8 @@ from service.run.lockstep import ActorRing, deterministic, stalled
 from service.run.preflight import check_cluster, check_fits_locally, check_run_dir, check_task
 from service.run.provenance import config_record
 from service.run.registry import make_builder
-from service.run.supervision import ActorFleet, SupervisedReplay, Supervisor
+from service.run.replay_shards import RunReplay
+from service.run.supervision import ActorFleet, Supervisor
 from service.run.validation import ConfigError
 from service.weights import BroadcastPublisher
 
@@ -157,6 +158,31 @@ ACTOR_FINISH_S = 60.0
 
 PENDING_INSERTS = 8
 """Insert batches an actor may queue for a table that never holds inserts back."""
+
+
+def start_replay(
+    tables: list[dict[str, Any]],
+    config: TrainConfig,
+    *,
+    host: str,
+    token: Optional[str],
+    run_dir: Path,
+) -> RunReplay:
+    """The run's replay servers (`replay.shards` of them), supervised, with clients that
+    connect from any node (the node's address when they listen on the network)."""
+    return RunReplay(
+        tables,
+        shards=config.replay.shards,
+        host=host,
+        port=config.replay.port,
+        token=token,
+        run_dir=run_dir,
+        checkpoint_every_s=config.replay.checkpoint_every_s,
+        max_restarts=config.replay.max_restarts,
+        advertise=ray.util.get_node_ip_address() if host == "0.0.0.0" else None,
+        # Resends keep their sequence numbers, so retrying through a restart doubles nothing.
+        max_retries=RETRIES_ACROSS_RESTART,
+    )
 
 
 def _segments(phases: list[Phase], num_actors: int) -> list[Segment]:
@@ -336,7 +362,7 @@ def train(
         print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
     started_ray = connect_ray(address)
     actors: Optional[ActorFleet] = None
-    replay: Optional[SupervisedReplay] = None
+    replay: Optional[RunReplay] = None
     supervisor: Optional[Supervisor] = None
     publisher: Optional[BroadcastPublisher] = None
     evaluator: Optional[RemoteEvaluator] = None
@@ -351,21 +377,8 @@ def train(
         replay_dir = run_dir / "replay"
         if checkpoint is not None and replay_dir.exists():
             shutil.rmtree(replay_dir)  # the resumed run refills a fresh table (see _resumed_phases)
-        replay = SupervisedReplay(
-            tables,
-            host=host,
-            port=config.replay.port,
-            token=token,
-            checkpoint_dir=replay_dir,
-            checkpoint_every_s=config.replay.checkpoint_every_s,
-            log_path=run_dir / "replay.log",
-            max_restarts=config.replay.max_restarts,
-        )
-        connect_to = replay.address
-        if host == "0.0.0.0":
-            connect_to = f"{ray.util.get_node_ip_address()}:{replay.port}"
-        # Resends keep their sequence numbers, so retrying through a restart doubles nothing.
-        client = ReplayClient(connect_to, token=token, max_retries=RETRIES_ACROSS_RESTART)
+        replay = start_replay(tables, config, host=host, token=token, run_dir=run_dir)
+        client = replay.sampler()
         publisher = BroadcastPublisher()
         notes: list[str] = []
         say = _say_and_keep(notes, progress)
@@ -389,7 +402,7 @@ def train(
                 num_envs=config.envs_per_actor,
                 # A replacement explores from other seeds than the actor it replaces.
                 seed=config.seed * 1000 + i * config.envs_per_actor + 100_000 * incarnation,
-                replay=client,
+                replay=replay.writer(i),
                 weights=publisher.subscriber(),
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
@@ -498,6 +511,8 @@ def train(
         _log_behaviour_stats(logger, actor_reports, config.num_actors, resumed_env_steps)
         logger.close()
         summary = _summarise(config, final, actor_reports, time.perf_counter() - start)
+        if config.replay.shards > 1:
+            summary["replay_shard_inserts"] = replay.inserts()
         summary["interrupted"] = interrupted
         summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -553,7 +568,8 @@ def _check_actors(runs: list[Any]) -> None:
     if len(finished) == len(runs):
         raise RuntimeError(
             "every actor finished, but the learner is still waiting for sampled batches: "
-            "the rate limiter and the update budget disagree (see replay.log)"
+            "the rate limiter and the update budget disagree (see replay.log, or each "
+            "shard's replay-shard-K.log)"
         )
 
 

@@ -5,7 +5,7 @@ actors can be placed on the cluster before any of them starts.
     actors:    {num_cpus: 0.25, resources: {minecraft: 1}, label_selector: {zone: gpu-a}}
     evaluator: {num_cpus: 0.25}
     learner:   {num_gpus: 1}            # the learner's Ray task (ray:// runs)
-    replay:    {port: 9100}             # the server's port, fixed for firewalls
+    replay:    {port: 9100, shards: 2}  # the servers' first port, fixed for firewalls
 
 A role that cannot be placed would wait forever for a node (Ray keeps such actors
 pending without a word), so `check_placement` refuses the run in one line that names
@@ -103,11 +103,21 @@ class ReplaySettings:
     checkpoint_every_s: float = 30.0
     """Seconds between the server's checkpoints (its log keeps every insert between them)."""
     max_restarts: int = 10
-    """How often the server may be restarted after dying before the run fails."""
+    """How often a server may be restarted after dying before the run fails (per shard)."""
+    shards: int = 1
+    """Replay servers the run starts (1 to 255): actor i inserts into shard i mod N, the
+    learner samples all; shard K listens on ``port + K`` when a port is fixed."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.port < 65536:
             raise ValueError(f"port={self.port} must lie in [0, 65535] (0: a free port)")
+        if not 1 <= self.shards <= 255:
+            raise ValueError(f"shards={self.shards} must lie in [1, 255]")
+        if self.port and self.port + self.shards - 1 > 65535:
+            raise ValueError(
+                f"port={self.port} with shards={self.shards}: shard K listens on port + K, "
+                "which must stay <= 65535"
+            )
         if self.checkpoint_every_s <= 0:
             raise ValueError(f"checkpoint_every_s={self.checkpoint_every_s} must be > 0")
         if self.max_restarts < 0:

@@ -16,7 +16,7 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Optional, Protocol
 
 import ray
 from ray.exceptions import RayActorError
@@ -289,6 +289,17 @@ def _first_line(error: BaseException) -> str:
     return text.splitlines()[0] if text else type(error).__name__
 
 
+class Restartable(Protocol):
+    """What the supervisor restarts: one replay server or all of a run's shards."""
+
+    @property
+    def restarts(self) -> int:
+        """Restarts so far."""
+
+    def check(self) -> Optional[str]:
+        """Restarts what died; the line saying so (None if all is alive)."""
+
+
 class Supervisor:
     """A thread checking the replay server and the actors every `CHECK_EVERY_S`.
 
@@ -298,7 +309,7 @@ class Supervisor:
 
     def __init__(
         self,
-        replay: SupervisedReplay,
+        replay: Restartable,
         fleet: ActorFleet,
         note: Callable[[str], None],
     ) -> None:

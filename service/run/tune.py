@@ -6,7 +6,7 @@ behaviour, so they insert the preset's exact transitions), the weight broadcast 
 learner in this process — measured for a fixed time after a warm-up::
 
     for point in grid:                    # e.g. actors=1,2,4 x td3.batch_size=64,256
-        start replay server and actors    # the point's config and step cost
+        start replay server(s) and actors # the point's config and step cost
         learn for warmup_s, then measure_s: updates, waits, publishes, inserts, CPU
         stop them; row = measure(...); row["bottleneck"] = bottleneck(...)
 
@@ -17,6 +17,7 @@ decided by `bottleneck` from the measured waits; its docstring states the rule.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import os
@@ -39,11 +40,13 @@ from actors.transitions import replay_signature
 from learner.loop import to_tensors
 from service.core import Weights
 from service.replay.client import ReplayClient
+from service.replay.sharding import ShardedReplayClient
 from service.run.config import TrainConfig, load_preset
 from service.run.launcher import PENDING_INSERTS, connect_ray, table_spec
 from service.run.preflight import check_task, local_cpus
 from service.run.registry import make_builder
 from service.run.replay_process import ReplayProcess
+from service.run.replay_shards import shard_tables
 from service.run.validation import ConfigError
 from service.weights import BroadcastPublisher
 
@@ -62,6 +65,7 @@ ALIASES = {
     "envs": "envs_per_actor",
     "publish_interval": "publish_every",
     "slack": "slack_env_steps",
+    "replay_shards": "replay.shards",
 }
 """Short names of config knobs (`batch_size` is the algorithm section's)."""
 
@@ -311,21 +315,22 @@ class TuningLearner:
         c.cpu_s = time.process_time()
 
 
-def _snapshot(learner: TuningLearner, actors: list[Any], replay: ReplayProcess,
-              client: ReplayClient, table: str) -> dict[str, Any]:  # fmt: skip
+def _snapshot(learner: TuningLearner, actors: list[Any], servers: list[ReplayProcess],
+              clients: list[ReplayClient], table: str) -> dict[str, Any]:  # fmt: skip
+    """Counters of every part at one moment; per replay shard, its inserts and CPU."""
     reports = ray.get([a.report.remote() for a in actors])
-    inserts = next(t.inserts for t in client.info() if t.name == table)
+    inserts = [next(t.inserts for t in c.info() if t.name == table) for c in clients]
     return {
         "t": time.monotonic(),
         "learner": dataclasses.replace(learner.counters, cpu_s=time.process_time()),
         "actors": reports,
         "inserts": inserts,
-        "replay_cpu_s": _cpu_s(replay.process.pid),
+        "replay_cpu_s": [_cpu_s(s.process.pid) for s in servers],
         "machine_cpu_s": _machine_busy_s(),
     }
 
 
-def measure(before: dict[str, Any], after: dict[str, Any], version: int) -> dict[str, float]:
+def measure(before: dict[str, Any], after: dict[str, Any], version: int) -> dict[str, Any]:
     """The measured window's figures, from snapshots at its start and end."""
     wall = after["t"] - before["t"]
     lb, la = before["learner"], after["learner"]
@@ -338,9 +343,15 @@ def measure(before: dict[str, Any], after: dict[str, Any], version: int) -> dict
     fastest = min(a["replay/fastest_insert_s"] for _, a in actors)
     network_s = calls * fastest if calls else 0.0
     publishes = la.publishes - lb.publishes
-    row = {
+    shard_inserted = [
+        (a - b) / wall for b, a in zip(before["inserts"], after["inserts"], strict=True)
+    ]
+    shard_cpu = [
+        (a - b) / wall for b, a in zip(before["replay_cpu_s"], after["replay_cpu_s"], strict=True)
+    ]
+    row: dict[str, Any] = {
         "env_steps_per_s": actor_sum("actor/env_steps") / wall,
-        "inserted_per_s": (after["inserts"] - before["inserts"]) / wall,
+        "inserted_per_s": sum(shard_inserted),
         "actor_insert_wait": actor_sum("replay/insert_wait_s") / wall / len(actors),
         "insert_network_s_per_s": network_s / wall / len(actors),
         "insert_limiter_s_per_s": max(actor_sum("replay/insert_call_s") - network_s, 0.0)
@@ -353,13 +364,17 @@ def measure(before: dict[str, Any], after: dict[str, Any], version: int) -> dict
         "policy_lag": (la.lag_sum - lb.lag_sum) / max(la.lag_rows - lb.lag_rows, 1),
         "actor_version_lag": max(version - a["policy/version"] for _, a in actors),
         "cpu_learner": (la.cpu_s - lb.cpu_s) / wall,
-        "cpu_replay": (after["replay_cpu_s"] - before["replay_cpu_s"]) / wall,
+        "cpu_replay": sum(shard_cpu),
         "cpu_actors": actor_sum("perf/process_cpu_s") / wall,
         "cpu_machine": (after["machine_cpu_s"] - before["machine_cpu_s"]) / wall,
     }
     seen = sum(a.get("perf/ticks_seen", 0.0) for _, a in actors)
     skipped = sum(a.get("perf/ticks_skipped", 0.0) for _, a in actors)
     row["skipped"] = skipped / (seen + skipped) if seen else float("nan")
+    # Per replay shard (one figure per shard, '/'-separated): whether the actors' inserts
+    # spread over the shards, and which server's CPU saturates.
+    row["shard_inserted_per_s"] = " / ".join(f"{v:.0f}" for v in shard_inserted)
+    row["shard_cpu_replay"] = " / ".join(f"{v:.2f}" for v in shard_cpu)
     return row
 
 
@@ -393,11 +408,17 @@ def run_point(
     host = "127.0.0.1" if address == "local" else "0.0.0.0"
     token = None if address == "local" else secrets.token_urlsafe(24)
     actors: list[Any] = []
-    with ReplayProcess([table], host=host, token=token) as replay:
-        connect_to = replay.address
+    with contextlib.ExitStack() as servers:
+        replay = [
+            servers.enter_context(ReplayProcess(tables, host=host, token=token))
+            for tables in shard_tables([table], config.replay.shards)
+        ]
+        addresses = [r.address for r in replay]
         if host == "0.0.0.0":
-            connect_to = f"{ray.util.get_node_ip_address()}:{replay.address.rsplit(':', 1)[1]}"
-        client = ReplayClient(connect_to, token=token)
+            node = ray.util.get_node_ip_address()
+            addresses = [f"{node}:{a.rsplit(':', 1)[1]}" for a in addresses]
+        shards = [ReplayClient(a, token=token) for a in addresses]
+        client = _replay_client(addresses, token)
         publisher = BroadcastPublisher()
         n = config.num_actors
         segment = Segment(
@@ -414,7 +435,7 @@ def run_point(
                         env=EnvSpec(ENV_ID, env_kwargs),
                         num_envs=config.envs_per_actor,
                         seed=seed * 1000 + i * config.envs_per_actor,
-                        replay=client,
+                        replay=_replay_client(addresses, token, home=i),
                         weights=publisher.subscriber(),
                         behaviour=behaviour,
                         steps_per_insert=config.steps_per_insert,
@@ -432,9 +453,9 @@ def run_point(
                 _raise_actor_errors(runs)
             learner.run_until(time.monotonic() + warmup_s)
             ray.get([a.restart_meters.remote() for a in actors])
-            before = _snapshot(learner, actors, replay, client, phase.name)
+            before = _snapshot(learner, actors, replay, shards, phase.name)
             learner.run_until(time.monotonic() + measure_s)
-            after = _snapshot(learner, actors, replay, client, phase.name)
+            after = _snapshot(learner, actors, replay, shards, phase.name)
             _raise_actor_errors(runs)
             publisher.stop()
             stream.close()
@@ -442,8 +463,9 @@ def run_point(
             for actor in actors:
                 ray.kill(actor)
             publisher.close()
-            client.close()
-    row: dict[str, Any] = measure(before, after, learner.version)
+            for c in [client, *shards]:
+                c.close()
+    row = measure(before, after, learner.version)
     row["bottleneck"] = bottleneck(
         learner_wait=row["learner_wait"],
         publish=row["publish_fraction"],
@@ -451,6 +473,16 @@ def run_point(
         skipped=None if costs.tick_ms == 0 else row["skipped"],
     )
     return {**point.knobs, **row}
+
+
+def _replay_client(
+    addresses: list[str], token: Optional[str], *, home: int = 0
+) -> ReplayClient | ShardedReplayClient:
+    """One server's client, or a sharded one inserting into shard `home` mod N (as a run's
+    actor `home` does: service/run/replay_shards.py)."""
+    if len(addresses) == 1:
+        return ReplayClient(addresses[0], token=token)
+    return ShardedReplayClient(addresses, token=token, home=home % len(addresses))
 
 
 def _raise_actor_errors(runs: list[Any]) -> None:

@@ -34,6 +34,21 @@ COLUMNS = (
 )
 """Printed columns: (row key, header, format). CPU is in cores over the measured time."""
 
+SHARD_COLUMNS = (
+    ("shard_inserted_per_s", "inserted/s per shard", "{}"),
+    ("shard_cpu_replay", "CPU replay per shard", "{}"),
+)
+"""Printed after "CPU replay" when a point ran more than one replay shard."""
+
+
+def _columns(rows: Sequence[dict[str, Any]]) -> list[tuple[str, str, str]]:
+    columns = list(COLUMNS)
+    if any("/" in str(r.get("shard_inserted_per_s", "")) for r in rows):
+        at = [key for key, _, _ in columns].index("cpu_replay") + 1
+        columns[at:at] = SHARD_COLUMNS
+    return columns
+
+
 RULE = (
     f"bottleneck rule: the learner publishing >= {SATURATED:.0%} of the time -> broadcast; "
     f"real-time actors skipping > {SKIPPED_LIMIT:.0%} of ticks -> actors; else, with 'waits' "
@@ -44,13 +59,14 @@ RULE = (
 
 
 def table(rows: Sequence[dict[str, Any]], knobs: Sequence[str]) -> str:
-    """The points as a Markdown table."""
-    head = [*knobs, *(h for _, h, _ in COLUMNS)]
+    """The points as a Markdown table (with per-shard columns when a point had shards)."""
+    columns = _columns(rows)
+    head = [*knobs, *(h for _, h, _ in columns)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         cells = [str(row[k]) for k in knobs] + [
             "-" if row[key] != row[key] else fmt.format(row[key])  # nan: not measured
-            for key, _, fmt in COLUMNS
+            for key, _, fmt in columns
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import pickle
+import threading
 
 import numpy as np
 
+from service.replay.client import DeadlineExceeded
 from service.replay.sharding import ShardedReplayClient
 from service.run.replay_process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
@@ -51,3 +53,52 @@ def test_two_shards_route_writers_and_sample_across_both():
             sample = learner.shards[home].sample("t", 100)
             hits += int((sample["x"] == batch["x"][0]).sum())
         assert hits > 1900
+
+
+LIMITED = [
+    {
+        "name": "t",
+        "max_size": 10_000,
+        "signature": SCALAR_SIGNATURE,
+        "rate_limiter": {
+            "kind": "sample_to_insert_ratio", "samples_per_insert": 1.0, "min_size": 10,
+            "error_buffer": 10.0,
+        },
+    }
+]  # fmt: skip
+
+
+def test_a_shard_whose_limiter_holds_samples_does_not_stall_the_stream():
+    # Shard 0's writer stops after 10 items; shard 1's keeps inserting, paced by its
+    # limiter. Each limiter admits about as many samples as its shard got items, so once
+    # shard 0's are drawn the stream must go on with shard 1's instead of waiting on
+    # shard 0 (whose actors might never come back).
+    with ReplayProcess(LIMITED) as a, ReplayProcess(LIMITED) as b:
+        addresses = [a.address, b.address]
+        pinned = [ShardedReplayClient(addresses, home=k) for k in (0, 1)]
+        assert [pickle.loads(pickle.dumps(w)).home for w in pinned] == [0, 1]
+        pinned[0].insert("t", scalar_batch(np.arange(10)))
+        stop = threading.Event()
+
+        def keep_inserting() -> None:
+            start = 1000
+            while not stop.is_set():
+                try:
+                    pinned[1].insert("t", scalar_batch(np.arange(start, start + 5)), timeout=1)
+                    start += 5
+                except DeadlineExceeded:
+                    pass  # held by the limiter: try again
+
+        writer = threading.Thread(target=keep_inserting)
+        writer.start()
+        stream = ShardedReplayClient(addresses, seed=0).sample_stream("t", 5, prefetch=2)
+        try:
+            drawn = [stream.next_within(10.0) for _ in range(40)]
+        finally:
+            stream.close()
+            stop.set()
+            writer.join()
+        shard_of = [int(batch["_key"][0]) >> 56 for batch in drawn]
+        assert 2 <= shard_of.count(0) <= 3, shard_of  # all shard 0 admits (10 items)
+        assert all(b["x"].max() < 10 if k == 0 else b["x"].min() >= 1000
+                   for b, k in zip(drawn, shard_of, strict=True))  # fmt: skip
