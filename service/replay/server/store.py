@@ -32,6 +32,11 @@ class UnknownTable(KeyError):
         return str(self.args[0])
 
 
+class FolderUnusable(ValueError):
+    """The checkpoint folder cannot be restored for these tables (another table config, a
+    broken way back, an unreadable manifest); nothing in it was changed."""
+
+
 class CallEnded(TimeoutError):
     """The call was cancelled or passed its deadline before its batches could be stored."""
 
@@ -71,8 +76,9 @@ class ReplayCore:
     on construction.
 
     Raises:
-        ValueError: the folder holds data of another table config, or data that cannot
-            be restored whole (the message says what and how to proceed).
+        FolderUnusable: the folder holds data of another table config, or data that
+            cannot be restored whole (the message says what and how to proceed).
+        FolderInUse: another live server holds the folder.
     """
 
     def __init__(
@@ -113,8 +119,11 @@ class ReplayCore:
         """Cleans, checks and restores the (locked) folder, then starts the log."""
         for path in durability.remove_temporary_files(folder):
             log.warning("removed %s, left half-written by a server that was killed", path)
-        self._check_layout(folder)
-        segment = self._restore(folder)
+        try:
+            self._check_layout(folder)
+            segment = self._restore(folder)
+        except ValueError as error:  # a manifest, checkpoint or logged batch that does not fit
+            raise FolderUnusable(str(error)) from None
         durability.write_manifest(folder, self._layout())
         self._wal = durability.WriteAheadLog(folder, segment, fsync=fsync)
         for table in self.tables.values():  # after the restore: replaying logs nothing
