@@ -28,11 +28,10 @@ def check_resumable(
     remaining = config.env_steps - state.env_steps
     refilling = config.learning_starts if refill else 0
     if remaining <= refilling:
+        refilled = f" and refilling replay takes {refilling}" if refill else ""
         raise ValueError(
-            f"nothing left to train: the checkpoint is at {state.env_steps} env steps and "
-            f"the budget is {config.env_steps}"
-            + (f" and refilling replay takes {refilling}" if refill else "")
-            + "; raise --env-steps"
+            f"nothing left to train: the checkpoint is at {state.env_steps} env steps, "
+            f"the budget is {config.env_steps}{refilled}; raise --env-steps"
         )
 
 

@@ -21,7 +21,7 @@ import pytest
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient, ReplayError
 from service.replay.codec import encode_batch
-from service.run.replay_process import ReplayProcess
+from service.run.replay_process import EXIT_FOLDER_UNUSABLE, ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
 
@@ -110,7 +110,10 @@ def test_restart_refuses_a_changed_signature_or_size(tmp_path, stop, change, nam
     if stop == "sigkill":
         server.kill()
     server.stop()
-    message = refusal(table(**change), folder)
+    server = Started(table(**change), folder)
+    assert server.address is None, "the server started instead of refusing"
+    assert server.process.returncode == EXIT_FOLDER_UNUSABLE  # a launcher may move it aside
+    message = server.log
     assert "graft replay serve:" in message and named in message
     assert "Traceback" not in message
     with durable(folder) as server:  # the original config still restores everything

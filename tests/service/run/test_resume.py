@@ -21,12 +21,16 @@ from typing import Any
 
 import pytest
 
+from learner.agent import Phase
 from learner.checkpoint import latest_checkpoint, load_checkpoint
+from learner.loop import LoopState
 from service.replay.server import durability
 from service.replay.server.store import ReplayCore
 from service.replay.server.table_config import make_table
 from service.run.config import load_preset
 from service.run.launcher import train
+from service.run.replay_folder import Restored
+from service.run.resume import check_resumable, resumed_phases
 from tests.service.run.test_interrupt import _cmdline, _descendants, _wait_until_gone
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -48,6 +52,49 @@ SETTINGS: dict[str, Any] = {
 
 def _config(**changes: Any) -> Any:
     return load_preset("pendulum-td3", num_actors=1, **{**SETTINGS, **changes})
+
+
+# --------------------------------------------------------- the phases left, by hand
+
+PHASE = Phase("transitions", env_steps=2_000, updates=1_700, min_size=300,
+              samples_per_insert=32.0)  # fmt: skip
+"""2,000 env steps, learning_starts 300, one update of 32 per env step after it."""
+
+
+@pytest.mark.parametrize(
+    "restored, env_steps, updates",
+    [
+        # A fresh table: 2,000 - 1,000 steps left, the first 300 refill: 700 updates.
+        (None, 1_000, 500 + 700),
+        # Restored at 1,100 inserts and 800 batches sampled: 900 steps left, and the
+        # limiter holds 2,000 - 300 = 1,700 batches in all, 900 of them still to draw.
+        (Restored(1_100, 800 * 32, 1_100, 0), 900, 500 + 900),
+        # A table refilled at 400 env steps ends at 1,600 inserts: 1,300 batches in all;
+        # a partial batch sampled counts whole (401).
+        (Restored(700, 400 * 32 + 5, 700, 400), 900, 500 + 1_300 - 401),
+        # The learner ran ahead by the error buffer: the limiter owes it nothing more.
+        (Restored(1_950, 1_800 * 32, 1_950, 0), 50, 500),
+    ],
+    ids=["refill", "restored", "refilled-earlier", "learner-ahead"],
+)
+def test_the_phases_left_follow_the_table_a_resume_gets(restored, env_steps, updates) -> None:
+    config = _config(env_steps=2_000)
+    state = LoopState(updates=500, env_steps=1_000)
+    [left] = resumed_phases([PHASE], state, config, restored=restored, batch_size=32)
+    assert (left.env_steps, left.updates, left.warmup_steps) == (env_steps, updates, 0)
+
+
+def test_a_resume_with_nothing_left_is_refused_with_or_without_a_refill() -> None:
+    config = _config(env_steps=2_000)
+    with pytest.raises(ValueError, match="refilling replay takes 300; raise --env-steps"):
+        check_resumable([PHASE], LoopState(env_steps=1_800), config, refill=True)
+    check_resumable([PHASE], LoopState(env_steps=1_800), config, refill=False)  # 200 left
+    with pytest.raises(ValueError, match="its rate limiter admits no more updates"):
+        resumed_phases([PHASE], LoopState(), config, restored=Restored(2_000, 1_700 * 32,
+                       2_000, 0), batch_size=32)  # fmt: skip
+
+
+# ------------------------------------------------------------ runs killed and resumed
 
 
 def _table(folder: Path) -> dict[str, Any]:
