@@ -279,3 +279,16 @@ def test_failed_periodic_checkpoint_keeps_the_server_running(tmp_path):
         np.testing.assert_array_equal(
             read_all(ReplayClient(restarted.address), "log"), np.arange(20_010)
         )
+
+
+def test_a_folder_of_the_previous_format_is_restored(tmp_path):
+    """Format 2 (a log of inserts only) is still read: a folder written by the previous
+    version restores, and is written on in the current format."""
+    folder = tmp_path / "replay"
+    _kill_after_batches(folder, 3)
+    manifest = json.loads((folder / "tables.json").read_text())
+    (folder / "tables.json").write_text(json.dumps({**manifest, "format": 2}))
+    with durable(folder, table(max_size=10_000)) as server:
+        stored = read_all(ReplayClient(server.address), "log")
+    np.testing.assert_array_equal(stored, np.arange(30))
+    assert json.loads((folder / "tables.json").read_text())["format"] == 3

@@ -279,3 +279,15 @@ def test_a_folder_of_another_table_or_unrestorable_is_moved_aside_and_the_run_re
     assert resumed["replay_restored"] is None and resumed["env_steps"] == 1_500
     stale = _files(run_dir / "replay.stale-2")
     assert {k: v for k, v in stale.items() if k != "replay.json"} == damaged
+
+    # A reproducible run's lock-step schedule starts from an empty table: it refills.
+    resumed = train(
+        _config(env_steps=1_900, replay_max_size=50_000, reproducible=True), run_dir=run_dir,
+        resume=True, progress=False,
+    ).summary  # fmt: skip
+    lines = [line for line in capsys.readouterr().out.splitlines() if "moved it to" in line]
+    assert lines == [
+        f"--resume: {folder} is not reused by a reproducible run (its lock-step schedule "
+        f"starts empty); moved it to {run_dir / 'replay.stale-3'}, refilling a fresh table"
+    ], lines
+    assert resumed["replay_restored"] is None and resumed["env_steps"] == 1_900
