@@ -4,15 +4,17 @@ For Pendulum-shaped transitions (obs 3, action 1, reward, terminated, truncated,
 next obs 3, log-likelihood, version) and a Minecraft-shaped row (obs of 3,400 float32):
 insert throughput from one writer and from 16 concurrent writer processes, sample
 throughput in batches of 256 with prefetch, p50/p99 sample latency, and the server's
-memory growth against the configured size of its contents.
+memory growth against the configured size of its contents. With `--durable` the server
+keeps a checkpoint folder: every insert and every sampled batch is written to its log.
 
-    python bench/replay.py [--quick]
+    python bench/replay.py [--quick] [--durable] [--shape pendulum]
 """
 
 from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import tempfile
 import time
 from dataclasses import dataclass
 
@@ -101,7 +103,7 @@ def _writer_process(address: str, shape: Shape, batches: int, seed: int, start, 
     done.put(time.perf_counter())
 
 
-def measure(shape: Shape, quick: bool) -> dict[str, dict[str, float]]:
+def measure(shape: Shape, quick: bool, durable: bool = False) -> dict[str, dict[str, float]]:
     batch = shape.batch(shape.insert_batch)
     n_batches = shape.total_inserts // shape.insert_batch
     sample_batches = 400 if quick else 2000
@@ -125,7 +127,11 @@ def measure(shape: Shape, quick: bool) -> dict[str, dict[str, float]]:
     results["numpy ring"]["p99 ms"] = 1e3 * float(np.percentile(lat, 99))
 
     table = [{"name": "t", "max_size": shape.max_size, "signature": shape.signature()}]
-    with ReplayProcess(table, extra_args=["--max-message-mb", "256"]) as server:
+    folder = tempfile.TemporaryDirectory(prefix="graft-bench-replay-")
+    extra = ["--max-message-mb", "256"]
+    if durable:  # no periodic checkpoint: every figure includes the log's cost, none a snapshot's
+        extra += ["--checkpoint-dir", folder.name, "--checkpoint-every-s", "0"]
+    with folder, ReplayProcess(table, extra_args=extra) as server:
         client = ReplayClient(server.address, max_message_bytes=256 * 2**20)
         client.info()
         rss_empty = rss_bytes(server.process.pid)
@@ -185,6 +191,10 @@ def measure(shape: Shape, quick: bool) -> dict[str, dict[str, float]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer batches (a smoke run)")
+    parser.add_argument(
+        "--durable", action="store_true", help="the server logs inserts and samples to disk"
+    )
+    parser.add_argument("--shape", help="only the shapes whose name starts with this")
     args = parser.parse_args()
     scale = 10 if args.quick else 1
     shapes = [
@@ -214,7 +224,9 @@ def main() -> None:
     print("| shape | store | " + " | ".join(columns) + " |")
     print("|---|---|" + "---|" * len(columns))
     for shape in shapes:
-        results = measure(shape, args.quick)
+        if args.shape and not shape.name.startswith(args.shape):
+            continue
+        results = measure(shape, args.quick, args.durable)
         for store, figures in results.items():
             cells = []
             for c in columns:

@@ -123,6 +123,7 @@ class LearnerLoop:
         on_progress: Optional[Callable[[LoopState], None]] = None,
         watchdog: Optional[Callable[[], None]] = None,
         lockstep: Optional[Lockstep] = None,
+        env_steps_offset: Optional[int] = None,
     ) -> None:
         self.algorithm = algorithm
         self.phases = phases
@@ -138,8 +139,11 @@ class LearnerLoop:
         """Called while no batch arrives; raises if the data can never come."""
         self.lockstep = lockstep
         self._pending_evals: list[Future[Evaluation]] = []
-        # A resumed run starts a fresh table: its insert counter restarts at zero.
-        self._env_steps_offset = self.state.env_steps
+        # The run's env steps when the table was empty: a table refilled on resume counts
+        # from zero (offset: the checkpoint's env steps), a restored one goes on counting.
+        self._env_steps_offset = (
+            self.state.env_steps if env_steps_offset is None else env_steps_offset
+        )
         self._started = time.perf_counter()
         self._published = False
         self._lag = PolicyLag()

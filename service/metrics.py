@@ -110,13 +110,27 @@ class PolicyLag:
 
 
 def _open_csv(path: Path, fields: tuple[str, ...]) -> tuple[TextIO, Any]:
-    """A CSV file opened for appending, with its header when it is new."""
-    new = not path.exists()
+    """A CSV file opened for appending, with its header when it is new.
+
+    A run killed outright (SIGKILL) may leave the file empty (its header never flushed)
+    or end in a torn row: the header is written again, the torn row cut off.
+    """
+    if path.exists():
+        _cut_torn_row(path)
+    new = not path.exists() or path.stat().st_size == 0
     file = path.open("a", newline="")
     writer = csv.writer(file)
     if new:
         writer.writerow(fields)
     return file, writer
+
+
+def _cut_torn_row(path: Path) -> None:
+    """Truncates `path` after its last complete line."""
+    with path.open("rb+") as f:
+        data = f.read()
+        if data and not data.endswith(b"\n"):
+            f.truncate(data.rfind(b"\n") + 1)
 
 
 def read_metric(csv_path: Path, key: str) -> tuple[list[int], list[float]]:

@@ -22,7 +22,6 @@ import dataclasses
 import json
 import os
 import secrets
-import shutil
 import signal
 import sys
 import threading
@@ -42,7 +41,6 @@ from actors.env_actor import EnvActor, Segment
 from actors.evaluator import RemoteEvaluator
 from actors.transitions import replay_signature
 from learner.agent import Phase
-from learner.checkpoint import load_checkpoint
 from learner.loop import LearnerLoop, Lockstep, LoopSettings, LoopState
 from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
@@ -53,7 +51,9 @@ from service.run.lockstep import ActorRing, deterministic, stalled
 from service.run.preflight import check_cluster, check_fits_locally, check_run_dir, check_task
 from service.run.provenance import config_record
 from service.run.registry import make_builder
+from service.run.replay_folder import open_replay, reusable
 from service.run.replay_shards import RunReplay
+from service.run.resume import restore, resume_with
 from service.run.supervision import ActorFleet, Supervisor
 from service.run.validation import ConfigError
 from service.weights import BroadcastPublisher
@@ -123,30 +123,6 @@ def preset_tables(
 def transition_table_spec(config: TrainConfig) -> dict[str, Any]:
     """The table of a preset's last (online) phase, e.g. for `graft replay serve --preset`."""
     return preset_tables(config)[-1]
-
-
-def _resumed_phases(phases: list[Phase], state: LoopState, config: TrainConfig) -> list[Phase]:
-    """The phases left after a checkpoint: the fresh table refills, then updates resume."""
-    if len(phases) != 1:
-        raise ValueError(
-            f"resume is supported for single-phase algorithms; {config.algorithm} has "
-            f"{len(phases)} phases (its pre-training data is not in the checkpoint)"
-        )
-    remaining = config.env_steps - state.env_steps
-    if remaining <= config.learning_starts:
-        raise ValueError(
-            f"nothing left to train: the checkpoint is at {state.env_steps} env steps, "
-            f"the budget is {config.env_steps} and refilling replay takes "
-            f"{config.learning_starts}; raise --env-steps"
-        )
-    # Replay contents are not in the learner checkpoint: the new table refills to
-    # learning_starts with the restored policy before updates resume.
-    more = int((remaining - config.learning_starts) * config.updates_per_env_step)
-    return [
-        dataclasses.replace(
-            phases[0], env_steps=remaining, warmup_steps=0, updates=state.updates + more
-        )
-    ]
 
 
 RETRIES_ACROSS_RESTART = 40
@@ -289,30 +265,6 @@ def _probe(config: TrainConfig) -> tuple[Any, Any, dict[str, Any]]:
         raise ConfigError(str(e).splitlines()[0] if str(e) else type(e).__name__) from None
 
 
-def _restore(
-    algorithm: Any, checkpoint: Path, phases: list[Phase], config: TrainConfig
-) -> tuple[LoopState, list[Phase]]:
-    """The loop state and the phases left after `checkpoint`, loaded into `algorithm`.
-
-    Raises:
-        ConfigError: the checkpoint does not fit the config, or nothing is left to train.
-    """
-    saved = load_checkpoint(checkpoint)
-    try:
-        algorithm.load_state_dict(saved["algorithm"])
-    except (RuntimeError, KeyError, ValueError) as e:
-        first = str(e).splitlines()[0]
-        raise ConfigError(
-            f"--resume: {checkpoint} does not fit this config ({config.algorithm}, "
-            f"{config.env_id}): {first}"
-        ) from None
-    state = LoopState(**saved["loop"])
-    try:
-        return state, _resumed_phases(phases, state, config)
-    except ValueError as e:
-        raise ConfigError(f"--resume: {e}") from None
-
-
 @dataclass
 class RunResult:
     """What a finished (or interrupted) run reports (also written to summary.json)."""
@@ -353,9 +305,11 @@ def train(
     builder, behaviour, signature = _probe(config)
     algorithm = builder.make_learner()
     state, phases = LoopState(), builder.phases()
-    if checkpoint is not None:
-        state, phases = _restore(algorithm, checkpoint, phases, config)
+    # A phase's table does not depend on its budget: a resumed run serves the same one.
     tables = preset_tables(config, phases=phases, signature=signature)
+    if checkpoint is not None:
+        refill = config.reproducible or not reusable(run_dir, tables)
+        state = restore(algorithm, checkpoint, phases, config, refill=refill)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(config_record(config))
     if checkpoint is not None:
@@ -374,10 +328,18 @@ def train(
         # a token.
         host = "127.0.0.1" if address == "local" else "0.0.0.0"
         token = None if address == "local" else secrets.token_urlsafe(24)
-        replay_dir = run_dir / "replay"
-        if checkpoint is not None and replay_dir.exists():
-            shutil.rmtree(replay_dir)  # the resumed run refills a fresh table (see _resumed_phases)
-        replay = start_replay(tables, config, host=host, token=token, run_dir=run_dir)
+        replay, restored = open_replay(
+            lambda: start_replay(tables, config, host=host, token=token, run_dir=run_dir),
+            run_dir=run_dir,
+            tables=tables,
+            token=token,
+            resumed_env_steps=state.env_steps if checkpoint is not None else None,
+            reproducible=config.reproducible,
+            shards=config.replay.shards,
+            say=_print,
+        )
+        if checkpoint is not None:
+            phases = resume_with(phases, state, config, restored, builder.batch_size)
         client = replay.sampler()
         publisher = BroadcastPublisher()
         notes: list[str] = []
@@ -390,7 +352,7 @@ def train(
             max_restarts=config.evaluator.max_restarts,
             on_restart=say,
         )
-        resumed_env_steps = state.env_steps
+        resumed_env_steps = state.env_steps  # a restored table's env steps (resume_with)
 
         def make_actor(i: int, incarnation: int) -> Any:
             # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
@@ -483,6 +445,7 @@ def train(
             if config.reproducible
             else lambda: _watch(supervisor, actors, faults, loop.state),
             lockstep=lockstep,
+            env_steps_offset=restored.env_steps_before if restored is not None else None,
         )
         try:
             final = loop.run()
@@ -514,6 +477,7 @@ def train(
         if config.replay.shards > 1:
             summary["replay_shard_inserts"] = replay.inserts()
         summary["interrupted"] = interrupted
+        summary["replay_restored"] = dataclasses.asdict(restored) if restored else None
         summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         plot_learning_curve(
@@ -542,6 +506,10 @@ def train(
 
 def _no_op() -> None:
     pass
+
+
+def _print(line: str) -> None:
+    print(line, flush=True)
 
 
 def _hold_sigint() -> Callable[[], None]:

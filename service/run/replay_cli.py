@@ -13,9 +13,10 @@ from typing import Optional
 import yaml
 
 from service.replay.server.servicer import ServerOptions, serve_forever
-from service.replay.server.store import ReplayCore
+from service.replay.server.store import FolderUnusable, ReplayCore
 from service.replay.server.table_config import make_table
 from service.replay.server.writers import DEFAULT_MAX_WRITERS
+from service.run.replay_process import EXIT_FOLDER_UNUSABLE
 
 
 def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
@@ -157,6 +158,9 @@ def _serve(args: argparse.Namespace) -> None:
             checkpoint_every_s=args.checkpoint_every_s if args.checkpoint_dir else 0.0,
             parent_pid=args.exit_with_parent,
         )
+    except FolderUnusable as error:  # its own status: a launcher may move the folder aside
+        print(f"graft replay serve: {error}", file=sys.stderr, flush=True)
+        raise SystemExit(EXIT_FOLDER_UNUSABLE) from None
     except (ValueError, OSError) as error:
         raise SystemExit(f"graft replay serve: {error}") from None
 

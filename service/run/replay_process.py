@@ -13,6 +13,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Optional
 
+EXIT_FOLDER_UNUSABLE = 3
+"""`graft replay serve`'s exit status when its --checkpoint-dir cannot be restored for its
+tables (the folder is left as it was)."""
+
+
+class FolderRefused(RuntimeError):
+    """The server refused its checkpoint folder at start-up; the message is its reason."""
+
 
 class ReplayProcess:
     """A `graft replay serve` child process; `address` is known once it listens.
@@ -72,6 +80,8 @@ class ReplayProcess:
         deadline = time.monotonic() + timeout_s
         while not ready.exists():
             if self.process.poll() is not None:
+                if self.process.returncode == EXIT_FOLDER_UNUSABLE:
+                    raise FolderRefused(_last_line(log_path) or "its checkpoint folder is unusable")
                 raise RuntimeError(
                     f"replay server exited with code {self.process.returncode} during start-up"
                     + (f"; see {log_path}" if log_path else "")
@@ -103,3 +113,11 @@ class ReplayProcess:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _last_line(log_path: Optional[Path]) -> Optional[str]:
+    """The server's last line of output, without its `graft replay serve: ` prefix."""
+    if log_path is None:
+        return None
+    lines = log_path.read_text(errors="replace").strip().splitlines()
+    return lines[-1].removeprefix("graft replay serve: ") if lines else None

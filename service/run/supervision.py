@@ -241,9 +241,9 @@ class ActorFleet:
         ``env_steps``) once the learner is done, and a line per actor that had to be stopped.
 
         An actor still running after `timeout_s` waits on an insert the finished learner
-        will never admit (after a replay restart the table counts fewer samples than the
-        learner took, so its rate limiter holds the last inserts): it is stopped, and its
-        report is what it said it had stored.
+        will never admit (its rate limiter holds the last inserts, e.g. when batches in
+        flight at a replay restart were counted as sampled but never used): it is
+        stopped, and its report is what it said it had stored.
         """
         ready, _ = ray.wait(self.runs, num_returns=len(self.runs), timeout=timeout_s)
         done = {ref.hex() for ref in ready}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.metrics import PolicyLag
+from service.metrics import MetricsLogger, PolicyLag, read_metric
 
 
 def test_policy_lag_counts_versions_published_before_each_item_was_acted() -> None:
@@ -38,3 +38,19 @@ def test_policy_lag_is_left_out_when_no_item_can_show_it(batch) -> None:
     lag = PolicyLag()
     lag.published(0, 0.0)
     assert lag.measure(batch, version=0, now=5.0) == {}
+
+
+@pytest.mark.parametrize(
+    "left",
+    [b"", b"wall_s,env_steps,updates,key,value\n1.0,10,1,losses/critic,0.5\n1.0,1"],
+    ids=["header-never-flushed", "torn-last-row"],
+)
+def test_a_run_resumed_after_a_sigkill_appends_to_a_readable_metrics_csv(tmp_path, left) -> None:
+    """A killed run leaves metrics.csv empty or ending mid-row; the resumed run's logger
+    writes the header again or cuts the torn row, and the file reads whole."""
+    (tmp_path / "metrics.csv").write_bytes(left)
+    logger = MetricsLogger(tmp_path)
+    logger.log({"losses/critic": 0.25}, env_steps=20, updates=2)
+    logger.close()
+    steps, values = read_metric(tmp_path / "metrics.csv", "losses/critic")
+    assert steps == ([10, 20] if left else [20]) and values == ([0.5, 0.25] if left else [0.25])

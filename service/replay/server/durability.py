@@ -1,14 +1,17 @@
-"""Durable replay state on disk: a write-ahead log of acknowledged inserts, checksummed
-checkpoints, and the manifest of the tables a folder holds.
+"""Durable replay state on disk: a write-ahead log of acknowledged inserts and of sample
+counts, checksummed checkpoints, and the manifest of the tables a folder holds.
 
 Folder layout (`--checkpoint-dir`):
 
     tables.json               each table's signature and max_size (a restart must keep them)
     checkpoint-<n>.npz        every table at the moment log segment n was started
-    wal-<n>.log               the inserts after that moment, one checksummed record each
+    wal-<n>.log               the inserts and samples after that moment, one checksummed
+                              record each
 
 An insert is acknowledged only after its record is in the log (flushed to the OS, so it
-survives the server process being killed). The two newest checkpoints are kept, with
+survives the server process being killed). A sampled batch is logged as its table and
+item count before it is counted and sent, so a restart restores the sample count the rate
+limiter holds the ratio with. The two newest checkpoints are kept, with
 every log segment from the older one on, so a damaged newest checkpoint still leaves a
 complete way back: the previous checkpoint plus the log after it.
 """
@@ -19,6 +22,7 @@ import io
 import json
 import os
 import struct
+import threading
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -28,8 +32,11 @@ from typing import Any, Optional
 import msgpack
 import numpy as np
 
-FORMAT = 2
-"""Bumped whenever the files change shape; a folder of another format is refused."""
+FORMAT = 3
+"""Bumped whenever the files change shape; what this version writes."""
+
+READABLE_FORMATS = (2, 3)
+"""Formats this version reads (2: the log holds inserts only); others are refused."""
 
 MANIFEST = "tables.json"
 
@@ -40,7 +47,15 @@ _MAGIC = b"GWAL"
 _HEADER = struct.Struct(">4sIII")
 
 Record = tuple[str, str, int, bytes]
-"""(table, writer id, sequence, encoded batch)"""
+"""An insert: (table, writer id, sequence, encoded batch)"""
+
+
+@dataclass(frozen=True)
+class Sampled:
+    """A sample record: `items` more items were sampled from `table`."""
+
+    table: str
+    items: int
 
 
 class StorageError(RuntimeError):
@@ -85,7 +100,8 @@ def checkpoint_path(folder: Path, number: int) -> Path:
 
 
 class WriteAheadLog:
-    """Append-only segments `wal-<n>.log` of (table, writer, sequence, payload) records."""
+    """Append-only segments `wal-<n>.log` of insert records (table, writer, sequence,
+    payload) and sample records (table, items); thread-safe."""
 
     def __init__(self, folder: Path, segment: int, *, fsync: bool = False) -> None:
         self.folder = folder
@@ -94,6 +110,8 @@ class WriteAheadLog:
         self._file = open(segment_path(folder, segment), "ab", buffering=0)
         self._end = os.fstat(self._file.fileno()).st_size
         self._broken: Optional[str] = None
+        # Inserts append under the writer map's lock, samples under their table's only.
+        self._lock = threading.Lock()
 
     def append(self, table: str, writer: str, sequence: int, payload: bytes) -> None:
         """Appends one record, or raises StorageError leaving the segment as it was."""
@@ -102,22 +120,32 @@ class WriteAheadLog:
     def append_all(self, records: list[Record]) -> None:
         """Appends records in one write, all or none: raises StorageError leaving the
         segment as it was."""
+        packed = [msgpack.packb(list(r), use_bin_type=True) for r in records]
+        with self._lock:
+            self._write(b"".join(map(_framed, packed)), sync=self.fsync)
+
+    def append_samples(self, table: str, items: int) -> None:
+        """Appends a sample record, or raises StorageError leaving the segment as it was.
+
+        Never fsynced on its own (a sample costs far less than a disk flush): killing the
+        process never loses it; with `fsync`, a power loss may lose the sample records
+        written since the last insert.
+        """
+        record = _framed(msgpack.packb([table, items], use_bin_type=True))
+        with self._lock:
+            self._write(record, sync=False)
+
+    def _write(self, data: bytes, *, sync: bool) -> None:
         if self._broken is not None:
             raise StorageError(
                 f"the write-ahead log is unusable until the next checkpoint ({self._broken}); "
                 "nothing was stored"
             )
-        frames = []
-        for table, writer, sequence, payload in records:
-            record = msgpack.packb([table, writer, sequence, payload], use_bin_type=True)
-            head = _MAGIC + struct.pack(">II", len(record), zlib.crc32(record))
-            frames.append(head + struct.pack(">I", zlib.crc32(head)) + record)
-        data = b"".join(frames)
         frame = memoryview(data)
         try:
             while frame:  # unbuffered: each write goes to the OS, which may take part of it
                 frame = frame[self._file.write(frame) :]
-            if self.fsync:
+            if sync:
                 os.fsync(self._file.fileno())  # also survives power loss, at a latency cost
         except OSError as error:
             try:  # cut what part of the records reached the file: they were never acknowledged
@@ -132,17 +160,25 @@ class WriteAheadLog:
     def rotate(self) -> int:
         """Starts the next segment; returns its number. Raises StorageError, keeping the
         current segment, if the new one cannot be created."""
-        try:
-            following = open(segment_path(self.folder, self.segment + 1), "ab", buffering=0)
-        except OSError as error:
-            raise StorageError(f"cannot start a new log segment ({error})") from error
-        self._file.close()
-        self._file, self._end, self._broken = following, 0, None
-        self.segment += 1
-        return self.segment
+        with self._lock:
+            try:
+                following = open(segment_path(self.folder, self.segment + 1), "ab", buffering=0)
+            except OSError as error:
+                raise StorageError(f"cannot start a new log segment ({error})") from error
+            self._file.close()
+            self._file, self._end, self._broken = following, 0, None
+            self.segment += 1
+            return self.segment
 
     def close(self) -> None:
-        self._file.close()
+        with self._lock:
+            self._file.close()
+
+
+def _framed(record: bytes) -> bytes:
+    """A packed record behind its header (magic, length, CRCs of record and header)."""
+    head = _MAGIC + struct.pack(">II", len(record), zlib.crc32(record))
+    return head + struct.pack(">I", zlib.crc32(head)) + record
 
 
 @dataclass
@@ -180,8 +216,9 @@ def _next_record(data: bytes, start: int) -> int:
     return -1
 
 
-def read_segment(path: Path, damage: LogDamage) -> Iterator[Record]:
-    """Yields the records of one segment, oldest first, skipping damaged ones.
+def read_segment(path: Path, damage: LogDamage) -> Iterator[Record | Sampled]:
+    """Yields the records of one segment (inserts and sample records), oldest first,
+    skipping damaged ones.
 
     A record whose checksum fails is skipped and counted in `damage`, and reading goes
     on with the next: one bad record loses that record's batch, never the ones after it.
@@ -214,7 +251,11 @@ def read_segment(path: Path, damage: LogDamage) -> Iterator[Record]:
         try:
             if zlib.crc32(record) != crc:
                 raise ValueError("checksum")
-            table, writer, sequence, payload = msgpack.unpackb(record, raw=False)
+            fields = msgpack.unpackb(record, raw=False)
+            if len(fields) == 2:
+                yield Sampled(str(fields[0]), int(fields[1]))
+                continue
+            table, writer, sequence, payload = fields
         except (ValueError, TypeError):  # msgpack's errors are ValueErrors
             damage.records += 1
             damage.bytes += _HEADER.size + length
@@ -280,8 +321,10 @@ def read_checkpoint(path: Path) -> Checkpoint:
     try:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(bytes(data["__meta__"]).decode())
-            if meta.get("format") != FORMAT:
-                raise DamagedCheckpoint(f"format {meta.get('format')}, expected {FORMAT}")
+            if meta.get("format") not in READABLE_FORMATS:
+                raise DamagedCheckpoint(
+                    f"format {meta.get('format')}, expected one of {READABLE_FORMATS}"
+                )
             expected: dict[str, int] = meta["crc32"]
             keys = [k for k in data.files if k != "__meta__"]
             if sorted(keys) != sorted(expected):
@@ -334,8 +377,8 @@ def read_manifest(folder: Path) -> Optional[dict[str, Any]]:
         return None
     try:
         data = json.loads(path.read_text())
-        if data.get("format") != FORMAT:
-            raise ValueError(f"format {data.get('format')}, expected {FORMAT}")
+        if data.get("format") not in READABLE_FORMATS:
+            raise ValueError(f"format {data.get('format')}, expected one of {READABLE_FORMATS}")
         tables: dict[str, Any] = data["tables"]
         return tables
     except (ValueError, KeyError, AttributeError) as error:

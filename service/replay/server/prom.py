@@ -65,6 +65,9 @@ class _DurabilityCollector(Collector):
              "the next period retries", d.checkpoint_failures),
             ("graft_replay_log_append_failures", "Inserts refused because the write-ahead "
              "log append failed", d.log_append_failures),
+            ("graft_replay_unlogged_samples", "Items sampled while the write-ahead log could "
+             "not record it (a restart before the next checkpoint would not count them)",
+             d.unlogged_samples),
             ("graft_replay_damaged_log_records", "Log records skipped at start-up because "
              "their checksum failed", d.damaged_log_records),
             ("graft_replay_damaged_checkpoints", "Checkpoints found unreadable at start-up",

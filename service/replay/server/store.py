@@ -32,6 +32,11 @@ class UnknownTable(KeyError):
         return str(self.args[0])
 
 
+class FolderUnusable(ValueError):
+    """The checkpoint folder cannot be restored for these tables (another table config, a
+    broken way back, an unreadable manifest); nothing in it was changed."""
+
+
 class CallEnded(TimeoutError):
     """The call was cancelled or passed its deadline before its batches could be stored."""
 
@@ -59,6 +64,8 @@ class DurabilityStats:
     """Log records skipped at start-up because their checksum failed."""
     damaged_checkpoints: int = 0
     """Checkpoints found unreadable at start-up (set aside as `*.damaged`)."""
+    unlogged_samples: int = 0
+    """Items sampled while the log could not record it (a restart would not count them)."""
 
 
 class ReplayCore:
@@ -69,8 +76,9 @@ class ReplayCore:
     on construction.
 
     Raises:
-        ValueError: the folder holds data of another table config, or data that cannot
-            be restored whole (the message says what and how to proceed).
+        FolderUnusable: the folder holds data of another table config, or data that
+            cannot be restored whole (the message says what and how to proceed).
+        FolderInUse: another live server holds the folder.
     """
 
     def __init__(
@@ -111,10 +119,34 @@ class ReplayCore:
         """Cleans, checks and restores the (locked) folder, then starts the log."""
         for path in durability.remove_temporary_files(folder):
             log.warning("removed %s, left half-written by a server that was killed", path)
-        self._check_layout(folder)
-        segment = self._restore(folder)
+        try:
+            self._check_layout(folder)
+            segment = self._restore(folder)
+        except ValueError as error:  # a manifest, checkpoint or logged batch that does not fit
+            raise FolderUnusable(str(error)) from None
         durability.write_manifest(folder, self._layout())
         self._wal = durability.WriteAheadLog(folder, segment, fsync=fsync)
+        for table in self.tables.values():  # after the restore: replaying logs nothing
+            table.log_samples(self._log_samples)
+
+    def _log_samples(self, table: str, items: int) -> None:
+        """Logs a sampled batch (the caller holds its table's lock, as a checkpoint's
+        snapshot does: a batch is counted in the checkpoint or logged after it).
+
+        A failed append (a full disk) still serves the batch: the data is safe and the
+        learner goes on; only a restart before the next checkpoint would count fewer
+        samples than were served. It is logged and counted.
+        """
+        if self._wal is None:
+            return
+        try:
+            self._wal.append_samples(table, items)
+        except StorageError as error:
+            self.durability.unlogged_samples += items
+            log.warning(
+                "table '%s': %s; %d sampled items are counted in memory only until the next "
+                "checkpoint", table, error, self.durability.unlogged_samples,
+            )  # fmt: skip
 
     def table(self, name: str) -> Table:
         try:
@@ -328,6 +360,12 @@ class ReplayCore:
             log.info(
                 "restored %d items from %s and %d logged batches after it", items, source, replayed
             )
+        for t in self.tables.values():
+            if t.stats.inserts or t.stats.samples:
+                log.info(
+                    "table '%s' restored: %d items, %d inserted, %d sampled",
+                    t.name, t.size, t.stats.inserts, t.stats.samples,
+                )  # fmt: skip
         return max(max(segments, default=0), base or 0) + 1
 
     def _load(
@@ -345,7 +383,12 @@ class ReplayCore:
         for number in segments:
             path = durability.segment_path(folder, number)
             damage = durability.LogDamage()
-            for table, writer, sequence, payload in durability.read_segment(path, damage):
+            for record in durability.read_segment(path, damage):
+                if isinstance(record, durability.Sampled):
+                    if record.table in self.tables:
+                        self.tables[record.table].stats.samples += record.items
+                    continue
+                table, writer, sequence, payload = record
                 if table not in self.tables:
                     continue
                 if writer and sequence <= self.writers.acked(writer):

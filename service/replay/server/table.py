@@ -97,6 +97,7 @@ class Table:
         self._rng = np.random.default_rng(seed)
         self._cond = threading.Condition()
         self._watchers: list[Callable[[], None]] = []
+        self._sample_log: Optional[Callable[[str, int], None]] = None
 
     def _check_configuration(self) -> None:
         where = f"table '{self.name}'"
@@ -154,6 +155,12 @@ class Table:
 
     def unwatch(self, callback: Callable[[], None]) -> None:
         self._watchers.remove(callback)
+
+    def log_samples(self, record: Callable[[str, int], None]) -> None:
+        """Has every sampled batch recorded as `record(table name, items)` (under the
+        table lock, before it is counted and returned): a write-ahead log keeps the sample
+        count this way. An error `record` raises fails the sample."""
+        self._sample_log = record
 
     def _changed(self) -> None:
         self._cond.notify_all()
@@ -350,6 +357,8 @@ class Table:
         Returns the columns and the table size to weigh them by."""
         window_rows, _ = drawn
         out = self._gather(window_rows, k)
+        if self._sample_log is not None:
+            self._sample_log(self.name, batch_size)
         self._count_samples(window_rows[:, 0])
         self.stats.samples += batch_size
         self._changed()

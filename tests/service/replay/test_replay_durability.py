@@ -8,8 +8,9 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
-from service.replay.client import ReplayClient
+from service.replay.client import DeadlineExceeded, ReplayClient
 from service.run.replay_process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
@@ -83,6 +84,62 @@ def test_sigkill_mid_stream_loses_and_doubles_nothing_acknowledged(tmp_path):
     np.testing.assert_array_equal(np.sort(stored), np.sort(expected))  # none lost, none doubled
     for server in servers:
         server.stop()
+
+
+# ------------------------------------------------------------------ the sample count
+
+
+def _table(folder, **spec) -> ReplayProcess:
+    tables = [{"name": "t", "max_size": 10_000, "signature": SCALAR_SIGNATURE, **spec}]
+    return ReplayProcess(tables, extra_args=["--checkpoint-dir", str(folder)])
+
+
+def test_sigkill_keeps_the_count_of_samples_before_and_after_the_last_checkpoint(tmp_path):
+    """7 batches sampled before a checkpoint, 5 after it, then SIGKILL: the restarted
+    table counts all 12 (each was logged before it was sent), and every insert."""
+    server = _table(tmp_path)
+    client = ReplayClient(server.address)
+    client.insert("t", scalar_batch(range(500)))
+    for _ in range(7):
+        client.sample("t", 32, timeout=5)
+    client.checkpoint()
+    for _ in range(5):
+        client.sample("t", 32, timeout=5)
+    client.insert("t", scalar_batch(range(500, 510)))
+    server.kill()
+    server.stop()
+    with _table(tmp_path) as restarted:
+        [table] = ReplayClient(restarted.address).info()
+        assert (table.inserts, table.size, table.samples) == (510, 510, 12 * 32)
+
+
+@pytest.mark.parametrize("checkpoint_after", [0, 3], ids=["log-only", "checkpoint-then-log"])
+def test_the_samples_per_insert_ratio_holds_across_a_sigkill(tmp_path, checkpoint_after):
+    """A learner that sampled all the ratio allows is not let ahead by a restart.
+
+    samples_per_insert 1, min_size 10, error_buffer 40 and 110 items: a sample is admitted
+    while samples <= 110 - 10 + 40 = 140, so 8 batches of 20 (160 items), not a 9th.
+    """
+    limiter = {"kind": "sample_to_insert_ratio", "samples_per_insert": 1.0, "min_size": 10,
+               "error_buffer": 40.0}  # fmt: skip
+    server = _table(tmp_path, rate_limiter=limiter)
+    client = ReplayClient(server.address)
+    client.insert("t", scalar_batch(range(110)))
+    for i in range(8):
+        if i == checkpoint_after and checkpoint_after:
+            client.checkpoint()
+        client.sample("t", 20, timeout=5)
+    with pytest.raises(DeadlineExceeded):
+        client.sample("t", 20, timeout=0.5)
+    server.kill()
+    server.stop()
+    with _table(tmp_path, rate_limiter=limiter) as restarted:
+        client = ReplayClient(restarted.address)
+        assert client.info()[0].samples == 160
+        with pytest.raises(DeadlineExceeded):
+            client.sample("t", 20, timeout=0.5)  # as before the kill: the ratio is spent
+        client.insert("t", scalar_batch(range(110, 130)))  # 20 more items admit one batch
+        assert len(client.sample("t", 20, timeout=5)["x"]) == 20
 
 
 def test_non_loopback_bind_without_token_is_refused_by_the_cli():

@@ -21,7 +21,7 @@ import pytest
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient, ReplayError
 from service.replay.codec import encode_batch
-from service.run.replay_process import ReplayProcess
+from service.run.replay_process import EXIT_FOLDER_UNUSABLE, ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
 
@@ -110,7 +110,10 @@ def test_restart_refuses_a_changed_signature_or_size(tmp_path, stop, change, nam
     if stop == "sigkill":
         server.kill()
     server.stop()
-    message = refusal(table(**change), folder)
+    server = Started(table(**change), folder)
+    assert server.address is None, "the server started instead of refusing"
+    assert server.process.returncode == EXIT_FOLDER_UNUSABLE  # a launcher may move it aside
+    message = server.log
     assert "graft replay serve:" in message and named in message
     assert "Traceback" not in message
     with durable(folder) as server:  # the original config still restores everything
@@ -276,3 +279,16 @@ def test_failed_periodic_checkpoint_keeps_the_server_running(tmp_path):
         np.testing.assert_array_equal(
             read_all(ReplayClient(restarted.address), "log"), np.arange(20_010)
         )
+
+
+def test_a_folder_of_the_previous_format_is_restored(tmp_path):
+    """Format 2 (a log of inserts only) is still read: a folder written by the previous
+    version restores, and is written on in the current format."""
+    folder = tmp_path / "replay"
+    _kill_after_batches(folder, 3)
+    manifest = json.loads((folder / "tables.json").read_text())
+    (folder / "tables.json").write_text(json.dumps({**manifest, "format": 2}))
+    with durable(folder, table(max_size=10_000)) as server:
+        stored = read_all(ReplayClient(server.address), "log")
+    np.testing.assert_array_equal(stored, np.arange(30))
+    assert json.loads((folder / "tables.json").read_text())["format"] == 3

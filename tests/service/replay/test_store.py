@@ -101,3 +101,22 @@ def test_a_stream_whose_log_append_fails_is_neither_stored_nor_logged(tmp_path):
     again = core(tmp_path)
     assert (again.table("t").size, again.writers.acked("w")) == (3, 3)
     again.close()
+
+
+def test_a_sample_whose_log_record_fails_is_served_and_counted_in_memory_only(tmp_path):
+    c = core(tmp_path)
+    assert c.commit([staged(c, [1, 2, 3], sequence=1)]) == (3, 0)
+    c.table("t").sample(2)  # logged
+    wal = c._wal
+    assert wal is not None
+    real = wal._file
+    wal._file = _DiskFillsUp(real, room=0)
+    assert len(c.table("t").sample(2)["x"]) == 2  # served although its record failed
+    assert (c.table("t").stats.samples, c.durability.unlogged_samples) == (4, 2)
+    assert c.durability.log_append_failures == 0  # no insert was refused
+    wal._file = real
+    c.table("t").sample(2)  # logged again
+    c.close()
+    again = core(tmp_path)
+    assert again.table("t").stats.samples == 4  # the two logged batches, not the unlogged one
+    again.close()
