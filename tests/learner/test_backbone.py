@@ -95,6 +95,27 @@ def test_observed_backbone_ticks_mu_once_per_state():
     np.testing.assert_array_equal(columns["backbone_action"][1], [-2.0])
 
 
+def test_observed_backbone_reuses_each_environments_mu_when_they_act_apart():
+    """Environments at their own pace come in varying subsets (`envs`): μ(s') is kept per
+    environment, so a row is ticked again only when its environment's s is new."""
+    ticked: list[int] = []
+
+    def backbone(obs: np.ndarray) -> np.ndarray:
+        ticked.append(len(obs))
+        return np.where(obs[:, 2:] >= 0, 2.0, -2.0).astype(np.float32)
+
+    behaviour = _pendulum_backbone(_Recorder(), backbone, limit=4.0, observe_backbone=True)
+    rng = np.random.default_rng(0)
+    s = rng.normal(size=(3, 3)).astype(np.float32)
+    behaviour.act(s, rng, warmup=False)  # all three environments
+    nxt = rng.normal(size=(3, 3)).astype(np.float32)
+    behaviour.next_columns(nxt[[2]], envs=np.array([2]))  # only env 2 finished its step
+    behaviour.next_columns(nxt[[0]], envs=np.array([0]))  # then env 0
+    _, columns = behaviour.act(nxt[[0, 2]], rng, warmup=False, envs=np.array([0, 2]))
+    assert ticked == [3, 1, 1]  # the last act ticks nothing: both s were seen as s'
+    np.testing.assert_array_equal(columns["backbone_action"], backbone(nxt[[0, 2]]))
+
+
 # --- the learner: eq. (11), the observed backbone, the burn-in ------------------------
 
 

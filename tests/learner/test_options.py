@@ -182,6 +182,22 @@ def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_e
     np.testing.assert_allclose(action, [[-1.0]])
 
 
+def test_options_behaviour_keeps_each_environments_clock_when_they_act_apart():
+    """Real-time clients step at their own pace: the actor acts for varying subsets of
+    its environments (`envs`), and each one's option clock is its own."""
+    behaviour = greedy_options(Table([[0.0, 1.0]]), Table([[0.25]]))
+    rng, one = np.random.default_rng(0), np.zeros((1, 3), np.float32)
+    clock = {0: [], 1: []}
+    for env in (0, 0, 1, 0, 1, 1, 1):
+        _, columns = behaviour.act(one, rng, warmup=False, envs=np.array([env]))
+        clock[env].append(int(columns["option_step"][0]))
+    assert clock == {0: [0, 1, 2], 1: [0, 1, 2, 0]}
+    behaviour.end_episodes(np.array([True]), envs=np.array([0]))  # env 0's episode ended
+    _, columns = behaviour.act(np.zeros((2, 3), np.float32), rng, warmup=False,
+                               envs=np.array([1, 0]))  # fmt: skip
+    assert columns["option_step"].tolist() == [1, 0]
+
+
 def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
     def options_table(q: list[float]) -> dict[str, torch.Tensor]:
         return {"options.rows": torch.tensor([q]), "actor.rows": torch.tensor([[0.25]])}

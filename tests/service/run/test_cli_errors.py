@@ -239,14 +239,14 @@ def test_more_parallel_runs_than_local_ray_can_place(capsys) -> None:
 
 
 def test_ray_address_in_the_environment_is_said(monkeypatch, tmp_path, capsys) -> None:
-    monkeypatch.setenv("RAY_ADDRESS", "ray://head:10001")
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:6379")  # refused before it is joined
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "config.yaml").write_text("preset: pendulum-td3\n")
     with pytest.raises(SystemExit):
         main([*TRAIN, "--run-dir", str(tmp_path / "run")])  # refused: it exists
     note = capsys.readouterr().err.splitlines()[0]
     assert note == (
-        "graft train: joining the Ray cluster at RAY_ADDRESS=ray://head:10001; --address "
+        "graft train: joining the Ray cluster at RAY_ADDRESS=127.0.0.1:6379; --address "
         "local starts a new local Ray instead"
     )
     with pytest.raises(SystemExit):
