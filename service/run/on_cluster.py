@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional
 
 import ray
-from ray.exceptions import RayTaskError
+from ray.exceptions import AuthenticationError, RayTaskError
 
 from service.run.config import TrainConfig
 from service.run.placement import LearnerPlacement, check_placement, cluster_nodes
@@ -51,11 +51,12 @@ def _run_there(
     return result, ray.util.get_node_ip_address()
 
 
-def _unreachable(address: str, error: ConnectionError) -> str:
+def _unreachable(address: str, error: Exception) -> str:
     """One line for a Ray Client that found no server, or one that refused its token."""
     token = os.environ.get("RAY_AUTH_TOKEN_PATH") or "~/.ray/auth_token"
+    why = (str(error).strip().splitlines() or [type(error).__name__])[0]
     return (
-        f"--address {address}: Ray Client could not connect ({error}); the head must run "
+        f"--address {address}: Ray Client could not connect ({why}); the head must run "
         "Ray Client's server on that port (`ray start --head` opens 10001), and on a "
         f"cluster with token auth this machine needs the cluster's token in {token} "
         "(deploy/ray-node.sh copy-token USER@THIS_MACHINE)"
@@ -76,7 +77,8 @@ def train_on_cluster(
 
     try:
         connect_ray(address)
-    except ConnectionError as error:
+    except (ConnectionError, AuthenticationError) as error:
+        # AuthenticationError: token auth is on (RAY_AUTH_MODE=token) but no token is here.
         raise ConfigError(_unreachable(address, error)) from None
     try:
         options = learner_options(config.learner)
