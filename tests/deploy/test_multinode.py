@@ -288,6 +288,15 @@ def test_the_readme_shows_the_commands_this_module_runs():
         assert command in text, f"deploy/README.md lacks: {command}"
 
 
+def _actors_on_workers(cluster: NamespaceCluster) -> dict[int, str]:
+    """The run's two env actors, pid -> worker namespace; none may run on the head."""
+    actors = {ns: cluster.find(ns, "ray::EnvActor") for ns in cluster.namespaces}
+    assert actors[cluster.head_ns] == [], "an actor ran on the 0-CPU head"
+    on_workers = {p: ns for ns in cluster.worker_ns for p in actors[ns]}
+    assert len(on_workers) == 2, actors
+    return on_workers
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(START_LIMIT_S + RUN_LIMIT_S + 120)
 def test_a_run_on_three_nodes_survives_a_dead_actor_and_replay_server(cluster, tmp_path):
@@ -303,10 +312,7 @@ def test_a_run_on_three_nodes_survives_a_dead_actor_and_replay_server(cluster, t
     try:
         # Faults strike once the learner trains.
         train.wait_for(lambda: _training(metrics), "start training")
-        actors = {ns: cluster.find(ns, "ray::EnvActor") for ns in cluster.namespaces}
-        assert actors[cluster.head_ns] == [], "an actor ran on the 0-CPU head"
-        on_workers = [p for ns in cluster.worker_ns for p in actors[ns]]
-        assert len(on_workers) == 2, actors
+        on_workers = list(_actors_on_workers(cluster))
         os.kill(on_workers[0], signal.SIGKILL)
         time.sleep(2)
         (replay,) = cluster.find(cluster.head_ns, REPLAY_SERVER)
@@ -358,10 +364,7 @@ def test_minecraft_actors_and_their_worlds_run_on_workers_and_a_dead_one_is_repl
     metrics = run_dir / "metrics.csv"
     try:
         train.wait_for(lambda: _training(metrics), "start training")
-        actors = {ns: cluster.find(ns, "ray::EnvActor") for ns in cluster.namespaces}
-        assert actors[cluster.head_ns] == [], "an actor ran on the 0-CPU head"
-        on_workers = {p: ns for ns in cluster.worker_ns for p in actors[ns]}
-        assert len(on_workers) == 2, actors
+        on_workers = _actors_on_workers(cluster)
         # Each actor serves its own simulated world on its node's loopback.
         for pid, ns in on_workers.items():
             listens = cluster.listening(ns).get(pid, [])

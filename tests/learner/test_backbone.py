@@ -4,6 +4,7 @@ composition (eq. 10), the observed backbone, the teacher target (eq. 11) and the
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -73,13 +74,19 @@ def test_observed_backbone_is_an_input_of_the_correction_and_recorded_at_s_prime
     )
 
 
-def test_observed_backbone_ticks_mu_once_per_state():
-    ticked: list[int] = []
+def _counting_backbone(ticked: list[int]) -> Callable[[np.ndarray], np.ndarray]:
+    """μ(s) = ±2 by the sign of s[2]; each call's batch size goes to `ticked`."""
 
     def backbone(obs: np.ndarray) -> np.ndarray:
         ticked.append(len(obs))
         return np.where(obs[:, 2:] >= 0, 2.0, -2.0).astype(np.float32)
 
+    return backbone
+
+
+def test_observed_backbone_ticks_mu_once_per_state():
+    ticked: list[int] = []
+    backbone = _counting_backbone(ticked)
     behaviour = _pendulum_backbone(_Recorder(), backbone, limit=4.0, observe_backbone=True)
     rng = np.random.default_rng(0)
     obs = rng.normal(size=(4, 3)).astype(np.float32)
@@ -99,11 +106,7 @@ def test_observed_backbone_reuses_each_environments_mu_when_they_act_apart():
     """Environments at their own pace come in varying subsets (`envs`): μ(s') is kept per
     environment, so a row is ticked again only when its environment's s is new."""
     ticked: list[int] = []
-
-    def backbone(obs: np.ndarray) -> np.ndarray:
-        ticked.append(len(obs))
-        return np.where(obs[:, 2:] >= 0, 2.0, -2.0).astype(np.float32)
-
+    backbone = _counting_backbone(ticked)
     behaviour = _pendulum_backbone(_Recorder(), backbone, limit=4.0, observe_backbone=True)
     rng = np.random.default_rng(0)
     s = rng.normal(size=(3, 3)).astype(np.float32)
