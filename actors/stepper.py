@@ -86,16 +86,21 @@ class VectorStepper:
             if self._pool is not None
             else [self._reset(i, seed=seed + i) for i in range(n)]
         )
-        self.obs = np.stack([self._begin(i, reset) for i, reset in enumerate(resets)])
+        now = time.perf_counter()
+        self.obs = np.stack([self._begin(i, reset, now) for i, reset in enumerate(resets)])
         self.episode_returns = np.zeros(n)
         self.finished_returns: list[float] = []
-        self.idle = np.arange(n)
-        """The environments whose observation (`obs[idle]`) awaits an action."""
         self.stepped = np.arange(n)
-        """The environments of the rows the last `step()` returned."""
+        """The environments of the rows the last `step()` returned (at first: all)."""
         self.lost = np.zeros(n, bool)
         """Rows of the last `step()` whose world went away: no transition."""
         self._in_flight: dict[Future[_Outcome], dict[str, np.ndarray]] = {}
+
+    @property
+    def idle(self) -> np.ndarray:
+        """The environments whose observation (`obs[idle]`) awaits an action: those the
+        last `step()` returned (the others are still stepping)."""
+        return self.stepped
 
     @property
     def asynchronous(self) -> bool:
@@ -119,9 +124,10 @@ class VectorStepper:
                 time.sleep(delay)
                 delay = min(2 * delay, MAX_BACKOFF_S)
 
-    def _begin(self, i: int, reset: Reset) -> Any:
+    def _begin(self, i: int, reset: Reset, ready_at: float) -> Any:
+        """Environment i's new episode, its first observation there since `ready_at`."""
         self.meter.begin(i, reset[1])
-        self._ready_at[i] = time.perf_counter()
+        self._ready_at[i] = ready_at
         return reset[0]
 
     def _advance(self, i: int, action: np.ndarray, sent_at: Optional[float] = None) -> _Outcome:
@@ -164,7 +170,7 @@ class VectorStepper:
             future = self._pool.submit(self._advance, int(i), actions[j], now)
             self._in_flight[future] = {k: v[j : j + 1] for k, v in carry.items()}
         if not self._in_flight:
-            self.idle = self.stepped = np.zeros(0, np.int64)
+            self.stepped = np.zeros(0, np.int64)
             return self._rows([], [])
         finished, waiting = wait(self._in_flight, return_when=FIRST_COMPLETED)
         # Worlds that tick in step (missions started together) finish within a few
@@ -204,11 +210,11 @@ class VectorStepper:
                     self.finished_returns.append(float(self.episode_returns[i]))
                     self.episode_returns[i] = 0.0
             if out.reset is not None:
-                self.obs[i] = self._begin(i, out.reset)
+                self.obs[i] = self._begin(i, out.reset, out.ready_at)
             else:
                 self.obs[i] = next_obs[j]
                 self._ready_at[i] = out.ready_at
-        self.idle = self.stepped = envs
+        self.stepped = envs
         self.lost = lost
         record: Columns = {
             "obs": obs.astype(np.float32),

@@ -15,7 +15,8 @@
 
 3. The clients sweep: N real-time clients (default 8, 16, 24, 32, 48; 50 ms ticks, one
    world server process each) driven by env actors of ``--per-actor`` clients each,
-   stepped at once with one batched policy call, beside a TD3 learner at full speed:
+   each at its own pace (``async_envs``), acted for in batched policy calls, beside a TD3
+   learner at full speed:
    skipped ticks, world ticks/s, actor and world-server CPU per client, updates/s (CSV +
    PNG). First, in the same run, actor CPU per tick before (one client per actor, the
    per-block grid encoding, ``pooled_clients.encode_per_block``) and after.
@@ -404,7 +405,7 @@ def clients_run(
     args: argparse.Namespace, td3: TD3Config, *, clients: int, per_actor: int, baseline: bool
 ) -> dict[str, float]:
     """`clients` real-time clients at 50 ms ticks, `per_actor` of them in each env actor
-    (stepped at once, the vectorised encoding) or, as `baseline`, one per actor with the
+    (each at its own pace, the vectorised encoding) or, as `baseline`, one per actor with the
     per-block encoding; a TD3 learner trains at full speed beside them."""
     obs_space = observation_space(parse_mission(bench_mission(args.seed)))
     low, high = ACTION_SPACE.low, ACTION_SPACE.high
@@ -508,7 +509,7 @@ def clients_sweep(args: argparse.Namespace) -> None:
         f"before: {n0} actors x 1 client, per-block encoding, one step at a time": clients_run(
             args, td3, clients=n0, per_actor=1, baseline=True
         ),
-        f"after: clients stepped at once, {args.per_actor} per actor, block-id table": (
+        f"after: asynchronous clients, {args.per_actor} per actor, block-id table": (
             clients_run(args, td3, clients=n0, per_actor=args.per_actor, baseline=False)
         ),
     }
