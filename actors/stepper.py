@@ -19,8 +19,9 @@ of their waits, and clients whose tick came early skipped the next one.
 
 from __future__ import annotations
 
+import queue
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Optional, SupportsFloat
 
 import numpy as np
@@ -94,7 +95,8 @@ class VectorStepper:
         """The environments of the rows the last `step()` returned (at first: all)."""
         self.lost = np.zeros(n, bool)
         """Rows of the last `step()` whose world went away: no transition."""
-        self._in_flight: dict[Future[_Outcome], dict[str, np.ndarray]] = {}
+        self._in_flight: dict[int, dict[str, np.ndarray]] = {}  # env -> its carry row
+        self._done: queue.SimpleQueue[_Outcome | BaseException] = queue.SimpleQueue()
 
     @property
     def idle(self) -> np.ndarray:
@@ -167,22 +169,34 @@ class VectorStepper:
             return self._rows(outcomes, [carry])
         now = time.perf_counter()
         for j, i in enumerate(envs):
-            future = self._pool.submit(self._advance, int(i), actions[j], now)
-            self._in_flight[future] = {k: v[j : j + 1] for k, v in carry.items()}
+            self._in_flight[int(i)] = {k: v[j : j + 1] for k, v in carry.items()}
+            self._pool.submit(self._advance_into_done, int(i), actions[j], now)
         if not self._in_flight:
             self.stepped = np.zeros(0, np.int64)
             return self._rows([], [])
-        finished, waiting = wait(self._in_flight, return_when=FIRST_COMPLETED)
+        finished = [self._finished(self._done.get())]
         # Worlds that tick in step (missions started together) finish within a few
         # milliseconds of each other: gather them into one batch (one policy call for
         # all), waiting at most GATHER_S for each next one.
-        while waiting:
-            more, waiting = wait(waiting, timeout=GATHER_S, return_when=FIRST_COMPLETED)
-            if not more:
+        while len(finished) < len(self._in_flight):
+            try:
+                finished.append(self._finished(self._done.get(timeout=GATHER_S)))
+            except queue.Empty:
                 break
-            finished |= more
-        rows = [self._in_flight.pop(f) for f in finished]
-        return self._rows([f.result() for f in finished], rows)
+        rows = [self._in_flight.pop(out.env) for out in finished]
+        return self._rows(finished, rows)
+
+    def _advance_into_done(self, i: int, action: np.ndarray, sent_at: float) -> None:
+        try:
+            self._done.put(self._advance(i, action, sent_at))
+        except BaseException as e:  # raised in the acting thread, by step()
+            self._done.put(e)
+
+    @staticmethod
+    def _finished(out: _Outcome | BaseException) -> _Outcome:
+        if isinstance(out, BaseException):
+            raise out
+        return out
 
     def _rows(self, outcomes: list[_Outcome], carry: list[dict[str, np.ndarray]]) -> Columns:
         n = len(outcomes)

@@ -8,6 +8,7 @@ Ray workers import this module through the env spec's ``import_path`` (this fold
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -60,16 +61,19 @@ def pooled_mission(
     per_block_encoding: bool = False,
 ) -> gym.Env:
     """The next of `addresses`' mission environments (each call in this process takes the
-    next world); `per_block_encoding` encodes observations the old way."""
+    next world); `per_block_encoding` decodes and encodes observations the old way."""
     grid_encoding.encode = encode_per_block if per_block_encoding else VECTORISED_ENCODE  # type: ignore[assignment]
     i = next(_made)
-    return gym.make(
+    env = gym.make(
         ENV_ID,
         address=addresses[i % len(addresses)],
         mission_xml=mission_xml,
         world_seed=world_seed + i,
         max_episode_steps=max_episode_steps,
     )
+    if per_block_encoding:  # and the whole info JSON decoded every tick, as before
+        env.unwrapped.client.info_decoder = json.loads  # type: ignore[attr-defined]
+    return env
 
 
 def actors_for(clients: int, per_actor: int) -> list[range]:

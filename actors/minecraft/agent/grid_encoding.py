@@ -23,6 +23,7 @@ This module is the single source of the encoding: the mission environment's
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -79,13 +80,53 @@ def block_ids(names: Sequence[str]) -> np.ndarray:
     return np.fromiter(map(BLOCK_IDS.__getitem__, names), dtype=np.int16, count=len(names))
 
 
+class GridInfo:
+    """Decodes a step's info JSON (bytes) with the grid ``grid`` as block ids (int16)
+    instead of names, for ``encode``; a ``MalmoClient``'s ``info_decoder``.
+
+    A real-time client gets an observation every tick, and the 15×15×15 grid's text is
+    most of it (about 24 kB of names), yet it changes only when the agent enters another
+    block or a block nearby changes. So the grid's text is cut out of the JSON, compared
+    with the last one, and decoded only when it differs; the rest (under 1 kB) is
+    decoded every time. Malmo writes the grid as a flat array of block names, which hold
+    no ``]``; JSON without the grid is decoded whole.
+    """
+
+    def __init__(self, grid: str) -> None:
+        self.grid = grid
+        self._key = b'"' + grid.encode() + b'":['
+        self._text = b""
+        self._ids = np.zeros(0, dtype=np.int16)
+
+    def __call__(self, raw: bytes) -> dict[str, Any]:
+        i = raw.find(self._key)
+        end = raw.find(b"]", i) if i >= 0 else -1
+        if end < 0:
+            return dict(json.loads(raw)) if raw else {}
+        text = raw[i + len(self._key) - 1 : end + 1]
+        if text != self._text:
+            ids = block_ids(json.loads(text))
+            ids.flags.writeable = False  # shared by every info decoded from the same text
+            self._text, self._ids = text, ids
+        # Drop `"grid":[...]` and the comma that joined it to its neighbour.
+        before, after = raw[:i], raw[end + 1 :]
+        if after.startswith(b","):
+            after = after[1:]
+        elif before.endswith(b","):
+            before = before[:-1]
+        info: dict[str, Any] = json.loads(before + after)
+        info[self.grid] = self._ids
+        return info
+
+
 def encode(
     info: Mapping[str, Any], *, k: int = 8, grid: str = "cube", entities: str = "entities"
 ) -> np.ndarray:
     """One step's decoded info JSON -> the float32 vector described above.
 
     Args:
-        info: merged observation producers (full stats, the grid, nearby entities).
+        info: merged observation producers (full stats, the grid's block names or
+            their ids from ``GridInfo``, nearby entities).
         k: number of item slots.
         grid: name of the ObservationFromGrid grid.
         entities: name of the ObservationFromNearbyEntities range.
@@ -108,7 +149,8 @@ def encode(
         ],
         dtype=np.float32,
     )
-    cube = FULL_BY_ID[block_ids(info[grid])]
+    names = info[grid]  # or their ids, as GridInfo decodes them
+    cube = FULL_BY_ID[names if isinstance(names, np.ndarray) else block_ids(names)]
     items = np.zeros((k, ITEM_FIELDS), dtype=np.float32)
     found = [
         (e["x"] - x, e["y"] - y, e["z"] - z)

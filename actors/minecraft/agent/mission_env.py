@@ -143,6 +143,7 @@ class MissionEnv(gym.Env):
             seed=world_seed,
             timeout=timeout_s,
             connect_attempts=1,
+            info_decoder=grid_encoding.GridInfo(self.mission.grids[0].name),
         )
         self.client.init(mission_xml)
         self._obs: Optional[np.ndarray] = None

@@ -40,7 +40,7 @@ import re
 import socket
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -114,6 +114,8 @@ class MalmoClient:
             ``reset()`` gives up.
         first_frame_timeout: seconds ``reset()`` waits for the first frame.
         step_timeout: seconds a step is resent while the server answers sent = 0.
+        info_decoder: turns a non-empty info JSON (bytes) into ``StepResult.info``
+            (default ``json.loads``; e.g. ``grid_encoding.GridInfo`` for block ids).
     """
 
     def __init__(
@@ -132,6 +134,7 @@ class MalmoClient:
         mission_timeout: float = 120.0,
         first_frame_timeout: float = 180.0,
         step_timeout: float = 120.0,
+        info_decoder: Callable[[bytes], dict[str, Any]] = json.loads,
     ) -> None:
         self.host, self.port = host, port
         self.synchronous, self.seed, self.role = synchronous, seed, role
@@ -144,6 +147,7 @@ class MalmoClient:
         self.mission_timeout = mission_timeout
         self.first_frame_timeout = first_frame_timeout
         self.step_timeout = step_timeout
+        self.info_decoder = info_decoder
         self.exp_uid = exp_uid if exp_uid is not None else str(uuid.uuid4())
         self.resets = 0
         self.done = True
@@ -322,8 +326,8 @@ class MalmoClient:
         # Malmo sends rows bottom-up (OpenGL order); return them top-down.
         return np.frombuffer(data, dtype=np.uint8).reshape(m.height, m.width, c)[::-1]
 
-    def _info(self, text: str) -> dict[str, Any]:
-        info: dict[str, Any] = json.loads(text) if text else {}
+    def _info(self, raw: bytes) -> dict[str, Any]:
+        info = self.info_decoder(raw) if raw else {}
         if info:
             self.last_info = info
         return info
@@ -334,7 +338,7 @@ class MalmoClient:
         sock = self._call(b"<Peek/>")
         data = P.recv(sock)
         if self.synchronous:
-            self._info(P.recv(sock).decode("utf-8"))  # MineRL adds the observation
+            self._info(P.recv(sock))  # MineRL adds the observation
         done = P.recv(sock) == b"\x01"
         self.done = done
         return self._frame(data), done
@@ -363,14 +367,14 @@ class MalmoClient:
             sock = self._call(msg, self.turn_key.encode()) if with_key else self._call(msg)
             data = P.recv(sock)
             reward, done, sent = P.unpack_step_record(P.recv(sock))
-            info_text = P.recv(sock).decode("utf-8") if with_info else ""
+            info_raw = P.recv(sock) if with_info else b""
             if with_key:
                 key = P.recv(sock).decode("utf-8")
                 if key:
                     self.turn_key = key
             self.done = done
             if sent or done:
-                return StepResult(self._frame(data), reward, done, self._info(info_text), sent)
+                return StepResult(self._frame(data), reward, done, self._info(info_raw), sent)
             if not data and self.mission is not None and not self.mission.has_video:
                 raise MissionRefused(
                     "the mission has no VideoProducer: Malmo never queues its commands"
@@ -386,10 +390,10 @@ class MalmoClient:
         sock = self._call(P.step_client_message(text, opts))
         data = P.recv(sock)
         reward, done, sent = P.unpack_step_record(P.recv(sock))
-        info_text = P.recv(sock).decode("utf-8") if with_info else ""
+        info_raw = P.recv(sock) if with_info else b""
         P.send(sock, P.STEP_SERVER)  # advance the server tick; MineRL does not answer
         self.done = done
-        return StepResult(self._frame(data), reward, done, self._info(info_text), sent)
+        return StepResult(self._frame(data), reward, done, self._info(info_raw), sent)
 
     def observe(self) -> StepResult:
         """Step with no commands until an observation arrives (or the mission ends); the

@@ -28,6 +28,7 @@ ENTITY_COLOURS = {
     "Rabbit": (150, 120, 90),
 }
 PLAYER_COLOUR = (60, 90, 200)  # another agent of the mission
+ITEM_COLOUR = (240, 240, 80)  # a dropped item
 _SHADE = np.array([0.8, 1.0, 0.65], dtype=np.float32)  # x faces, top faces, z faces
 
 
@@ -58,25 +59,22 @@ def render(world: World, width: int, height: int, *, depth: bool = False) -> byt
     yr, pr = math.radians(p.yaw), math.radians(p.pitch)
     f = np.array([-math.sin(yr) * math.cos(pr), -math.sin(pr), math.cos(yr) * math.cos(pr)])
     r = np.array([-math.cos(yr), 0.0, -math.sin(yr)])
-    up = np.array(  # r × f (np.cross costs more than the whole ray march)
+    up = np.array(  # r × f
         [r[1] * f[2] - r[2] * f[1], r[2] * f[0] - r[0] * f[2], r[0] * f[1] - r[1] * f[0]]
     )
     uu, vv = _camera_grid(width, height)
-    d = f[None, :] + uu[:, None] * r[None, :] + vv[:, None] * up[None, :]
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    n = d.shape[0]
-    img = np.empty((n, 3), dtype=np.float32)
-    img[:] = SKY
-    dist = np.full(n, MAX_DIST, dtype=np.float32)
-    _march(world, eye, d, img, dist)
-    _draw_entities(world, eye, f, r, up, width, height, img, dist)
-    fog = (dist / MAX_DIST)[:, None] ** 2
-    img = img * (1 - fog) + SKY * fog
-    out = img.reshape(height, width, 3)
-    if depth:
-        dch = np.clip(dist / MAX_DIST * 255.0, 0, 255).reshape(height, width, 1)
-        out = np.concatenate([out, dch], axis=2)
-    return np.ascontiguousarray(out[::-1]).astype(np.uint8).tobytes()
+    things = [(m.body, ENTITY_COLOURS.get(m.name, (200, 200, 200))) for m in world.mobs]
+    things += [(it.body, ITEM_COLOUR) for it in world.items]
+    things += [(o.body, PLAYER_COLOUR) for o in world.others]
+    boxes = np.array(
+        [(b.x, b.y + b.height / 2, b.z, b.half_width, b.height) for b, _ in things], np.float64
+    ).reshape(-1, 5)
+    colours = np.array([c for _, c in things], np.float32).reshape(-1, 3)
+    out = np.empty((height, width, 4 if depth else 3), dtype=np.uint8)
+    origin = np.array([world.x0, 0, world.z0], dtype=np.float64)
+    _draw(world.blocks, eye, eye - origin, f, r, up, uu, vv, boxes, colours, _STOP, _PALETTE,
+          _SHADE, SKY, out)  # fmt: skip
+    return out.tobytes()
 
 
 _STOP = np.zeros(256, dtype=np.bool_)
@@ -86,21 +84,15 @@ _PALETTE[: len(B.COLOURS)] = B.COLOURS
 _STEPS = int(MAX_DIST * 1.8) + 3  # cells a ray may cross within MAX_DIST (3 axes)
 
 
-def _march(world: World, eye: np.ndarray, d: np.ndarray, img: np.ndarray, dist: np.ndarray):
-    """Each pixel's ray through the voxels: the first opaque block's colour, shaded by
-    its face, into ``img``, and its distance into ``dist`` (rays that hit nothing keep
-    the sky and ``MAX_DIST``)."""
-    origin = np.array([world.x0, 0, world.z0], dtype=np.float64)
-    _march_rays(world.blocks, eye - origin, d, _STOP, _PALETTE, _SHADE, img, dist)
-
-
 def warm_up() -> None:
-    """Compiles the ray march (or loads it from numba's cache), so a world server's first
-    frame does not wait for the compiler."""
+    """Compiles the frame's kernels (or loads them from numba's cache), so a world
+    server's first frame does not wait for the compiler."""
     blocks = np.zeros((2, 2, 2), dtype=np.uint8)
-    d = np.ones((1, 3)) / math.sqrt(3.0)
-    img, dist = np.empty((1, 3), dtype=np.float32), np.empty(1, dtype=np.float32)
-    _march_rays(blocks, np.full(3, 0.5), d, _STOP, _PALETTE, _SHADE, img, dist)
+    v = np.zeros(3)
+    grid = np.zeros(1)
+    boxes, colours = np.zeros((0, 5)), np.zeros((0, 3), dtype=np.float32)
+    out = np.empty((1, 1, 3), dtype=np.uint8)
+    _draw(blocks, v, v, v, v, v, grid, grid, boxes, colours, _STOP, _PALETTE, _SHADE, SKY, out)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -155,28 +147,53 @@ def _march_rays(blocks, eye, d, stop, palette, shade, img, dist):  # pragma: no 
             break
 
 
-def _draw_entities(world, eye, f, r, up, width, height, img, dist) -> None:
+@numba.njit(cache=True, nogil=True)
+def _draw(blocks, eye, eye_in_blocks, f, r, up, uu, vv, boxes, colours, stop, palette, shade,
+          sky, out):  # pragma: no cover  # fmt: skip
+    # One frame, compiled: each pixel's ray, the voxels it crosses, the animals, items and
+    # agents in front of the first block it hits (as boxes), distance fog, and the bytes
+    # (rows bottom-up, Malmo's order; a 4th channel: distance).
+    height, width, channels = out.shape
+    n = height * width
+    d = np.empty((n, 3))
+    for p in range(n):
+        norm = 0.0
+        for a in range(3):
+            d[p, a] = f[a] + uu[p] * r[a] + vv[p] * up[a]
+            norm += d[p, a] * d[p, a]
+        d[p] /= math.sqrt(norm)
+    img = np.empty((n, 3), dtype=np.float32)
+    img[:] = sky
+    dist = np.full(n, MAX_DIST, dtype=np.float32)
+    _march_rays(blocks, eye_in_blocks, d, stop, palette, shade, img, dist)
     ty = math.tan(math.radians(FOV_Y) / 2)
     tx = ty * width / height
-    things = [(m.body, ENTITY_COLOURS.get(m.name, (200, 200, 200))) for m in world.mobs]
-    things += [(it.body, (240, 240, 80)) for it in world.items]
-    things += [(o.body, PLAYER_COLOUR) for o in world.others]
-    view = img.reshape(height, width, 3)
-    dview = dist.reshape(height, width)
-    for body, colour in things:
-        c = np.array([body.x, body.y + body.height / 2, body.z]) - eye
-        z = float(c @ f)
+    for k in range(boxes.shape[0]):
+        c = np.array([boxes[k, 0] - eye[0], boxes[k, 1] - eye[1], boxes[k, 2] - eye[2]])
+        z = c[0] * f[0] + c[1] * f[1] + c[2] * f[2]
         if z < 0.3 or z > MAX_DIST:
             continue
-        x, y = float(c @ r) / (z * tx), float(c @ up) / (z * ty)
-        hw = body.half_width / (z * tx)
-        hh = body.height / 2 / (z * ty)
-        j0, j1 = int((x - hw + 1) / 2 * width), int(math.ceil((x + hw + 1) / 2 * width))
-        i0, i1 = int((1 - y - hh) / 2 * height), int(math.ceil((1 - y + hh) / 2 * height))
-        j0, j1, i0, i1 = max(j0, 0), min(j1, width), max(i0, 0), min(i1, height)
-        if j0 >= j1 or i0 >= i1:
-            continue
-        dv = dview[i0:i1, j0:j1]
-        mask = dv > z
-        view[i0:i1, j0:j1][mask] = colour
-        dv[mask] = z
+        x = (c[0] * r[0] + c[1] * r[1] + c[2] * r[2]) / (z * tx)
+        y = (c[0] * up[0] + c[1] * up[1] + c[2] * up[2]) / (z * ty)
+        hw = boxes[k, 3] / (z * tx)
+        hh = boxes[k, 4] / 2 / (z * ty)
+        j0 = max(int((x - hw + 1) / 2 * width), 0)
+        j1 = min(int(math.ceil((x + hw + 1) / 2 * width)), width)
+        i0 = max(int((1 - y - hh) / 2 * height), 0)
+        i1 = min(int(math.ceil((1 - y + hh) / 2 * height)), height)
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                q = i * width + j
+                if dist[q] > z:
+                    img[q] = colours[k]
+                    dist[q] = z
+    for i in range(height):
+        row = height - 1 - i  # bottom-up
+        for j in range(width):
+            q = i * width + j
+            fog = np.float32((dist[q] / np.float32(MAX_DIST)) ** 2)
+            for ch in range(3):
+                out[row, j, ch] = np.uint8(img[q, ch] * (np.float32(1) - fog) + sky[ch] * fog)
+            if channels == 4:
+                v = dist[q] / np.float32(MAX_DIST) * np.float32(255.0)
+                out[row, j, 3] = np.uint8(min(max(v, np.float32(0)), np.float32(255)))

@@ -96,3 +96,36 @@ def test_cube_matches_a_per_block_lookup_on_every_known_name() -> None:
     cube = grid_encoding.encode(info, k=0)[len(grid_encoding.STATS) :]
     expected = [float(B.SOLID[B.ID[n]]) if n in B.ID else 1.0 for n in grid]
     assert cube.tolist() == expected
+
+
+def test_grid_info_decodes_as_json_does_and_the_grid_only_when_it_changed(monkeypatch) -> None:
+    """`GridInfo` gives what `json.loads` gives, with the grid's ids instead of names,
+    wherever the grid stands among the keys; it decodes a grid only when its text differs
+    from the last one's."""
+    import json
+
+    rng = np.random.default_rng(1)
+    names = ["air", "stone", "water", "some_modded_block"]
+    grids = [[names[i] for i in rng.integers(4, size=grid_encoding.CUBE_CELLS)] for _ in (0, 1)]
+    decode = grid_encoding.GridInfo("cube")
+    block_ids = grid_encoding.block_ids
+    calls: list[int] = []
+
+    def counted(names: list[str]) -> np.ndarray:
+        calls.append(1)
+        return block_ids(names)
+
+    for step, (grid, order) in enumerate([(0, "first"), (0, "last"), (1, "middle"), (1, "last")]):
+        info = _info(cube=grids[grid], TotalTime=step)
+        keys = [k for k in info if k != "cube"]
+        keys.insert({"first": 0, "middle": 3, "last": len(keys)}[order], "cube")
+        raw = json.dumps({k: info[k] for k in keys}, separators=(",", ":")).encode()
+        with monkeypatch.context() as m:
+            m.setattr(grid_encoding, "block_ids", counted)
+            got = decode(raw)
+        want = json.loads(raw)
+        assert got["cube"].tolist() == block_ids(want.pop("cube")).tolist()
+        assert {k: v for k, v in got.items() if k != "cube"} == want
+        np.testing.assert_array_equal(grid_encoding.encode(got), grid_encoding.encode(info))
+    assert len(calls) == 2  # the two grids, each once
+    assert decode(b'{"XPos":1}') == {"XPos": 1}  # no grid: decoded whole
