@@ -21,6 +21,7 @@ own), runs the same loop:
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from dataclasses import dataclass
@@ -68,7 +69,8 @@ class EnvActor:
     `advance()` call when the learner drives it (reproducible mode).
 
     Two calls run at once: `report()` and `restart_meters()` answer while `run()` acts.
-    `nice`, when given, is the acting thread's CPU niceness: Ray starts workers at nice
+    `nice`, when given, is the CPU niceness of the threads that act and step the
+    environments and of the replay writer's: Ray starts workers at nice
     15 (`RAY_worker_niceness`), below every ordinary process, so a real-time actor on a
     busy machine would be starved; 0 asks for an ordinary share. Lowering niceness needs
     CAP_SYS_NICE or RLIMIT_NICE; without them the actor keeps its niceness and reports it
@@ -90,14 +92,23 @@ class EnvActor:
         async_envs: bool = False,
     ) -> None:
         torch.set_num_threads(1)
-        self.stepper = VectorStepper(env, num_envs, seed, asynchronous=async_envs)
+        self.nice = nice
+        # The threads started here (environment steps, the replay writer) do most of a
+        # real-time actor's work: they take the acting niceness, as `run()`'s thread does
+        # (a new thread inherits its creator's), and Ray's thread gets its own back.
+        ray_nice = os.getpriority(os.PRIO_PROCESS, 0)
+        self._set_priority()
+        try:
+            self.stepper = VectorStepper(env, num_envs, seed, asynchronous=async_envs)
+            self.writer = BackgroundWriter(replay)
+        finally:
+            with contextlib.suppress(OSError):
+                os.setpriority(os.PRIO_PROCESS, 0, ray_nice)
         self.rng = np.random.default_rng(seed)
-        self.writer = BackgroundWriter(replay)
         self.weights = weights
         self.behaviour = behaviour
         self.steps_per_insert = steps_per_insert
-        self.nice = nice
-        self.acting_nice = os.getpriority(os.PRIO_PROCESS, 0)
+        self.acting_nice = ray_nice
         self.versions_seen: list[int] = []
         self.stats: list[dict[str, float]] = []
         self.env_steps = 0

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -17,6 +19,7 @@ import numpy as np
 import pytest
 import ray
 import torch
+from gymnasium import spaces
 
 from actors.behaviours.gaussian import GaussianBehaviour
 from actors.env_actor import EnvActor, Segment, VectorStepper
@@ -197,6 +200,52 @@ def test_asynchronous_steps_give_each_environment_the_same_transitions() -> None
     for e in range(3):
         np.testing.assert_array_equal(np.stack(per_env[0][e]), np.stack(per_env[1][e]))
     assert sum(bool(r[3]) for r in per_env[1][0]) >= 2  # episodes ended and reset
+
+
+class ThreadNiceness(gym.Env):
+    """Observes the niceness of the thread that steps it (on Linux, each thread's own)."""
+
+    observation_space = spaces.Box(-20.0, 20.0, shape=(1,), dtype=np.float32)
+    action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+    def reset(self, *, seed: Any = None, options: Any = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        return self._niceness(), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        return self._niceness(), 0.0, False, False, {}
+
+    @staticmethod
+    def _niceness() -> np.ndarray:
+        return np.array([os.getpriority(os.PRIO_PROCESS, 0)], np.float32)
+
+
+def test_asynchronous_environments_step_at_the_actors_niceness(ray_local) -> None:
+    """Each environment's thread (started when the actor is made, in a thread of Ray's at
+    nice 15) takes the actor's niceness, as the acting thread does: otherwise the
+    real-time clients' socket and decoding work waits behind every other process."""
+    net = make_actor_network(1, 1, np.array([-1.0]), np.array([1.0]), TD3)
+    slow = GaussianBehaviour(net, std=0.1, low=np.array([-1.0]), high=np.array([1.0]))
+    signature = replay_signature(ThreadNiceness.observation_space, slow.columns())
+    with ReplayProcess([{"name": "t", "max_size": 1000, "signature": signature}]) as server:
+        replay = ReplayClient(server.address)
+        broadcaster = WeightBroadcaster.remote()
+        here = Path(__file__).resolve()
+        folders = (str(here.parent), str(here.parents[2]))  # this module, and `tests`
+        actor = EnvActor.remote(
+            env=EnvSpec(f"{__name__}:ThreadNiceness", import_path=folders), num_envs=3, seed=0,
+            replay=replay, weights=WeightSubscriber(broadcaster), behaviour=slow,
+            steps_per_insert=4, nice=19, async_envs=True,
+        )  # fmt: skip
+        segment = Segment("t", steps=48, warmup_steps=48)
+        report = ray.get(actor.run.remote([segment]), timeout=60)
+        assert report["actor/nice"] == 19
+        batch = replay.sample("t", 48)
+        assert set(batch["obs"].ravel()) == set(batch["next_obs"].ravel()) == {19.0}
+        ray.get(actor.close.remote())
+        ray.kill(actor)
+        ray.kill(broadcaster)
+        replay.close()
 
 
 _WORLDS: list[str] = []
