@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Optional
 
@@ -81,7 +82,7 @@ class EnvActor:
     def __init__(
         self,
         *,
-        env: EnvSpec,
+        env: EnvSpec | Sequence[EnvSpec],
         num_envs: int,
         seed: int,
         replay: ReplayWriter,

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import queue
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Optional, SupportsFloat
 
@@ -68,14 +69,20 @@ class VectorStepper:
     in a new stream: the steps before and after the loss are never linked.
 
     Args:
-        env: how to make each environment.
+        env: how to make each environment, or environment i's at `env[i]` (e.g. each in
+            a Minecraft client of its own).
         n: how many.
         seed: environment i's first reset uses `seed + i`.
         asynchronous: each environment at its own pace (module docstring).
     """
 
-    def __init__(self, env: EnvSpec, n: int, seed: int, *, asynchronous: bool = False) -> None:
-        self.envs = [env.make() for _ in range(n)]
+    def __init__(
+        self, env: EnvSpec | Sequence[EnvSpec], n: int, seed: int, *, asynchronous: bool = False
+    ) -> None:
+        specs = [env] * n if isinstance(env, EnvSpec) else list(env)
+        if len(specs) != n:
+            raise ValueError(f"{len(specs)} environment specs for {n} environments")
+        self.envs = [spec.make() for spec in specs]
         self._pool = ThreadPoolExecutor(n, thread_name_prefix="env-step") if asynchronous else None
         self.meter = TickMeter(n)
         self.streams = np.arange(n, dtype=np.int64)

@@ -2,9 +2,10 @@
 
 Without `clients`, every environment of a Minecraft preset starts its own simulated world
 server, in its actor's process and so on its actor's node (`--clients N` sets the number
-of actors). With `clients` (or `clients_file`), each actor plays in one listed Minecraft
-(Malmo) client and the evaluator in another: a client runs one mission at a time, and
-a second one started in it replaces the first.
+of actors). With `clients` (or `clients_file`), each environment of each actor plays in
+one listed Minecraft (Malmo) client (actor i's `envs_per_actor` environments in clients
+i·k … i·k + k − 1) and the evaluator in the next: a client runs one mission at a time,
+and a second one started in it replaces the first.
 """
 
 from __future__ import annotations
@@ -34,13 +35,13 @@ def _check_address(field: str, address: str) -> None:
 
 
 def world_clients(config: TrainConfig) -> list[str]:
-    """The clients a run plays in: one per actor, then the evaluator's; [] when every
-    environment starts its own simulated world.
+    """The clients a run plays in: `envs_per_actor` per actor, then the evaluator's; []
+    when every environment starts its own simulated world.
 
     Raises:
         ConfigError: in one line, before anything starts: a malformed or repeated client,
-            fewer clients than actors plus the evaluator, more than one environment per
-            actor, or one `env_kwargs.address` that every actor would share.
+            fewer clients than the actors' environments plus the evaluator, or one
+            `env_kwargs.address` that every actor would share.
     """
     source = "clients_file" if config.clients_file else "clients"
     listed = _read_file(config.clients_file) if config.clients_file else list(config.clients)
@@ -65,25 +66,25 @@ def world_clients(config: TrainConfig) -> list[str]:
         seen[key] = i
     if "address" in config.env_kwargs:
         raise ConfigError(f"env_kwargs.address and {source} both name worlds; keep {source}")
-    if config.envs_per_actor != 1:
-        raise ConfigError(
-            f"envs_per_actor={config.envs_per_actor} with {source}: each actor plays in one "
-            "client, set envs_per_actor=1"
-        )
-    need = config.num_actors + 1
+    k = config.envs_per_actor
+    need = config.num_actors * k + 1
     if len(listed) < need:
+        players = f"{config.num_actors} actors" + (f" x {k} environments" if k > 1 else "")
+        fewer = f" (or --actors {(len(listed) - 1) // k})" if len(listed) > k else ""
         raise ConfigError(
-            f"{source}: {len(listed)} clients for {config.num_actors} actors and the evaluator; "
-            f"need {need} (or --actors {len(listed) - 1})"
-            if len(listed) > 1
-            else f"{source}: 1 client for {config.num_actors} actors and the evaluator; need {need}"
+            f"{source}: {len(listed)} client{'s' * (len(listed) != 1)} for {players} and the "
+            f"evaluator; need {need}{fewer}"
         )
     return listed[:need]
 
 
-def actor_env(config: TrainConfig, clients: list[str], actor: int) -> EnvSpec:
-    """Actor `actor`'s environment: in its own client, else its own simulated world."""
-    return _in(config.env_spec(), clients[actor] if clients else None)
+def actor_env(config: TrainConfig, clients: list[str], actor: int) -> EnvSpec | list[EnvSpec]:
+    """Actor `actor`'s environments: each in a client of its own (`envs_per_actor`
+    consecutive ones), else each in its own simulated world."""
+    if not clients:
+        return config.env_spec()
+    k = config.envs_per_actor
+    return [_in(config.env_spec(), address) for address in clients[actor * k : (actor + 1) * k]]
 
 
 def evaluator_env(config: TrainConfig, clients: list[str]) -> EnvSpec:

@@ -70,9 +70,9 @@ class TrainConfig:
     num_actors: int = 2
     """Ray actors stepping environments."""
     clients: list[str] = field(default_factory=list)
-    """Minecraft (Malmo) clients to play in, ``host:port`` each: one per actor, then one for
-    the evaluator. Empty: every environment starts its own simulated world on its actor's
-    node (service/run/clients.py)."""
+    """Minecraft (Malmo) clients to play in, ``host:port`` each: `envs_per_actor` per
+    actor, then one for the evaluator. Empty: every environment starts its own simulated
+    world on its actor's node (service/run/clients.py)."""
     clients_file: Optional[str] = None
     """A file listing `clients`, one ``host:port`` a line (``#`` comments allowed)."""
     envs_per_actor: int = 4
@@ -81,6 +81,12 @@ class TrainConfig:
     """Each of an actor's environments steps at its own pace (real-time Minecraft clients,
     each world ticking on its own): the actor acts, batched, for whichever have their next
     observation. Off: in lock-step, every step waits for all of them (docs/tuning.md)."""
+    actor_nice: Optional[int] = None
+    """CPU niceness of each env actor's threads (acting, stepping its environments,
+    writing to replay). None: Ray's worker niceness, 15, below every ordinary process;
+    0 for real-time Minecraft clients on a machine that also runs Minecraft (lowering it
+    needs CAP_SYS_NICE; an actor that may not reports the niceness it kept as
+    ``actor/nice``)."""
     steps_per_insert: int = 8
     """Vectorised steps an actor collects before one insert (batch = steps × envs)."""
     replay_max_size: int = 1_000_000
@@ -134,6 +140,8 @@ class TrainConfig:
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.actor_nice is not None and not -20 <= self.actor_nice <= 19:
+            raise ValueError(f"actor_nice={self.actor_nice} must be within -20..19 (Linux)")
         if self.algorithm not in ALGORITHMS:
             raise ValueError(f"algorithm={self.algorithm!r} is unknown; choose from {ALGORITHMS}")
         online = self.online_env_steps

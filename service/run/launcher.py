@@ -369,6 +369,7 @@ def train(
                 behaviour=behaviour,
                 steps_per_insert=config.steps_per_insert,
                 async_envs=config.async_envs,
+                nice=config.actor_nice,
             )
 
         # Asynchronous: every actor claims the steps of each phase from one shared budget,

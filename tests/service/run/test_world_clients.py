@@ -59,9 +59,14 @@ REFUSED = {
         "world, each new mission replacing the last; list one client per actor and one for "
         "the evaluator in `clients` (host:port list) or `clients_file`",
     ),
-    "several environments per actor": (
+    "fewer clients than the actors' environments": (
         ["--set", "envs_per_actor=2", "--set", "clients=[h:1, h:2, h:3]"],
-        "envs_per_actor=2 with clients: each actor plays in one client, set envs_per_actor=1",
+        "clients: 3 clients for 2 actors x 2 environments and the evaluator; need 5 "
+        "(or --actors 1)",
+    ),
+    "a niceness Linux has not": (
+        ["--set", "actor_nice=25"],
+        "actor_nice=25 must be within -20..19 (Linux)",
     ),
     "a missing clients file": (
         ["--set", "clients_file=nowhere.txt"],
@@ -84,8 +89,8 @@ def test_a_clients_file_lists_one_client_a_line_and_each_actor_gets_its_own(tmp_
     config = load_preset("minecraft-backbone", num_actors=2, clients_file=str(listed))
     clients = world_clients(config)
     assert clients == ["10.0.0.5:9000", "10.0.0.6:9000", "10.0.0.7:9000"]
-    addresses = [actor_env(config, clients, i).env_kwargs["address"] for i in range(2)]
-    assert addresses == ["10.0.0.5:9000", "10.0.0.6:9000"]
+    addresses = [[e.env_kwargs["address"] for e in actor_env(config, clients, i)] for i in (0, 1)]
+    assert addresses == [["10.0.0.5:9000"], ["10.0.0.6:9000"]]
     assert evaluator_env(config, clients).env_kwargs["address"] == "10.0.0.7:9000"
     # Without clients every environment starts its own simulated world: no address.
     plain = load_preset("minecraft-backbone", num_actors=2)
@@ -93,14 +98,26 @@ def test_a_clients_file_lists_one_client_a_line_and_each_actor_gets_its_own(tmp_
     assert "address" not in actor_env(plain, [], 0).env_kwargs
 
 
+def test_several_environments_of_an_actor_each_play_in_a_client_of_their_own() -> None:
+    listed = [f"10.0.0.{i}:9000" for i in range(1, 7)]  # one spare
+    config = load_preset("minecraft-backbone", num_actors=2, envs_per_actor=2, clients=listed)
+    clients = world_clients(config)
+    assert clients == listed[:5]
+    envs = [[e.env_kwargs["address"] for e in actor_env(config, clients, i)] for i in (0, 1)]
+    assert envs == [listed[0:2], listed[2:4]]
+    assert evaluator_env(config, clients).env_kwargs["address"] == listed[4]
+
+
 @pytest.mark.slow
-def test_each_actor_and_the_evaluator_play_in_their_own_listed_client(ray_local, tmp_path) -> None:
-    with ServerPool(3, base_port=0, seed=0) as pool:
+def test_each_environment_and_the_evaluator_play_in_their_own_listed_client(
+    ray_local, tmp_path
+) -> None:
+    with ServerPool(5, base_port=0, seed=0) as pool:
         clients = [f"127.0.0.1:{port}" for port in pool.ports]
-        config = load_preset("minecraft-backbone", **TINY, clients=clients)
+        config = load_preset("minecraft-backbone", **TINY, envs_per_actor=2, clients=clients)
         result = train(config, run_dir=tmp_path / "run", progress=False)
         status = [MalmoClient("127.0.0.1", port).status() for port in pool.ports]
     assert all(n > 0 for n in result.summary["actor_env_steps"])
-    # Three players (two actors, the evaluator), three clients, each ran missions: so no
-    # two players shared one (a shared client would leave another without any).
-    assert [s["missions_started"] >= 1 for s in status] == [True] * 3, status
+    # Five players (two actors' two environments each, the evaluator), five clients, each
+    # ran missions: so no two players shared one (a shared one would leave another idle).
+    assert [s["missions_started"] >= 1 for s in status] == [True] * 5, status
