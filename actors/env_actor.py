@@ -147,9 +147,11 @@ class EnvActor:
         self._set_priority()
         self.restart_meters()
         self._start = time.perf_counter()
+        base = 0  # the run's env steps before this segment (claimed mode: all actors')
         for segment in segments:
             if claims is not None:
-                self._act_claimed(segment, claims)
+                self._act_claimed(segment, claims, base)
+                base += segment.steps
                 continue
             done = 0
             while done < segment.steps and not self.weights.stopped:
@@ -162,8 +164,9 @@ class EnvActor:
         # rate-limited table could hold its insert forever. Queued batches still go out.
         return self.finish()
 
-    def _act_claimed(self, segment: Segment, claims: StepClaims) -> None:
-        """Acts claimed chunks of `segment` until its phase is claimed or the learner stops."""
+    def _act_claimed(self, segment: Segment, claims: StepClaims, base: int) -> None:
+        """Acts claimed chunks of `segment` until its phase is claimed or the learner stops;
+        `base`: the run's env steps before the segment."""
         want = self.steps_per_insert * len(self.stepper.envs)
         while not self.weights.stopped:
             # What the writer acknowledged so far: claims past it go back if we die.
@@ -173,7 +176,9 @@ class EnvActor:
             buffer, steps, _ = self._collect(segment, start, start + count, exact=True)
             if steps < count:
                 return  # stopped mid-batch (as in `run`)
-            self._insert(segment, buffer, max_pending=segment.pending_inserts)
+            self._insert(
+                segment, buffer, max_pending=segment.pending_inserts, run_steps=base + start + count
+            )
 
     def advance(self, segment: Segment, version: int) -> int:
         """Reproducible mode: acts one insert batch of `segment` with policy `version`
@@ -259,14 +264,25 @@ class EnvActor:
         return env_action, record
 
     def _insert(
-        self, segment: Segment, buffer: list[dict[str, np.ndarray]], *, max_pending: int
+        self,
+        segment: Segment,
+        buffer: list[dict[str, np.ndarray]],
+        *,
+        max_pending: int,
+        run_steps: Optional[int] = None,
     ) -> None:
+        """Queues `buffer` for the table, and the behaviour's scalars with where the run
+        stands: `run_steps`, all actors' env steps up to this batch's end when the actors
+        share a budget (else the launcher scales this actor's own steps)."""
         if not buffer:
             return
         batch = {k: np.concatenate([r[k] for r in buffer]) for k in buffer[0]}
         self.writer.insert(segment.table, batch, max_pending=max_pending)
         if stats := self.behaviour.stats():
-            self.stats.append({"actor_steps": self.env_steps, **stats})
+            at = {"actor_steps": self.env_steps}
+            if run_steps is not None:
+                at["run_steps"] = run_steps
+            self.stats.append({**at, **stats})
 
     def finish(self) -> dict[str, Any]:
         """Sends what is queued; the actor's report of the whole run."""

@@ -589,11 +589,13 @@ def _window(phase: Phase) -> dict[str, int]:
 def _log_behaviour_stats(
     logger: MetricsLogger, reports: list[dict[str, Any]], num_actors: int, offset: int
 ) -> None:
-    """Actor-side behaviour scalars (ε, option usage), placed at the run's env-step scale."""
+    """Actor-side behaviour scalars (ε, option usage), placed at the run's env steps: where
+    the shared budget stood (`run_steps`), else the actor's own steps times the actors
+    (fixed, equal shares)."""
     for report in reports:
         for row in report.get("behaviour_stats", []):
-            steps = offset + row["actor_steps"] * num_actors
-            scalars = {k: v for k, v in row.items() if k != "actor_steps"}
+            steps = offset + row.get("run_steps", row["actor_steps"] * num_actors)
+            scalars = {k: v for k, v in row.items() if k not in ("actor_steps", "run_steps")}
             logger.log(
                 {f"behaviour/{k}": v for k, v in scalars.items()}, env_steps=steps, updates=0
             )

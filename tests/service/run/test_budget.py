@@ -5,6 +5,7 @@ Against a real local Ray, real env actors and a real replay server."""
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -71,12 +72,23 @@ def test_an_actors_claims_ask_for_the_next_chunk_while_it_acts(ray_local) -> Non
     ray.kill(budget)
 
 
+class CountingBehaviour(GaussianBehaviour):
+    """Gaussian exploration that reports a behaviour scalar with every insert (as ε-greedy
+    and options do), so the rows' run positions can be checked."""
+
+    def stats(self) -> dict[str, float]:
+        return {"inserts": 1.0}
+
+
+ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the actors unpickle it
+
+
 def behaviour() -> GaussianBehaviour:
     torch.manual_seed(0)
     network = make_actor_network(
         2, 1, np.array([-1.0]), np.array([1.0]), TD3Config(hidden_sizes=(8,))
     )
-    return GaussianBehaviour(network, std=0.1, low=np.array([-1.0]), high=np.array([1.0]))
+    return CountingBehaviour(network, std=0.1, low=np.array([-1.0]), high=np.array([1.0]))
 
 
 @pytest.fixture
@@ -130,6 +142,10 @@ def test_a_fast_actor_does_most_steps_and_both_act_until_the_end(ray_local, repl
         fast, slow = (r["env_steps"] for r in reports)
         assert fast + slow == 800 == replay.info()[0].size  # exact: no step twice or lost
         assert fast >= 500 and slow >= 5 * STEPS_PER_INSERT
+        # Each insert's behaviour row stands where the shared budget stood: the end of
+        # the chunk it acted, so the rows of both actors are the chunk ends 4, 8, ... 800.
+        at = sorted(row["run_steps"] for r in reports for row in r["behaviour_stats"])
+        assert at == list(range(STEPS_PER_INSERT, 801, STEPS_PER_INSERT))
         # The fast actor claimed until the budget was spent: the slow one finished its
         # last chunk at most about one chunk later (0.16 s, plus a loaded machine's slack).
         assert end_slow - end_fast < 1.5
