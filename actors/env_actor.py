@@ -129,7 +129,7 @@ class EnvActor:
             self._adopt_new_weights(block_s=5.0)
 
     def _set_priority(self) -> None:
-        # Linux niceness is per thread: set it on the thread that acts.
+        # Linux niceness is per thread: this one's, inherited by the threads it starts.
         if self.nice is not None:
             try:
                 os.setpriority(os.PRIO_PROCESS, 0, self.nice)

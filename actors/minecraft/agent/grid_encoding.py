@@ -102,7 +102,8 @@ class GridInfo:
         i = raw.find(self._key)
         end = raw.find(b"]", i) if i >= 0 else -1
         if end < 0:
-            return dict(json.loads(raw)) if raw else {}
+            whole: dict[str, Any] = json.loads(raw) if raw else {}
+            return whole
         text = raw[i + len(self._key) - 1 : end + 1]
         if text != self._text:
             ids = block_ids(json.loads(text))

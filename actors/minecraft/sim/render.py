@@ -169,12 +169,12 @@ def _draw(blocks, eye, eye_in_blocks, f, r, up, uu, vv, boxes, colours, stop, pa
     ty = math.tan(math.radians(FOV_Y) / 2)
     tx = ty * width / height
     for k in range(boxes.shape[0]):
-        c = np.array([boxes[k, 0] - eye[0], boxes[k, 1] - eye[1], boxes[k, 2] - eye[2]])
-        z = c[0] * f[0] + c[1] * f[1] + c[2] * f[2]
+        cx, cy, cz = boxes[k, 0] - eye[0], boxes[k, 1] - eye[1], boxes[k, 2] - eye[2]
+        z = cx * f[0] + cy * f[1] + cz * f[2]
         if z < 0.3 or z > MAX_DIST:
             continue
-        x = (c[0] * r[0] + c[1] * r[1] + c[2] * r[2]) / (z * tx)
-        y = (c[0] * up[0] + c[1] * up[1] + c[2] * up[2]) / (z * ty)
+        x = (cx * r[0] + cy * r[1] + cz * r[2]) / (z * tx)
+        y = (cx * up[0] + cy * up[1] + cz * up[2]) / (z * ty)
         hw = boxes[k, 3] / (z * tx)
         hh = boxes[k, 4] / 2 / (z * ty)
         j0 = max(int((x - hw + 1) / 2 * width), 0)
