@@ -18,10 +18,10 @@ from collections.abc import Callable
 
 from actors.minecraft.malmo.mission import Handler
 from actors.minecraft.sim import crafting, interact
-from actors.minecraft.sim.world import World
+from actors.minecraft.sim.state import WorldState
 
 
-def apply(world: World, command: str) -> None:
+def apply(world: WorldState, command: str) -> None:
     """Run one command (unhandled, disallowed or malformed ones are ignored and counted)."""
     command = command.rstrip()
     if not command:
@@ -56,7 +56,7 @@ def _clamp(v: float) -> float:
     return max(-1.0, min(1.0, v))
 
 
-def _continuous(world: World, h: Handler, verb: str, parameter: str) -> bool:
+def _continuous(world: WorldState, h: Handler, verb: str, parameter: str) -> bool:
     c = world.player.controls
     if verb in ("attack", "use"):
         if parameter not in ("0", "1"):
@@ -91,7 +91,7 @@ def _sign(parameter: str) -> int:
     return (v > 0) - (v < 0)
 
 
-def _step(world: World, dx: int, dz: int, jump: bool) -> None:
+def _step(world: WorldState, dx: int, dz: int, jump: bool) -> None:
     b = world.player.body
     nx, nz = math.floor(b.x) + dx + 0.5, math.floor(b.z) + dz + 0.5
     if (dx or dz) and not world.space.body_solid(b, nx, b.y, nz):
@@ -100,7 +100,7 @@ def _step(world: World, dx: int, dz: int, jump: bool) -> None:
         b.x, b.y, b.z = nx, math.floor(b.y) + 1.0, nz
 
 
-def _discrete(world: World, h: Handler, verb: str, parameter: str) -> bool:
+def _discrete(world: WorldState, h: Handler, verb: str, parameter: str) -> bool:
     p = world.player
     if verb in ("turn", "look") and not parameter:
         return False
@@ -139,7 +139,7 @@ def _discrete(world: World, h: Handler, verb: str, parameter: str) -> bool:
     return True
 
 
-def _absolute(world: World, h: Handler, verb: str, parameter: str) -> bool:
+def _absolute(world: WorldState, h: Handler, verb: str, parameter: str) -> bool:
     p, b = world.player, world.player.body
     if verb == "tp":
         coords = parameter.split(" ")
@@ -164,7 +164,7 @@ def _slot(arg: str) -> int:
     return int(index)
 
 
-def _inventory(world: World, h: Handler, verb: str, parameter: str) -> bool:
+def _inventory(world: WorldState, h: Handler, verb: str, parameter: str) -> bool:
     p = world.player
     inv = p.inventory
     if verb.startswith("hotbar."):
@@ -189,7 +189,7 @@ def _inventory(world: World, h: Handler, verb: str, parameter: str) -> bool:
     return True
 
 
-def _craft(world: World, h: Handler, verb: str, parameter: str) -> bool:
+def _craft(world: WorldState, h: Handler, verb: str, parameter: str) -> bool:
     item = parameter.split(" ")[0].removeprefix("minecraft:")
     inv = world.player.inventory
     before = inv.count(item)
@@ -202,18 +202,18 @@ def _craft(world: World, h: Handler, verb: str, parameter: str) -> bool:
     return True
 
 
-def _quit(world: World, h: Handler, verb: str, parameter: str) -> bool:
+def _quit(world: WorldState, h: Handler, verb: str, parameter: str) -> bool:
     world.chat(world.player.name, "Quitting mission")
     world.request_quit("agent quit", h.description)
     return True
 
 
-def _chat(world: World, h: Handler, verb: str, parameter: str) -> bool:
+def _chat(world: WorldState, h: Handler, verb: str, parameter: str) -> bool:
     world.chat(world.player.name, parameter)
     return True
 
 
-_KINDS: dict[str, Callable[[World, Handler, str, str], bool]] = {
+_KINDS: dict[str, Callable[[WorldState, Handler, str, str], bool]] = {
     "ContinuousMovement": _continuous,
     "DiscreteMovement": _discrete,
     "AbsoluteMovement": _absolute,

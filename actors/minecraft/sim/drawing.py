@@ -11,18 +11,15 @@ step, and is kept 4-connected.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from actors.minecraft import blocks as B
 from actors.minecraft.malmo.mission import DrawOp
-
-if TYPE_CHECKING:
-    from actors.minecraft.sim.world import World
+from actors.minecraft.sim.state import WorldState
 
 
-def draw(world: World, op: DrawOp) -> None:
+def draw(world: WorldState, op: DrawOp) -> None:
     """Apply one drawing operation to ``world``."""
     c = op.coords
     if op.kind == "item":
@@ -48,7 +45,7 @@ def draw(world: World, op: DrawOp) -> None:
         _line(world, [int(v) for v in c], B.block_id(op.type))
 
 
-def _clear(world: World, lo: tuple[int, ...], hi: tuple[int, ...]) -> None:
+def _clear(world: WorldState, lo: tuple[int, ...], hi: tuple[int, ...]) -> None:
     """Remove items and animals whose position lies in the cells lo..hi (inclusive)."""
 
     def outside(x: float, y: float, z: float) -> bool:
@@ -58,7 +55,7 @@ def _clear(world: World, lo: tuple[int, ...], hi: tuple[int, ...]) -> None:
     world.mobs = [m for m in world.mobs if outside(m.body.x, m.body.y, m.body.z)]
 
 
-def _cuboid(world: World, lo: tuple[int, ...], hi: tuple[int, ...], bid: int) -> None:
+def _cuboid(world: WorldState, lo: tuple[int, ...], hi: tuple[int, ...], bid: int) -> None:
     sx, sy, sz = world.blocks.shape
     x1, x2 = max(lo[0] - world.x0, 0), min(hi[0] - world.x0 + 1, sx)
     y1, y2 = max(lo[1], 0), min(hi[1] + 1, sy)
@@ -67,14 +64,14 @@ def _cuboid(world: World, lo: tuple[int, ...], hi: tuple[int, ...], bid: int) ->
         world.blocks[x1:x2, y1:y2, z1:z2] = bid
 
 
-def _sphere(world: World, x: int, y: int, z: int, r: int, bid: int) -> None:
+def _sphere(world: WorldState, x: int, y: int, z: int, r: int, bid: int) -> None:
     d = np.arange(-r, r + 1)
     gx, gy, gz = np.meshgrid(d, d, d, indexing="ij")
     for dx, dy, dz in zip(*np.nonzero(gx**2 + gy**2 + gz**2 <= r * r), strict=True):
         world.blocks_set_raw(x + int(d[dx]), y + int(d[dy]), z + int(d[dz]), bid)
 
 
-def _line(world: World, c: list[int], bid: int) -> None:
+def _line(world: WorldState, c: list[int], bid: int) -> None:
     x1, y1, z1, x2, y2, z2 = c
     steps = max(abs(x2 - x1), abs(y2 - y1), abs(z2 - z1), 1)
     px, pz = x1, z1

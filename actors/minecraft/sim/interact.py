@@ -4,18 +4,16 @@ break times, hitting animals) and using (eating, placing blocks)."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
 from actors.minecraft import blocks as B
 from actors.minecraft.sim.entities import MOBS, Mob
 from actors.minecraft.sim.player import EXHAUSTION
 from actors.minecraft.sim.raycast import REACH, Hit, cast_block, ray_box
-
-if TYPE_CHECKING:
-    from actors.minecraft.sim.world import World
+from actors.minecraft.sim.state import WorldState
 
 
-def target(world: World, max_dist: float = REACH, *, items: bool = False) -> Optional[Hit]:
+def target(world: WorldState, max_dist: float = REACH, *, items: bool = False) -> Optional[Hit]:
     """What the crosshair hits within ``max_dist``: the nearest block or animal, and with
     ``items`` also dropped items (Malmo's ray observation sees them; hands do not)."""
     p = world.player
@@ -37,7 +35,7 @@ def target(world: World, max_dist: float = REACH, *, items: bool = False) -> Opt
     return hit
 
 
-def attack_and_use(world: World) -> None:
+def attack_and_use(world: WorldState) -> None:
     """Per-tick effect of the held ``attack`` and ``use`` states (continuous commands)."""
     p, c = world.player, world.player.controls
     if p.attack_cooldown > 0:
@@ -53,7 +51,7 @@ def attack_and_use(world: World) -> None:
     p.use_was_down = c.use
 
 
-def attack(world: World, *, instant: bool) -> None:
+def attack(world: WorldState, *, instant: bool) -> None:
     """Hit what the crosshair targets: damage an animal or dig a block."""
     p = world.player
     hit = target(world)
@@ -79,7 +77,7 @@ def attack(world: World, *, instant: bool) -> None:
         p.dig_target, p.dig_progress = None, 0.0
 
 
-def hit_mob(world: World, mob: Mob) -> None:
+def hit_mob(world: WorldState, mob: Mob) -> None:
     p = world.player
     tool = B.TOOLS.get(p.inventory.held() or "")
     dmg = tool.damage if tool is not None else 1.0
@@ -100,7 +98,7 @@ def hit_mob(world: World, mob: Mob) -> None:
         world.drop(meat, world.rng.randint(1, 3), mob.body.x, mob.body.y + 0.5, mob.body.z)
 
 
-def break_block(world: World, cell: tuple[int, int, int]) -> None:
+def break_block(world: WorldState, cell: tuple[int, int, int]) -> None:
     """Break a block: drops if the held tool can harvest it, wears the tool."""
     p = world.player
     block = world.get(*cell)
@@ -122,7 +120,7 @@ def break_block(world: World, cell: tuple[int, int, int]) -> None:
         p.inventory.wear_held(1 if B.TOOLS[held].kind != "sword" else 2)
 
 
-def use(world: World, *, hold: bool) -> None:
+def use(world: WorldState, *, hold: bool) -> None:
     """Right click: eat held food (after 32 ticks when holding), else place a block."""
     p = world.player
     held = p.inventory.held()

@@ -6,31 +6,59 @@ once per tick (blocks touched, positions reached, time). Rewards add to the worl
 code, the handler's ``description``. When the mission ends, ``RewardForMissionEnd``
 pays the cases whose description matches one of the quit codes (case-insensitively;
 ``MALMO_AGENT_DIED`` pays ``rewardForDeath``), as Malmo's final reward does.
+
+The producers see a world only as a ``Scene``, what they read and change of it, so they
+sit below ``state.WorldState``, which holds them.
 """
 
 from __future__ import annotations
 
 import math
 import re
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from actors.minecraft import blocks as B
 from actors.minecraft.malmo.mission_rules import Rules
-
-if TYPE_CHECKING:
-    from actors.minecraft.sim.world import World
+from actors.minecraft.sim.entities import Mob
+from actors.minecraft.sim.player import Player
 
 AGENT_DIED = "MALMO_AGENT_DIED"  # Malmo's quit code when the player dies
 
 
-def trapped(world: World) -> list[tuple[str, tuple[int, int]]]:
+class Scene(Protocol):
+    """What the producers read and change of an agent's world (``state.WorldState``)."""
+
+    tick_count: int
+    pending_reward: float
+    player: Player
+
+    @property
+    def mobs(self) -> list[Mob]:
+        """The animals in the world."""
+        ...
+
+    @property
+    def others(self) -> list[Player]:
+        """The other agents' players."""
+        ...
+
+    def get(self, x: int, y: int, z: int) -> int:
+        """The block id at a cell."""
+        ...
+
+    def request_quit(self, reason: str, code: str = "") -> None:
+        """End the mission at the end of this tick with quit ``code``."""
+        ...
+
+
+def trapped(world: Scene) -> list[tuple[str, tuple[int, int]]]:
     """Mobs that cannot step away, as Malmo's RewardForCatchingMob sees it: at the
     agent's height, with no north/south/east/west neighbour that is air and free of a
     player (any agent of the mission). Returns (mob name, (x, z) cell) pairs."""
     b = world.player.body
     players = {
         (math.floor(a.x), math.floor(a.y), math.floor(a.z))
-        for a in (w.player.body for w in world.agents)
+        for a in (q.body for q in [world.player, *world.others])
     }
     out = []
     for m in world.mobs:
@@ -72,7 +100,7 @@ class RuleState:
         self.chat = [(re.compile(rx), r) for rx, r in rules.chat]
 
     # ---------------------------------------------------------------- events
-    def gained(self, world: World, item: str, count: int) -> None:
+    def gained(self, world: Scene, item: str, count: int) -> None:
         """Items picked up, crafted or smelted: RewardForCollectingItem and its quit."""
         for r in self.rules.collect:
             if item in r.types:
@@ -81,19 +109,19 @@ class RuleState:
             if item in q.types:
                 world.request_quit(f"collected {item}", q.description)
 
-    def lost(self, world: World, item: str, count: int) -> None:
+    def lost(self, world: Scene, item: str, count: int) -> None:
         """Items dropped, placed or used up by crafting: RewardForDiscardingItem."""
         for r in self.rules.discard:
             if item in r.types:
                 world.pending_reward += r.reward * count
 
-    def damaged(self, world: World, mob: str, amount: float) -> None:
+    def damaged(self, world: Scene, mob: str, amount: float) -> None:
         """The agent hurt a mob: RewardForDamagingEntity, per point of damage."""
         for r in self.rules.damage:
             if mob in r.types:
                 world.pending_reward += r.reward * amount
 
-    def handled(self, world: World, verb: str, parameter: str) -> None:
+    def handled(self, world: Scene, verb: str, parameter: str) -> None:
         """A command a handler took: RewardForSendingCommand, chat rewards, quotas."""
         if self.rules.command_reward is not None:
             world.pending_reward += self.rules.command_reward
@@ -115,7 +143,7 @@ class RuleState:
                     return
 
     # ------------------------------------------------------------------ tick
-    def tick(self, world: World, touching: list[tuple[tuple[int, int, int], str]]) -> None:
+    def tick(self, world: Scene, touching: list[tuple[tuple[int, int, int], str]]) -> None:
         """Per-tick producers: touching, positions, time taken, agent time limit."""
         now_ms = world.tick_count * self.ms_per_tick
         for i, spec in enumerate(self.rules.touch):
@@ -155,7 +183,7 @@ class RuleState:
             if world.tick_count * 50.0 >= limit:
                 world.request_quit("agent time up", description)
 
-    def _catching(self, world: World) -> None:
+    def _catching(self, world: Scene) -> None:
         """RewardForCatchingMob, every tick a mob stays trapped (Malmo's ``oneshot`` never
         takes effect), and AgentQuitFromCatchingMob."""
         caught = trapped(world)

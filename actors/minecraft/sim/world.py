@@ -1,59 +1,37 @@
-"""The simulated world: voxels, the agent, items and animals, and one ``tick()`` of 50 ms
-of game time.
+"""One ``tick()`` of 50 ms of game time in the simulated world, and the world built for a
+mission: terrain, then the mission's drawing.
 
-The agents of one multi-agent mission play in one world: the first agent's ``World``
-(the host, Malmo's integrated server) owns the blocks, liquids, items and animals, and
-each other agent's ``World`` (built with ``share=host``) holds only its own player,
-mission, rules and clock on top of them. The host's tick moves the items, animals and
-liquids; every agent's tick moves its own player and picks up items. Agents tick under
-the host's ``lock``, so one sees the others' changes whole.
+The world's contents and the changes every part of a tick makes to them are
+``state.WorldState``; the host's tick moves the items, animals and liquids; every
+agent's tick moves its own player and picks up items. Agents tick under the host's
+``lock``, so one sees the others' changes whole.
 
 A tick applies the commands queued since the last tick (``actions.apply``), then turns,
 moves and collides the agent, mines or uses, moves items and animals, picks up items,
 spreads liquids, runs the survival rules and finally the mission's rewards and quits.
-Rewards add up in ``pending_reward`` until the server hands them to a step.
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
-import random
-import threading
-import uuid
 from typing import Optional
 
 import numpy as np
 
 from actors.minecraft import blocks as B
 from actors.minecraft.malmo.mission import Mission
-from actors.minecraft.sim import drawing, extent, interact, worldgen
-from actors.minecraft.sim.entities import MOBS, ItemEntity, Mob
-from actors.minecraft.sim.physics import JUMP_SPEED, WALK_SPEED, Body, Space, apply_gravity
-from actors.minecraft.sim.player import EXHAUSTION, Player
-from actors.minecraft.sim.rules import AGENT_DIED, RuleState
+from actors.minecraft.sim import actions, drawing, interact
+from actors.minecraft.sim.physics import JUMP_SPEED, WALK_SPEED, apply_gravity
+from actors.minecraft.sim.player import EXHAUSTION
+from actors.minecraft.sim.rules import AGENT_DIED
+from actors.minecraft.sim.state import LIQUID_DELAY, WorldState
 
 MOB_RADIUS = 32.0  # animals further than this from the agent are frozen (not simulated)
-LIQUID_DELAY = {B.WATER: 5, B.LAVA: 30}
 LIQUID_REACH = {B.WATER: 7, B.LAVA: 3}
 
 
-def _terrain(
-    mission: Mission, seed: int, also: tuple[tuple[float, float, float], ...]
-) -> worldgen.Terrain:
-    """The mission's terrain, sized to what it places (``extent``) and to the points
-    ``also`` (the other agents' placements)."""
-    if mission.flat_generator is not None:
-        layers = worldgen.flat_layers(mission.flat_generator)
-        return worldgen.flat(layers, extent.flat_box(mission, len(layers), also))
-    terrain = worldgen.generate(seed)
-    if mission.placement is not None:
-        terrain = worldgen.recentre(terrain, mission.placement[0], mission.placement[2])
-    return worldgen.heighten(terrain, extent.height(mission, 0, terrain.blocks.shape[1], also=also))
-
-
-class World:
-    """One mission's world.
+class World(WorldState):
+    """One mission's world: its state, drawn as the mission says, and its tick.
 
     Args:
         mission: the parsed mission (one agent's part of it).
@@ -68,193 +46,18 @@ class World:
         self, mission: Mission, seed: int, *, share: Optional[World] = None,
         also: tuple[tuple[float, float, float], ...] = (),
     ) -> None:  # fmt: skip
-        self.mission = mission
-        self.host: World = self if share is None else share.host
-        self.tick_count = 0
-        self.world_time = mission.start_time
-        self.pending_reward = 0.0
-        self.done = False
-        self.end_reason = ""
-        self.quit_codes: list[str] = []
-        self._quits: list[tuple[str, str]] = []
-        self.rules = RuleState(mission.rules, float(mission.ms_per_tick or 50))
-        self.ignored_commands = 0
-        self.craft_log: list[str] = []
-        self.chat_log: list[str] = []
-        self.recent_commands: list[str] = []
-        self.obs_cache: dict[str, object] = {}
-        self.time_limit_ticks = (
-            math.ceil(mission.time_limit_ms / 50.0) if mission.time_limit_ms is not None else None
-        )
-        if share is None:
-            self.seed = mission.seed if mission.seed is not None else seed
-            self.rng = random.Random(self.seed)
-            terrain = _terrain(mission, self.seed, also)
-            self.blocks = terrain.blocks
-            self.x0, self.z0 = terrain.x0, terrain.z0
-            self.space = Space(self.blocks, self.x0, self.z0)
-            self.lock = threading.RLock()
-            self.agents: list[World] = [self]  # every agent's world, the host first
-            self.liquid_level: dict[tuple[int, int, int], int] = {}
-            self.liquid_due: dict[tuple[int, int, int], int] = {}
-            self._version = 0  # bumped on every block change (observation caches key on it)
-            self._items: list[ItemEntity] = []
-            self._mobs: list[Mob] = []
-            self._uid = 0
-            self.player_uid = 0
-            for name, x, y, z in terrain.mobs:
-                self.spawn_mob(name, x, y, z)
-            spawn = terrain.spawn
-        else:
-            h = self.host
-            self.seed, self.blocks, self.x0, self.z0 = h.seed, h.blocks, h.x0, h.z0
-            self.space, self.lock, self.agents = h.space, h.lock, h.agents
-            self.liquid_level, self.liquid_due = h.liquid_level, h.liquid_due
-            self.player_uid = h.next_uid()
-            self.rng = random.Random(self.seed * 1_000_003 + self.player_uid)
-            h.agents.append(self)
-            b = h.player.body
-            spawn = (b.x, b.y, b.z)  # no placement: next to the host's agent
-        yaw = pitch = 0.0
-        if mission.placement is not None:
-            x, y, z, yaw, pitch = mission.placement
-            spawn = (x, y, z)
-        self.player: Player = Player(mission.agent_name, Body(*spawn), yaw=yaw, pitch=pitch)
+        super().__init__(mission, seed, share=share, also=also)
         if share is None:
             for op in mission.drawing:
                 drawing.draw(self, op)
-        for slot, item, qty in mission.start_inventory:
-            from actors.minecraft.sim.inventory import Stack
-
-            tool = B.TOOLS.get(item)
-            if 0 <= slot < len(self.player.inventory.slots) and item != "air":
-                self.player.inventory.slots[slot] = Stack(item, qty, tool.durability if tool else 0)
-        self.player.body.on_ground = self.space.box_solid(
-            spawn[0] - 0.3,
-            spawn[1] - 0.05,
-            spawn[2] - 0.3,
-            spawn[0] + 0.3,
-            spawn[1],
-            spawn[2] + 0.3,
+        b = self.player.body
+        b.on_ground = self.space.box_solid(
+            b.x - 0.3, b.y - 0.05, b.z - 0.3, b.x + 0.3, b.y, b.z + 0.3
         )
-
-    # ------------------------------------------------------ shared with the host
-    @property
-    def version(self) -> int:
-        """Block changes so far (observation caches key on it)."""
-        return self.host._version
-
-    @version.setter
-    def version(self, value: int) -> None:
-        self.host._version = value
-
-    @property
-    def items(self) -> list[ItemEntity]:
-        """Dropped items lying in the world."""
-        return self.host._items
-
-    @items.setter
-    def items(self, value: list[ItemEntity]) -> None:
-        self.host._items = value
-
-    @property
-    def mobs(self) -> list[Mob]:
-        """Animals in the world."""
-        return self.host._mobs
-
-    @mobs.setter
-    def mobs(self, value: list[Mob]) -> None:
-        self.host._mobs = value
-
-    @property
-    def others(self) -> list[Player]:
-        """The other agents' players in this world."""
-        return [w.player for w in self.agents if w is not self]
-
-    # ----------------------------------------------------------------- blocks
-    def get(self, x: int, y: int, z: int) -> int:
-        """Block id at world coordinates (bedrock outside the sides/bottom, air above)."""
-        ix, iz = x - self.x0, z - self.z0
-        if y < 0 or not (0 <= ix < self.blocks.shape[0] and 0 <= iz < self.blocks.shape[2]):
-            return B.BEDROCK
-        if y >= self.blocks.shape[1]:
-            return B.AIR
-        return int(self.blocks[ix, y, iz])
-
-    def set(self, x: int, y: int, z: int, block: int) -> None:
-        """Set a block; removing one lets neighbouring liquids flow and sand fall."""
-        ix, iz = x - self.x0, z - self.z0
-        if not (0 <= ix < self.blocks.shape[0] and 0 <= iz < self.blocks.shape[2]):
-            return
-        if not 0 <= y < self.blocks.shape[1]:
-            return
-        self.blocks[ix, y, iz] = block
-        self.version += 1
-        self.liquid_level.pop((x, y, z), None)
-        if not B.SOLID[block]:
-            self._wake_liquids(x, y, z)
-            above = self.get(x, y + 1, z)
-            if B.FALLS[above] and block == B.AIR:
-                self._fall(x, y + 1, z)
-
-    def _fall(self, x: int, y: int, z: int) -> None:
-        while B.FALLS[self.get(x, y, z)]:
-            b = self.get(x, y, z)
-            ty = y
-            while ty - 1 >= 0 and not B.SOLID[self.get(x, ty - 1, z)]:
-                ty -= 1
-            if ty == y:
-                return
-            self.blocks[x - self.x0, y, z - self.z0] = B.AIR
-            self.blocks[x - self.x0, ty, z - self.z0] = b
-            self.version += 1
-            self._wake_liquids(x, y, z)
-            y += 1
-
-    def blocks_set_raw(self, x: int, y: int, z: int, block: int) -> None:
-        """Set a block without triggering liquids or falling (for decorators)."""
-        ix, iz = x - self.x0, z - self.z0
-        if 0 <= ix < self.blocks.shape[0] and 0 <= iz < self.blocks.shape[2]:
-            if 0 <= y < self.blocks.shape[1]:
-                self.blocks[ix, y, iz] = block
-
-    # --------------------------------------------------------------- entities
-    def next_uid(self) -> int:
-        """A fresh entity number (0 is the host's player)."""
-        self.host._uid += 1
-        return self.host._uid
-
-    def entity_uuid(self, uid: int) -> str:
-        """The entity's id as Malmo reports it: a UUID string, fixed by world seed and
-        entity number (no draw from the world's random stream)."""
-        digest = hashlib.md5(f"{self.seed}:{uid}".encode()).digest()
-        return str(uuid.UUID(bytes=digest, version=4))
-
-    def drop(
-        self, item: str, count: int, x: float, y: float, z: float, *, delay: int = 10,
-        still: bool = False,
-    ) -> None:  # fmt: skip
-        """Drop an item stack into the world (tossed a little, unless ``still``)."""
-        if count <= 0 or item in ("", "air"):
-            return
-        body = Body(x, y, z, half_width=0.125, height=0.25)
-        if not still:
-            body.vx = self.rng.uniform(-0.05, 0.05)
-            body.vz = self.rng.uniform(-0.05, 0.05)
-            body.vy = 0.1
-        self.items.append(ItemEntity(self.next_uid(), item, count, body, pickup_delay=delay))
-
-    def spawn_mob(self, name: str, x: float, y: float, z: float) -> None:
-        """Spawn an animal (``name`` must be in ``MOBS``; missions are checked first)."""
-        hw, h, hp, _ = MOBS[name]
-        body = Body(x, y, z, half_width=hw, height=h)
-        self.mobs.append(Mob(self.next_uid(), name, body, hp, ai_timer=self.rng.randint(0, 100)))
 
     # ------------------------------------------------------------------- ticks
     def tick(self, commands: list[str]) -> None:
         """Advance one tick, applying ``commands`` first."""
-        from actors.minecraft.sim import actions
-
         if self.done:
             return
         self.tick_count += 1
@@ -295,23 +98,6 @@ class World:
         """ContinuousMovementCommands ``turnSpeedDegs`` (degrees per second)."""
         h = next((h for h in self.mission.handlers if h.kind == "ContinuousMovement"), None)
         return h.turn_speed if h is not None else 180.0
-
-    def chat(self, sender: str, message: str) -> None:
-        """A chat message, as Minecraft shows it (``<sender> message``)."""
-        self.chat_log.append(f"<{sender}> {message}")
-
-    def request_quit(self, reason: str, code: str = "") -> None:
-        """A quit producer fired: the mission ends at the end of this tick with ``code``."""
-        self._quits.append((reason, code))
-
-    def end(self, reason: str, codes: Optional[list[str]] = None) -> None:
-        """End the mission now (the next step reports done) and pay the mission-end
-        rewards for the quit ``codes``."""
-        if not self.done:
-            self.done = True
-            self.end_reason = reason
-            self.quit_codes = list(codes or [])
-            self.pending_reward += self.rules.final_reward(self.quit_codes)
 
     def _cell_at(self, y: float) -> int:
         b = self.player.body
@@ -382,22 +168,6 @@ class World:
                 continue  # far from every agent: frozen
             feet = self.get(math.floor(mb.x), math.floor(mb.y + 0.1), math.floor(mb.z))
             m.tick(self.space, self.rng, bool(B.LIQUID[feet]))
-
-    def collected(self, item: str, count: int) -> None:
-        """Items gained (picked up, crafted or smelted), for rewards and quits."""
-        self.rules.gained(self, item, count)
-
-    def lost(self, item: str, count: int) -> None:
-        """Items lost (dropped, placed or used up by crafting), for rewards."""
-        self.rules.lost(self, item, count)
-
-    # ----------------------------------------------------------------- liquids
-    def _wake_liquids(self, x: int, y: int, z: int) -> None:
-        for dx, dy, dz in ((0, 1, 0), (1, 0, 0), (-1, 0, 0), (0, 0, 1), (0, 0, -1)):
-            n = self.get(x + dx, y + dy, z + dz)
-            if B.LIQUID[n]:
-                kind = B.WATER if B.IS_WATER[n] else B.LAVA
-                self.liquid_due.setdefault((x, y, z), self.tick_count + LIQUID_DELAY[kind])
 
     def _liquids(self) -> None:
         now = self.tick_count
