@@ -7,7 +7,8 @@ VideoProducer. ``Timing(ideal=True)`` (``--ideal``) keeps graft's convenient pac
 
 It speaks Malmo's dialect to a 4-field token and MineRL's (``<StepClient>`` and
 ``<StepServer>``, synchronous) to a token with the 5th field; see ``protocol.py``.
-Multi-agent missions join across servers of one process (``session.py``).
+Starting and joining missions is ``mission_start.py``; multi-agent missions join across
+servers of one process (``session.py``).
 
 Protocol errors (bad hello, oversized or unknown messages, the other dialect's steps)
 close that one connection with a logged reason, as Malmo does, after an ``error: ...``
@@ -19,7 +20,6 @@ message saying why; the server keeps serving. What one client may cost the serve
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import socket
@@ -28,14 +28,12 @@ import time
 from typing import Optional
 
 from actors.minecraft.malmo import protocol as P
-from actors.minecraft.malmo.mission import Mission, MissionError, parse_mission
-from actors.minecraft.malmo.roles import RoleMission, role_mission
-from actors.minecraft.sim import render, support
-from actors.minecraft.sim import session as S
+from actors.minecraft.malmo.mission import MissionError
+from actors.minecraft.sim import render
 from actors.minecraft.sim.instance import LOADING, RUNNING, Instance
 from actors.minecraft.sim.limits import DEFAULT_LIMITS, Limits
+from actors.minecraft.sim.mission_start import MissionStarter
 from actors.minecraft.sim.timing import REAL, Timing
-from actors.minecraft.sim.world import World
 
 log = logging.getLogger("graft.minecraft.server")
 
@@ -69,7 +67,7 @@ class WorldServer:
         self._listener: Optional[socket.socket] = None
         self._conns: dict[int, socket.socket] = {}
         self._next_conn = 0
-        self._session: Optional[S.Session] = None
+        self._missions = MissionStarter(self.inst, seed=seed, timing=timing, limits=limits)
         self.protocol_errors = 0
         self.busy_replies = 0
         self.refused_connections = 0
@@ -83,7 +81,7 @@ class WorldServer:
         s.bind((self.host, self._requested_port))
         s.listen(64)
         self._listener = s
-        self.port = s.getsockname()[1]
+        self.port = self._missions.port = s.getsockname()[1]
         threading.Thread(target=self._accept_loop, name="mc-accept", daemon=True).start()
         threading.Thread(target=self._tick_loop, name="mc-tick", daemon=True).start()
         log.info("world server (%s timing) on %s:%d", self.timing.mode, self.host, self.port)
@@ -99,8 +97,7 @@ class WorldServer:
         """Stop serving and close every connection."""
         self._stopped.set()
         self.inst.wake.set()
-        if self._session is not None:
-            S.unregister(self._session)
+        self._missions.close()
         if self._listener is not None:
             try:
                 # shutdown() wakes the thread blocked in accept(); close() alone does not.
@@ -267,7 +264,7 @@ class WorldServer:
                 inst.tokens.clear()
             P.send(conn, P.pack_int(1))
         elif msg.startswith("<Find"):
-            P.send(conn, P.pack_int(self._find(P.tag_body(msg, "Find"))))
+            P.send(conn, P.pack_int(self._missions.find(P.tag_body(msg, "Find"))))
         elif msg.startswith("<Exit"):
             # Malmo exits the JVM for its launcher to restart; we restart in place.
             with inst.cond:
@@ -314,7 +311,7 @@ class WorldServer:
             self._reply_init(conn, False, f"error: {e}", minerl=len(token_text.split(":")) > 4)
             return
         try:
-            ok, reason = self._start_mission(cid, token, xml)
+            ok, reason = self._missions.start(cid, token, xml)
             if not ok:
                 self.busy_replies += 1
         except MissionError as e:
@@ -325,39 +322,6 @@ class WorldServer:
             ok, reason = False, f"error: the simulator failed: {type(e).__name__}: {e}"
         self._reply_init(conn, ok, reason, minerl=token.minerl)
 
-    def _start_mission(self, cid: int, token: P.Token, xml: str) -> tuple[bool, str]:
-        """Check the mission, then start it or join it: (ok, the busy reason).
-
-        Raises:
-            MissionError: the mission cannot be used (the reply names why).
-        """
-        role = role_mission(xml, token.role)
-        parse_mission(xml, role=token.role)  # Malmo's schema rules on the whole MissionInit
-        mission = parse_mission(role.xml)
-        self.limits.check(mission)  # before anything is built or drawn
-        for warning in support.check(mission):  # refuses what the simulator lacks
-            log.warning("mission approximated: %s", warning)
-        if token.minerl and not token.synchronous:
-            raise MissionError("MineRL's asynchronous mode answers no steps; use synchronous")
-        if token.agent_count != role.agent_count:
-            raise MissionError(
-                f"the token says {token.agent_count} agent(s), the mission has "
-                f"{role.agent_count} AgentSection(s)"
-            )
-        if token.role > 0 and role.server_port == 0:
-            raise MissionError(f"role {token.role} needs a MinecraftServerConnection")
-        # Role 0's world must hold every agent's start.
-        also = tuple(
-            p[:3]
-            for k in range(1, role.agent_count if token.role == 0 else 1)
-            if (p := parse_mission(role_mission(xml, k).xml).placement) is not None
-        )
-        if token.seed is not None:
-            mission = dataclasses.replace(mission, seed=token.seed)
-        if token.role == 0:
-            return self._init_role0(cid, token, role, mission, also)
-        return self._join(cid, token, role, mission)
-
     @staticmethod
     def _reply_init(conn: socket.socket, ok: bool, reason: str, *, minerl: bool) -> None:
         # Malmo replies ok and an empty turn key (graft puts a refusal's reason there);
@@ -366,107 +330,6 @@ class WorldServer:
             P.send(conn, P.pack_int(1 if ok else 0))
         else:
             P.send(conn, P.pack_int(1 if ok else 0), (reason if not ok else "").encode())
-
-    def _free(self) -> Optional[str]:
-        """None when the instance may start a mission, else the busy reason."""
-        with self.inst.cond:
-            return self.inst.claim(time.monotonic())
-
-    def _init_role0(
-        self, cid: int, token: P.Token, role: RoleMission, mission: Mission,
-        also: tuple[tuple[float, float, float], ...],
-    ) -> tuple[bool, str]:  # fmt: skip
-        inst = self.inst
-        with inst.cond:
-            inst.tokens.pop(f"{token.exp_uid}:0:{token.reset - 1}", None)
-            pre_started = token.key in inst.tokens
-        reason: Optional[str] = None
-        if not pre_started:
-            reason = self._free()
-            if reason is None:
-                seed = (self.seed * 1_000_003 + token.reset) & 0x7FFFFFFF
-                # Built outside the lock: terrain takes a while.
-                world = World(mission, seed, also=also)
-                session = S.Session(self.port, token.exp_uid, token.reset, role.agent_count,
-                                    world)  # fmt: skip
-                session.join(0, role.turn_position)
-                with inst.cond:
-                    reason = inst.claim(time.monotonic())
-                    if reason is None:
-                        self._launch(cid, token, role, world, session)
-        with inst.cond:
-            if reason is None and not self._consumed(token):
-                inst.cond.wait(self.timing.wait_s)
-                if not self._consumed(token):
-                    reason = "busy: the other agents have not taken their previous turn tokens"
-        return reason is None, reason or ""
-
-    def _launch(
-        self, cid: int, token: P.Token, role: RoleMission, world: World, session: S.Session
-    ) -> None:
-        inst = self.inst
-        if self._session is not None:
-            S.unregister(self._session)
-        self._session = session
-        S.register(session)
-        inst.start(
-            world, owner=cid, sync=bool(token.synchronous), minerl=token.minerl,
-            session=session, role=0, turn_handlers=role.turn_handlers, token=token.key,
-        )  # fmt: skip
-        # Malmo's addTokens once the integrated server is up: every role can Find it.
-        inst.tokens[token.key] = self.port
-        for i in range(1, role.agent_count):
-            inst.tokens[f"{token.exp_uid}:{i}:{token.reset}"] = self.port
-
-    def _consumed(self, token: P.Token) -> bool:
-        """Malmo's areAllTokensConsumed: the other roles took their previous tokens."""
-        prev = token.reset - 1
-        return all(
-            f"{token.exp_uid}:{i}:{prev}" not in self.inst.tokens
-            for i in range(1, token.agent_count)
-        )
-
-    def _join(
-        self, cid: int, token: P.Token, role: RoleMission, mission: Mission
-    ) -> tuple[bool, str]:
-        session = S.lookup(role.server_port)
-        if session is None or (session.exp_uid, session.reset) != (token.exp_uid, token.reset):
-            return (
-                False,
-                f"busy: no mission {token.exp_uid}:{token.reset} on port {role.server_port}",
-            )
-        reason = self._free()
-        if reason is not None:
-            return False, reason
-        host = session.world
-        if mission.placement is not None and not _inside(host, mission.placement):
-            return False, f"error: role {token.role} starts outside role 0's world"
-        with host.lock:
-            world = World(mission, host.seed, share=host)
-        session.join(token.role, role.turn_position)
-        with self.inst.cond:
-            self.inst.start(
-                world, owner=cid, sync=bool(token.synchronous), minerl=token.minerl,
-                session=session, role=token.role, turn_handlers=role.turn_handlers,
-                token=token.key,
-            )  # fmt: skip
-        return True, ""
-
-    def _find(self, key: str) -> int:
-        """``<Find>``: purge the previous reset's token, then the integrated port for
-        ``key`` (waiting up to ``wait_s``), 0 if unknown."""
-        inst = self.inst
-        try:
-            exp, role, reset = key.split(":")[:3]
-            prev = f"{exp}:{role}:{int(reset) - 1}"
-        except ValueError:
-            raise P.ProtocolError(f"malformed <Find> token {key!r}") from None
-        with inst.cond:
-            inst.tokens.pop(prev, None)
-            inst.cond.notify_all()
-            if key not in inst.tokens:
-                inst.cond.wait_for(lambda: key in inst.tokens, self.timing.wait_s)
-            return inst.tokens.get(key, 0)
 
     # ------------------------------------------------------------------ steps
     def _step(self, conn: socket.socket, msg: str) -> None:
@@ -497,10 +360,3 @@ class WorldServer:
         if with_info:
             out.append(r.info.encode())
         P.send(conn, *out)
-
-
-def _inside(world: World, placement: tuple[float, ...]) -> bool:
-    """The point lies within the world's block box."""
-    sx, sy, sz = world.blocks.shape
-    x, _, z = placement[:3]
-    return world.x0 <= x < world.x0 + sx and world.z0 <= z < world.z0 + sz
