@@ -15,11 +15,13 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from actors.minecraft.malmo import schema
+from actors.minecraft.malmo.agent_section import COMMAND_VERBS
 from actors.minecraft.malmo.mission_rules import Rules, finite_attr, parse_rules
+from actors.minecraft.malmo.xsd_elements import SchemaError
 
 # Handler element -> the verbs it implements (lower case, as Malmo compares them).
 HANDLER_VERBS: dict[str, frozenset[str]] = {
-    k: frozenset(v.lower() for v in verbs) for k, verbs in schema.COMMAND_VERBS.items()
+    k: frozenset(v.lower() for v in verbs) for k, verbs in COMMAND_VERBS.items()
 }
 
 
@@ -254,7 +256,7 @@ def parse_mission(xml: str | bytes, role: Optional[int] = None) -> Mission:
         raise MissionError(f"mission XML does not parse: {e}") from None
     try:
         schema.validate(root)
-    except schema.SchemaError as e:
+    except SchemaError as e:
         raise MissionError(f"not a valid Malmo mission: {e}") from None
     mission = root if _tag(root) == "Mission" else _child(root, "Mission")
     assert mission is not None  # the schema requires it

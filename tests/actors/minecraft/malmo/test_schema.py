@@ -13,6 +13,7 @@ from actors.minecraft.malmo import schema
 from actors.minecraft.malmo.mission import MissionError, parse_mission
 from actors.minecraft.malmo.mission_xml import SAMPLE_PATH, mission_xml, obtain_diamond
 from actors.minecraft.malmo.protocol import mission_init_xml
+from actors.minecraft.malmo.xsd_elements import SchemaError
 from tests.actors.minecraft.conftest import flat_mission
 
 SIM_MISSIONS = Path(__file__).parents[1] / "sim" / "missions"
@@ -98,7 +99,7 @@ GOOD = (SIM_MISSIONS / "pen_chase.xml").read_text()
 def test_what_malmos_schema_refuses_is_refused_by_name(old: str, new: str, reason: str) -> None:
     assert old in GOOD
     bad = GOOD.replace(old, new, 1)
-    with pytest.raises(schema.SchemaError) as e:
+    with pytest.raises(SchemaError) as e:
         schema.validate(ET.fromstring(bad))
     assert reason in str(e.value)
     with pytest.raises(MissionError, match="not a valid Malmo mission"):
@@ -109,13 +110,13 @@ def test_platform_version_must_be_malmos() -> None:
     wire = mission_init_xml(GOOD, "exp")
     schema.validate(ET.fromstring(wire))
     old = wire.replace('PlatformVersion="0.37.0"', 'PlatformVersion="0.36.0"')
-    with pytest.raises(schema.SchemaError, match="version mismatch: got 0.36.0, expected 0.37.0"):
+    with pytest.raises(SchemaError, match="version mismatch: got 0.36.0, expected 0.37.0"):
         schema.validate(ET.fromstring(old))
 
 
 def test_elements_must_be_in_malmos_namespace() -> None:
     bare = GOOD.replace(' xmlns="http://ProjectMalmo.microsoft.com"', "")
-    with pytest.raises(schema.SchemaError, match="not in Malmo's namespace"):
+    with pytest.raises(SchemaError, match="not in Malmo's namespace"):
         schema.validate(ET.fromstring(bare))
 
 

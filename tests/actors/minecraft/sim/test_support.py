@@ -8,8 +8,9 @@ import pytest
 
 from actors.minecraft import approximate_blocks, names
 from actors.minecraft import blocks as B
-from actors.minecraft.malmo import schema
+from actors.minecraft.malmo.agent_section import AGENT_HANDLERS
 from actors.minecraft.malmo.mission import MissionError, parse_mission
+from actors.minecraft.malmo.server_section import DRAW_OPS, SERVER_HANDLERS
 from actors.minecraft.sim import support
 from actors.minecraft.sim.world import World
 from tests.actors.minecraft.conftest import flat_mission
@@ -17,7 +18,7 @@ from tests.actors.minecraft.conftest import flat_mission
 
 def test_every_schema_element_is_implemented_or_refused_by_name() -> None:
     defined = (
-        set(schema.AGENT_HANDLERS) | set(schema.SERVER_HANDLERS) | set(schema.DRAW_OPS)
+        set(AGENT_HANDLERS) | set(SERVER_HANDLERS) | set(DRAW_OPS)
         | {"EnderBoxInventory"}
     )  # fmt: skip
     assert not support.IMPLEMENTED & support.REFUSED.keys()
