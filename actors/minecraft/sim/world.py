@@ -1,5 +1,5 @@
 """One ``tick()`` of 50 ms of game time in the simulated world, and the world built for a
-mission: terrain, then the mission's drawing.
+mission: its state (terrain, player, inventory), then the mission's drawing.
 
 The world's contents and the changes every part of a tick makes to them are
 ``state.WorldState``; the host's tick moves the items, animals and liquids; every
