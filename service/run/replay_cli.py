@@ -12,7 +12,8 @@ from typing import Optional
 
 import yaml
 
-from service.replay.server.servicer import ServerOptions, serve_forever
+from service.replay.server.grpc_server import ServerOptions
+from service.replay.server.serve import serve_forever
 from service.replay.server.store import FolderUnusable, ReplayCore
 from service.replay.server.table_config import make_table
 from service.replay.server.writers import DEFAULT_MAX_WRITERS

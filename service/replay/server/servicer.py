@@ -1,42 +1,26 @@
-"""The replay gRPC server: a thin asynchronous servicer over ReplayCore, plus its process
-entry point.
+"""The replay gRPC servicer: a thin asynchronous layer over ReplayCore.
 
-The server runs on grpc.aio: a call that waits (on a rate limiter, on its client's next
-credit, on a slow reader) is a parked coroutine, so idle streams cost no thread and
-health checks and Info always answer. Table work runs briefly: inline when small and its
-locks are free, else on a bounded thread pool.
+Each handler decodes, validates (service/replay/server/request_limits.py), calls the
+core and encodes; one map turns the core's errors into gRPC statuses. A call that waits
+(on a rate limiter, on a claim) is a parked coroutine holding no thread. Table work runs
+briefly: inline when small and its locks are free, else on a bounded thread pool.
 """
 
 from __future__ import annotations
 
 import asyncio
-import errno
 import functools
-import hmac
-import json
-import logging
-import math
-import os
-import signal
-import socket
-import threading
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine
+from collections.abc import AsyncIterator, Callable
 from concurrent import futures
-from contextlib import suppress
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, NoReturn, Optional, TypeVar
 
 import grpc
 import numpy as np
-from grpc_health.v1 import _async as aio_health
-from grpc_health.v1 import health_pb2, health_pb2_grpc
 
 from service.replay._proto import replay_pb2, replay_pb2_grpc
 from service.replay.codec import (
     DEFAULT_MAX_BYTES,
-    TOKEN_METADATA_KEY,
     CodecError,
     PayloadTooLarge,
     decode_batch,
@@ -44,39 +28,19 @@ from service.replay.codec import (
 )
 from service.replay.server.durability import StorageError
 from service.replay.server.prom import ReplayMetrics
+from service.replay.server.request_limits import check_insert, check_sample, check_table_name
 from service.replay.server.signature import SignatureError
 from service.replay.server.store import CallEnded, ReplayCore, StagedInsert, UnknownTable
 from service.replay.server.table import LockBusy, RateLimitTimeout, Table
-from service.replay.server.thread_pool import HotThreadPool
 from service.replay.server.waiting import CallState, Wakeups, wait_for_change
-from service.replay.server.writers import MAX_WRITER_ID_BYTES, Claim
+from service.replay.server.writers import Claim
 
-log = logging.getLogger(__name__)
-
-SERVICE_NAME = "graft.replay.v1.ReplayService"
-LOOPBACK_HOSTS = frozenset({"127.0.0.1", "localhost", "::1", "[::1]"})
-MAX_TABLE_NAME_BYTES = 256
-MAX_STREAM_BATCHES = 1024
-"""Most batches one Insert stream may carry (it is held whole until it ends)."""
-MAX_SAMPLE_CREDITS = 1 << 16
-"""Most batches one SampleRequest may ask for (`num_batches`)."""
-RESPONSE_OVERHEAD_BYTES = 64 * 1024
-"""Room kept in a sample response for column headers and the message's other fields."""
 INLINE_BYTES = 256 * 1024
 """Table work on at most this many bytes runs on the event loop if its locks are free:
 a hop to the pool and back costs more than the work. Larger work, work that meets a
 held lock, and inserts that fsync run on the pool."""
 
 T = TypeVar("T")
-
-
-class InsecureBindError(ValueError):
-    """Binding a non-loopback address without a token or an explicit opt-out."""
-
-
-class PortUnavailable(ValueError):
-    """The port is in use (ports are never shared) or the address cannot be bound."""
-
 
 _STATUS_OF = (
     (PayloadTooLarge, grpc.StatusCode.RESOURCE_EXHAUSTED),
@@ -87,18 +51,8 @@ _STATUS_OF = (
 )
 
 
-def _check_table_name(name: str) -> None:
-    if len(name.encode()) > MAX_TABLE_NAME_BYTES:
-        raise ValueError(f"table name is longer than the {MAX_TABLE_NAME_BYTES}-byte limit")
-
-
 def _earlier(a: Optional[float], b: Optional[float]) -> Optional[float]:
     return b if a is None else a if b is None else min(a, b)
-
-
-def _check_timeout(timeout_s: float) -> None:
-    if not (math.isfinite(timeout_s) and timeout_s >= 0):
-        raise ValueError(f"timeout_s must be a finite number >= 0, got {timeout_s}")
 
 
 class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
@@ -185,25 +139,6 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
 
     # ----------------------------------------------------------------- Insert
 
-    def _check_insert(
-        self, request: replay_pb2.InsertRequest, stream_batches: int, stream_bytes: int
-    ) -> Table:
-        _check_table_name(request.table)
-        writer_bytes = len(request.writer_id.encode())
-        if writer_bytes > MAX_WRITER_ID_BYTES:
-            raise ValueError(
-                f"writer_id of {writer_bytes} bytes is longer than the "
-                f"{MAX_WRITER_ID_BYTES}-byte limit"
-            )
-        _check_timeout(request.timeout_s)
-        if stream_batches > MAX_STREAM_BATCHES or stream_bytes > self.max_message_bytes:
-            raise PayloadTooLarge(
-                f"an Insert stream carries at most {MAX_STREAM_BATCHES} batches and "
-                f"{self.max_message_bytes} bytes (it is stored whole when it ends), this one "
-                f"{stream_batches} and {stream_bytes} so far; split it into several calls"
-            )
-        return self.core.table(request.table)
-
     async def _claim(
         self, writer: str, sequence: int, call: CallState, deadline: Optional[float]
     ) -> bool:
@@ -265,7 +200,13 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                 self.metrics.bytes_in.inc(len(request.batch))
                 stream_batches += 1
                 stream_bytes += len(request.batch)
-                table = self._check_insert(request, stream_batches, stream_bytes)
+                table = check_insert(
+                    self.core,
+                    request,
+                    stream_batches,
+                    stream_bytes,
+                    max_message_bytes=self.max_message_bytes,
+                )
                 deadline = _earlier(deadline, call.deadline_with(request.timeout_s))
                 writer, sequence = request.writer_id, request.sequence
                 if writer:
@@ -302,28 +243,6 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
 
     # ----------------------------------------------------------------- Sample
 
-    def _check_sample(self, request: replay_pb2.SampleRequest) -> Table:
-        _check_table_name(request.table)
-        table = self.core.table(request.table)
-        _check_timeout(request.timeout_s)
-        if request.num_batches > MAX_SAMPLE_CREDITS:
-            raise ValueError(
-                f"num_batches {request.num_batches} exceeds the limit of "
-                f"{MAX_SAMPLE_CREDITS} batches per request"
-            )
-        k = max(request.sequence_length, 1)
-        table.check_sample(request.batch_size, k)
-        room = self.max_message_bytes - RESPONSE_OVERHEAD_BYTES
-        need = table.sampled_bytes(request.batch_size, k)
-        if need > room:
-            raise PayloadTooLarge(
-                f"batch_size {request.batch_size} x sequence_length {k} needs "
-                f"{need / 2**20:.0f} MiB per response, over the "
-                f"{self.max_message_bytes / 2**20:g} MiB message limit; ask for at most "
-                f"{room // table.sampled_bytes(1, k)}"
-            )
-        return table
-
     @staticmethod
     def _sample_once(
         table: Table,
@@ -352,7 +271,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         call = CallState(context)
         try:
             async for request in request_iterator:  # each request grants num_batches credits
-                table = self._check_sample(request)
+                table = check_sample(self.core, request, max_message_bytes=self.max_message_bytes)
                 k = max(request.sequence_length, 1)
                 inline = table.sampled_bytes(request.batch_size, k) <= INLINE_BYTES
                 for _ in range(max(request.num_batches, 1)):
@@ -385,7 +304,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         context: grpc.aio.ServicerContext[Any, Any],
     ) -> replay_pb2.UpdatePrioritiesResponse:
         try:
-            _check_table_name(request.table)
+            check_table_name(request.table)
             table = self.core.table(request.table)
             updated = await self._run(
                 table.update_priorities,
@@ -432,298 +351,3 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                 )
             )
         return replay_pb2.InfoResponse(tables=tables, uptime_s=time.monotonic() - self.core.started)
-
-
-_HANDLER_KINDS = {
-    (False, False): grpc.unary_unary_rpc_method_handler,
-    (True, False): grpc.stream_unary_rpc_method_handler,
-    (False, True): grpc.unary_stream_rpc_method_handler,
-    (True, True): grpc.stream_stream_rpc_method_handler,
-}
-
-
-async def _refuse(request: object, context: grpc.aio.ServicerContext[Any, Any]) -> NoReturn:
-    await context.abort(grpc.StatusCode.UNAUTHENTICATED, "missing or wrong graft-token metadata")
-
-
-class _TokenInterceptor(grpc.aio.ServerInterceptor):
-    """Refuses every call whose `graft-token` metadata does not match (constant-time)."""
-
-    def __init__(self, token: str) -> None:
-        self._token = token.encode()
-
-    async def intercept_service(
-        self,
-        continuation: Callable[
-            [grpc.HandlerCallDetails], Awaitable[Optional[grpc.RpcMethodHandler[Any, Any]]]
-        ],
-        handler_call_details: grpc.HandlerCallDetails,
-    ) -> Optional[grpc.RpcMethodHandler[Any, Any]]:
-        handler = await continuation(handler_call_details)
-        if handler is None or handler_call_details.method.startswith("/grpc.health"):
-            return handler
-        sent = dict(handler_call_details.invocation_metadata or ()).get(TOKEN_METADATA_KEY, "")
-        if hmac.compare_digest(str(sent).encode(), self._token):
-            return handler
-        make = _HANDLER_KINDS[(handler.request_streaming, handler.response_streaming)]
-        refusal: grpc.RpcMethodHandler[Any, Any] = make(
-            _refuse, request_deserializer=handler.request_deserializer
-        )
-        return refusal
-
-
-@dataclass(frozen=True)
-class ServerOptions:
-    """How a replay server listens."""
-
-    host: str = "127.0.0.1"
-    """Bind address; anything but loopback needs `token` or `insecure`."""
-    port: int = 0
-    """0 picks a free port."""
-    token: Optional[str] = None
-    """Shared secret clients send as `graft-token` metadata."""
-    insecure: bool = False
-    """Allow a non-loopback bind without a token."""
-    tls_cert: Optional[Path] = None
-    """PEM certificate chain; with `tls_key`, the server speaks TLS."""
-    tls_key: Optional[Path] = None
-    """PEM private key."""
-    max_message_bytes: int = DEFAULT_MAX_BYTES
-    """Largest request or response; larger ones get RESOURCE_EXHAUSTED."""
-    max_workers: int = 32
-    """Threads for table work (decoding, storing, sampling); a waiting call holds none."""
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.port <= 65535:
-            raise ValueError(f"port {self.port} is outside 0..65535")
-        if self.max_workers < 1:
-            raise ValueError(f"max_workers must be >= 1, got {self.max_workers}")
-
-
-class _EventLoopThread:
-    """An asyncio event loop on a daemon thread, driven from synchronous code."""
-
-    def __init__(self) -> None:
-        self.loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(
-            target=self.loop.run_forever, name="replay-aio", daemon=True
-        )
-        self._thread.start()
-
-    def run(self, coroutine: Coroutine[Any, Any, T]) -> T:
-        return asyncio.run_coroutine_threadsafe(coroutine, self.loop).result()
-
-    def close(self) -> None:
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self._thread.join()
-        self.loop.close()
-
-
-class ServerHandle:
-    """The asynchronous server, stopped from synchronous code as a `grpc.Server` is."""
-
-    def __init__(
-        self,
-        server: grpc.aio.Server,
-        servicer: ReplayServicer,
-        loop: _EventLoopThread,
-        pool: futures.Executor,
-    ) -> None:
-        self._server, self._servicer, self._loop, self._pool = server, servicer, loop, pool
-        self._stopped = threading.Event()
-
-    def stop(self, grace: Optional[float]) -> threading.Event:
-        """Refuses new calls, gives running ones `grace` seconds, then finishes the table
-        work already started; returns an event that is set (it already is)."""
-        if not self._stopped.is_set():
-            self._loop.run(self._server.stop(grace))
-            self._pool.shutdown(wait=True)
-            self._servicer.close()
-            self._loop.close()
-            self._stopped.set()
-        return self._stopped
-
-
-class HealthHandle:
-    """The health service, driven from synchronous code."""
-
-    def __init__(self, servicer: aio_health.HealthServicer, loop: _EventLoopThread) -> None:
-        self._servicer, self._loop = servicer, loop
-
-    def enter_graceful_shutdown(self) -> None:
-        """Every service NOT_SERVING from now on."""
-        self._loop.run(self._servicer.enter_graceful_shutdown())
-
-
-@dataclass
-class RunningServer:
-    """A started server and the parts its owner needs to stop it gracefully."""
-
-    server: ServerHandle
-    port: int
-    health: HealthHandle
-    metrics: ReplayMetrics
-
-
-def _cannot_bind(host: str, port: int) -> Optional[PortUnavailable]:
-    """Why host:port cannot be listened on, found by binding a plain socket (gRPC's own
-    bind failure says nothing a user can act on, and logs it); None if it can."""
-    bare = host.strip("[]")
-    family = socket.AF_INET6 if ":" in bare else socket.AF_INET
-    try:
-        with socket.socket(family) as probe:
-            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as gRPC does
-            probe.bind((bare, port))
-    except OSError as error:
-        if error.errno == errno.EADDRINUSE:
-            return PortUnavailable(
-                f"port {port} is in use on {host} (another replay server?); "
-                "a replay server never shares its port"
-            )
-        return PortUnavailable(f"cannot listen on {host}:{port}: {error.strerror}")
-    return None
-
-
-async def _start(
-    core: ReplayCore,
-    metrics: ReplayMetrics,
-    o: ServerOptions,
-    loop: asyncio.AbstractEventLoop,
-    pool: futures.Executor,
-) -> tuple[grpc.aio.Server, ReplayServicer, aio_health.HealthServicer, int]:
-    server = grpc.aio.server(
-        interceptors=[_TokenInterceptor(o.token)] if o.token else [],
-        options=[
-            ("grpc.max_receive_message_length", o.max_message_bytes),
-            ("grpc.max_send_message_length", o.max_message_bytes),
-            ("grpc.so_reuseport", 0),  # gRPC shares ports by default: two servers, one port
-            # Ping idle connections: a peer gone without a word (half-open TCP) is found
-            # within ~40 s and its calls cancelled, so their claims do not hold up resends.
-            ("grpc.keepalive_time_ms", 30_000),
-            ("grpc.keepalive_timeout_ms", 10_000),
-        ],
-    )
-    servicer = ReplayServicer(
-        core, metrics, loop=loop, pool=pool, max_message_bytes=o.max_message_bytes
-    )
-    replay_pb2_grpc.add_ReplayServiceServicer_to_server(servicer, server)
-    health_servicer = aio_health.HealthServicer()
-    health_pb2_grpc.add_HealthServicer_to_server(health_servicer, server)
-    address = host_port(o.host, o.port)
-    if o.port and (refused := _cannot_bind(o.host, o.port)) is not None:
-        servicer.close()
-        raise refused
-    try:
-        if o.tls_cert is not None and o.tls_key is not None:
-            credentials = grpc.ssl_server_credentials(
-                [(Path(o.tls_key).read_bytes(), Path(o.tls_cert).read_bytes())]
-            )
-            port = server.add_secure_port(address, credentials)
-        else:
-            port = server.add_insecure_port(address)
-    except RuntimeError:  # taken since the probe, or a host gRPC cannot resolve
-        servicer.close()
-        raise _cannot_bind(o.host, o.port) or PortUnavailable(
-            f"cannot listen on {address}"
-        ) from None
-    await server.start()
-    for name in ("", SERVICE_NAME):
-        await health_servicer.set(name, health_pb2.HealthCheckResponse.SERVING)
-    return server, servicer, health_servicer, port
-
-
-def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> RunningServer:
-    """Creates and starts the server on `options.port` (0 = any free port) on an event
-    loop thread of its own.
-
-    Raises:
-        InsecureBindError: a non-loopback host without a token or `insecure=True`.
-        PortUnavailable: the port is in use (never shared) or the host cannot be bound.
-    """
-    o = options
-    if o.host not in LOOPBACK_HOSTS and not o.token and not o.insecure:
-        raise InsecureBindError(
-            f"refusing to bind {o.host}: a non-loopback replay server needs a shared token "
-            "(GRAFT_TOKEN or --token-file) or an explicit --insecure"
-        )
-    if (o.tls_cert is None) != (o.tls_key is None):
-        raise ValueError("TLS needs both a certificate and a key")
-    metrics = ReplayMetrics(core)
-    loop = _EventLoopThread()
-    pool = HotThreadPool(o.max_workers, thread_name_prefix="replay")
-    try:
-        server, servicer, health_servicer, port = loop.run(
-            _start(core, metrics, o, loop.loop, pool)
-        )
-    except BaseException:
-        pool.shutdown()
-        loop.close()
-        raise
-    return RunningServer(
-        ServerHandle(server, servicer, loop, pool),
-        port,
-        HealthHandle(health_servicer, loop),
-        metrics,
-    )
-
-
-def host_port(host: str, port: int) -> str:
-    """`host:port`, with an IPv6 literal in brackets (`[::1]:9100`)."""
-    host = host.strip("[]")
-    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
-
-
-def _stop_when_orphaned(parent_pid: int, stop: threading.Event, poll_s: float = 1.0) -> None:
-    """Sets `stop` once we are no longer `parent_pid`'s child (it died: we were re-parented).
-
-    A launcher killed with SIGKILL cannot stop its replay server; without this the server
-    would outlive it and keep its port and memory.
-    """
-    while not stop.wait(poll_s):
-        if os.getppid() != parent_pid:
-            log.warning("parent process %d is gone; stopping", parent_pid)
-            stop.set()
-
-
-def serve_forever(
-    core: ReplayCore,
-    options: ServerOptions,
-    *,
-    ready_file: Optional[str] = None,
-    metrics_port: Optional[int] = None,
-    metrics_host: str = "127.0.0.1",
-    checkpoint_every_s: float = 0.0,
-    grace_s: float = 5.0,
-    parent_pid: Optional[int] = None,
-) -> None:
-    """Runs until SIGTERM/SIGINT (or, with `parent_pid`, until that parent has died), then:
-    health NOT_SERVING, final checkpoint, graceful stop.
-
-    The metrics endpoint answers without a token, so it binds `metrics_host` (loopback
-    unless told otherwise), whatever `options.host` is. A failed checkpoint is logged and
-    counted, and the next period tries again; the log keeps every insert meanwhile."""
-    running = build_server(core, options)
-    address = host_port(options.host, running.port)
-    extra = ""
-    if metrics_port is not None:
-        bound = running.metrics.serve(metrics_port, metrics_host.strip("[]"))
-        extra = f", metrics on http://{host_port(metrics_host, bound)}/metrics"
-    print(f"replay server listening on {address}{extra}", flush=True)
-    log.info("tables: %s", sorted(core.tables))
-    if ready_file:
-        with open(ready_file + ".tmp", "w") as f:
-            json.dump({"address": address}, f)
-        os.replace(ready_file + ".tmp", ready_file)  # atomic: readers never see half a file
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    if parent_pid is not None:
-        threading.Thread(target=_stop_when_orphaned, args=(parent_pid, stop), daemon=True).start()
-    while not stop.wait(checkpoint_every_s or None):
-        with suppress(StorageError):  # logged and counted by the core
-            core.checkpoint()  # periodic; sampling goes on while the file is written
-    running.health.enter_graceful_shutdown()
-    with suppress(StorageError):
-        core.checkpoint()
-    running.server.stop(grace_s).wait()
-    core.close()

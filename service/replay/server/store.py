@@ -19,7 +19,8 @@ from service.replay.codec import decode_batch
 from service.replay.server import durability
 from service.replay.server.durability import StorageError
 from service.replay.server.folder_lock import lock_folder
-from service.replay.server.table import LockBusy, PreparedInsert, Table
+from service.replay.server.prepared_insert import PreparedInsert
+from service.replay.server.table import LockBusy, Table
 from service.replay.server.writers import DEFAULT_MAX_WRITERS, Writers
 
 log = logging.getLogger(__name__)

@@ -1,9 +1,7 @@
 """A replay table: preallocated columnar storage with a sampler, a remover and a rate limiter.
 
-Items are keyed by insertion number. Actors write trajectories; items of one
-(writer, `_stream`) link to their successor until `terminated` or `truncated` ends
-the episode, so a sample of k-step windows never crosses an episode boundary.
-A single transition is simply the k=1 window.
+Items are keyed by insertion number. Actors write trajectories; a sample of k-step
+windows follows each episode's links (service/replay/server/episodes.py).
 """
 
 from __future__ import annotations
@@ -17,12 +15,13 @@ from typing import Any, Optional
 import numpy as np
 
 from service.replay.codec import Batch
+from service.replay.server.episodes import EpisodeLinks
+from service.replay.server.prepared_insert import PreparedInsert, prepare_insert
 from service.replay.server.rate_limiters import MinSize, RateLimiter, SampleToInsertRatio
 from service.replay.server.samplers import Fifo, Lifo, Prioritized, Sampler, Uniform
-from service.replay.server.signature import Signature, SignatureError
-from service.replay.server.slots import EMPTY, FreeListSlots, RingSlots
+from service.replay.server.signature import Signature
+from service.replay.server.slots import FreeListSlots, RingSlots
 
-RESERVED_INSERT_COLUMNS = frozenset({"_priority", "_stream"})
 REMOVERS = ("fifo", "lifo")
 
 
@@ -32,16 +31,6 @@ class RateLimitTimeout(TimeoutError):
 
 class LockBusy(Exception):
     """A non-blocking attempt found a lock held; retry where blocking is fine."""
-
-
-@dataclass(frozen=True)
-class PreparedInsert:
-    """A batch checked against the table's signature, ready to `store`."""
-
-    batch: Batch
-    n: int
-    priority: Optional[np.ndarray]
-    stream: np.ndarray
 
 
 @dataclass
@@ -91,8 +80,7 @@ class Table:
             for column, spec in signature.columns.items()
         }
         self._times_sampled = np.zeros(max_size if max_times_sampled else 0, dtype=np.int32)
-        self._next_key = np.full(max_size if max_sequence_length > 1 else 0, EMPTY, np.int64)
-        self._streams: dict[tuple[str, int], tuple[int, bool]] = {}
+        self._links = EpisodeLinks(self.slots, max_size, enabled=max_sequence_length > 1)
         self._ends = [c for c in ("terminated", "truncated") if c in signature.columns]
         self._rng = np.random.default_rng(seed)
         self._cond = threading.Condition()
@@ -136,7 +124,7 @@ class Table:
 
     @property
     def bytes_in_memory(self) -> int:
-        arrays = [*self._columns.values(), self._times_sampled, self._next_key]
+        arrays = [*self._columns.values(), self._times_sampled, self._links.next_key]
         if isinstance(self.slots, FreeListSlots):
             arrays.append(self.slots.keys)
         return sum(a.nbytes for a in arrays)
@@ -189,27 +177,10 @@ class Table:
 
     # ---------------------------------------------------------------- insert
 
-    def _reserved(self, batch: Batch, n: int) -> tuple[Optional[np.ndarray], np.ndarray]:
-        priority = batch.get("_priority")
-        if priority is not None:
-            if priority.shape != (n,) or priority.dtype.kind != "f":
-                raise SignatureError(f"column '_priority' must be float with shape ({n},)")
-            if not np.all(np.isfinite(priority) & (priority >= 0)):
-                raise SignatureError("column '_priority' must be finite and >= 0")
-            if not isinstance(self.sampler, Prioritized):
-                raise SignatureError(f"table '{self.name}' does not sample by priority")
-        stream = batch.get("_stream")
-        if stream is None:
-            return priority, np.zeros(n, dtype=np.int64)
-        if stream.shape != (n,) or stream.dtype.kind not in "iu":
-            raise SignatureError(f"column '_stream' must be integer with shape ({n},)")
-        return priority, stream.astype(np.int64)
-
     def prepare(self, batch: Batch) -> PreparedInsert:
         """Validates a batch against the signature and the reserved columns (no lock taken)."""
-        n = self.signature.validate(batch, extra=RESERVED_INSERT_COLUMNS)
-        priority, stream = self._reserved(batch, n)
-        return PreparedInsert(batch, n, priority, stream)
+        by_priority = isinstance(self.sampler, Prioritized)
+        return prepare_insert(batch, self.signature, table=self.name, by_priority=by_priority)
 
     def insert_admitted(self) -> bool:
         """Whether the rate limiter admits an insert now; the caller holds `lock`."""
@@ -272,57 +243,9 @@ class Table:
             ended = np.zeros(n - skip, dtype=bool)
             for column in self._ends:
                 ended |= batch[column][skip:].astype(bool)
-            self._link(keys, rows, stream[skip:], ended, writer)
-
-    def _link(
-        self, keys: np.ndarray, rows: np.ndarray, stream: np.ndarray, ended: np.ndarray, writer: str
-    ) -> None:
-        """Points each step at its successor in the same (writer, stream) episode."""
-        self._next_key[rows] = EMPTY
-        for s in np.unique(stream).tolist():
-            at = np.flatnonzero(stream == s)
-            linked = ~ended[at[:-1]]
-            self._next_key[rows[at[:-1]][linked]] = keys[at[1:]][linked]
-            previous = self._streams.get((writer, s))
-            if previous is not None and not previous[1]:
-                prev_key = np.array([previous[0]])
-                if self.slots.live(prev_key)[0]:
-                    self._next_key[self.slots.rows_of(prev_key)] = keys[at[0]]
-            self._streams[(writer, s)] = (int(keys[at[-1]]), bool(ended[at[-1]]))
+            self._links.link(keys, rows, stream[skip:], ended, writer)
 
     # ---------------------------------------------------------------- sample
-
-    def _windows(self, start_rows: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Rows [B, k] of the windows starting at `start_rows`, and which are complete."""
-        window = np.empty((len(start_rows), k), dtype=np.int64)
-        window[:, 0] = start_rows
-        complete = np.ones(len(start_rows), dtype=bool)
-        for j in range(1, k):
-            successor = self._next_key[window[:, j - 1]]
-            complete &= successor != EMPTY
-            alive = np.zeros(len(start_rows), dtype=bool)
-            alive[complete] = self.slots.live(successor[complete])
-            complete &= alive
-            window[:, j] = np.where(
-                complete, self.slots.rows_of(np.where(complete, successor, 0)), 0
-            )
-        return window, complete
-
-    def _draw(self, batch_size: int, k: int) -> Optional[tuple[np.ndarray, np.ndarray]]:
-        """Draws start rows (and windows); None if too few complete windows were found."""
-        rows, probabilities = self.sampler.sample(self.slots, self._rng, batch_size)
-        if k == 1:
-            return rows[:, None], probabilities
-        found_rows, found_p, have = [], [], 0
-        for _ in range(32):  # rejection keeps the sampler's distribution over complete windows
-            window, complete = self._windows(rows, k)
-            found_rows.append(window[complete])
-            found_p.append(probabilities[complete])
-            have += int(complete.sum())
-            if have >= batch_size:
-                return np.concatenate(found_rows)[:batch_size], np.concatenate(found_p)[:batch_size]
-            rows, probabilities = self.sampler.sample(self.slots, self._rng, batch_size)
-        return None
 
     def sampled_bytes(self, batch_size: int, sequence_length: int = 1) -> int:
         """Bytes of the columns a sample of `batch_size` items returns: data and `_key` per
@@ -348,7 +271,7 @@ class Table:
             size=self.size, inserts=s.inserts, samples=s.samples
         ):
             return None
-        return self._draw(batch_size, k) if self.size else None
+        return self._links.draw(self.sampler, self._rng, batch_size, k) if self.size else None
 
     def _take(
         self, drawn: tuple[np.ndarray, np.ndarray], batch_size: int, k: int
@@ -472,14 +395,14 @@ class Table:
         state["priorities"] = (
             self.sampler.priorities(rows) if isinstance(self.sampler, Prioritized) else None
         )
-        next_key = self._next_key[rows] if self.max_sequence_length > 1 else None
+        next_key = self._links.next_key[rows] if self.max_sequence_length > 1 else None
         state["next_key"] = next_key
         state["meta"] = {
             "next_key": int(self.slots.next_key),
             "inserts": self.stats.inserts,
             "samples": self.stats.samples,
             "max_priority": getattr(self.sampler, "max_priority", None),
-            "streams": [[w, s, k, e] for (w, s), (k, e) in self._streams.items()],
+            "streams": [[w, s, k, e] for (w, s), (k, e) in self._links.streams.items()],
         }
         return state
 
@@ -496,8 +419,8 @@ class Table:
                 self.sampler.set(rows, np.asarray(state["priorities"]))
                 self.sampler.max_priority = meta["max_priority"] or 1.0
             if self.max_sequence_length > 1 and state.get("next_key") is not None:
-                self._next_key[rows] = state["next_key"]
-            self._streams = {(w, s): (k, e) for w, s, k, e in meta["streams"]}
+                self._links.next_key[rows] = state["next_key"]
+            self._links.streams = {(w, s): (k, e) for w, s, k, e in meta["streams"]}
             self.stats.inserts, self.stats.samples = meta["inserts"], meta["samples"]
 
     @property

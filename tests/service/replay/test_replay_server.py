@@ -9,7 +9,7 @@ import pytest
 from service.replay._proto import replay_pb2
 from service.replay.client import InvalidArgument, ReplayClient, TableNotFound
 from service.replay.codec import encode_batch
-from service.replay.server.servicer import InsecureBindError, ServerOptions, build_server
+from service.replay.server.grpc_server import InsecureBindError, ServerOptions, build_server
 from service.replay.server.store import ReplayCore
 from service.replay.server.table_config import make_table
 from tests.conftest import PENDULUM_SIGNATURE, pendulum_batch
