@@ -27,25 +27,25 @@ def clients_run(
     (each at its own pace, the vectorised encoding) or, as `baseline`, one per actor with the
     per-block encoding; a TD3 learner trains at full speed beside them."""
     groups = actors_for(clients, 1 if baseline else per_actor)
-    with rig(args, td3, clients=clients, max_size=50_000) as r:
+    with rig(args, td3, clients=clients, max_size=50_000) as setup:
         actors = []
         for group in groups:
             kwargs = {
-                "addresses": [f"127.0.0.1:{r.pool.ports[c]}" for c in group],
+                "addresses": [f"127.0.0.1:{setup.pool.ports[c]}" for c in group],
                 "mission_xml": bench_mission(args.seed), "world_seed": args.seed + group[0],
                 "max_episode_steps": args.episode_steps, "per_block_encoding": baseline,
             }  # fmt: skip
             env = EnvSpec("pooled_clients:pooled_mission", kwargs, None, (BENCH_DIR,))
             actors.append(
-                r.env_actor(
+                setup.env_actor(
                     env,
                     num_envs=len(group),
                     seed=args.seed + group[0],
                     async_envs=not baseline,
                     num_cpus=0.01,
-                )  # fmt: skip
+                )
             )
-        window = measure(r, actors, warmup=args.warmup, seconds=args.measure)
+        window = measure(setup, actors, warmup=args.warmup, seconds=args.measure)
     before, after, worlds = window.before, window.after, window.world_cpu_s
     row = summary(after, window.updates_per_s)
     actor_cpu = sum(a["perf/process_cpu_s"] - b["perf/process_cpu_s"]

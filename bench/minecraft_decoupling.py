@@ -38,16 +38,16 @@ def env_kwargs(port: int, seed: int, episode_steps: int) -> dict[str, Any]:
 
 def decoupled(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
     """graft: 4 env actors stream to the replay server; a learner trains at full speed."""
-    with rig(args, td3, clients=CLIENTS, max_size=100_000) as r:
+    with rig(args, td3, clients=CLIENTS, max_size=100_000) as setup:
         actors = [
-            r.env_actor(
+            setup.env_actor(
                 EnvSpec(ENV_ID, env_kwargs(port, args.seed + i, args.episode_steps)),
                 num_envs=1,
                 seed=args.seed + i,
-            )  # fmt: skip
-            for i, port in enumerate(r.pool.ports)
+            )
+            for i, port in enumerate(setup.pool.ports)
         ]
-        window = measure(r, actors, warmup=args.warmup, seconds=args.measure)
+        window = measure(setup, actors, warmup=args.warmup, seconds=args.measure)
     return summary(window.final, window.updates_per_s)
 
 
@@ -65,7 +65,7 @@ def naive(args: argparse.Namespace, td3: TD3Config) -> dict[str, float]:
                 updates_per_step=args.naive_updates,
                 learning_starts=td3.batch_size,
                 nice=0,
-            )  # fmt: skip
+            )
             for i, port in enumerate(pool.ports)
         ]
         ray.get([c.report.remote() for c in loops])  # constructed, connected: time from here
