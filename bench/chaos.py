@@ -41,7 +41,7 @@ from grpc_health.v1 import health_pb2, health_pb2_grpc
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient, ReplayError
 from service.replay.codec import encode_batch
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 
 SIGNATURE = {"x": {"dtype": "int64", "shape": []}}
 MAX_SIZE = 4_000_000

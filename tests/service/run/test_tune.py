@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from service.run.tune import Costs, bottleneck, parse_grid, plan, run_point
-from service.run.tune_report import preset_lines, table
+from service.run.tuning.report import preset_lines, table
+from service.run.tuning.sweep import Costs, bottleneck, parse_grid, plan, run_point
 from service.run.validation import ConfigError
 
 

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from service.run.tune import COST_KNOBS, SATURATED, SKIPPED_LIMIT, knob_key
+from service.run.tuning.sweep import COST_KNOBS, SATURATED, SKIPPED_LIMIT, knob_key
 
 OBJECTIVES = {
     "inserted": "inserted_per_s",

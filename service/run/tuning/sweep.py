@@ -42,11 +42,13 @@ from service.core import Weights
 from service.replay.client import ReplayClient
 from service.replay.sharding import ShardedReplayClient
 from service.run.config import TrainConfig, load_preset
-from service.run.launcher import PENDING_INSERTS, connect_ray, table_spec
-from service.run.preflight import check_task, local_cpus
+from service.run.orchestration.preflight import check_task, local_cpus
+from service.run.orchestration.ray_session import connect_ray
+from service.run.orchestration.roles import PENDING_INSERTS
+from service.run.orchestration.tables import table_spec
 from service.run.registry import make_builder
-from service.run.replay_process import ReplayProcess
-from service.run.replay_shards import shard_tables
+from service.run.replay_host.process import ReplayProcess
+from service.run.replay_host.shards import shard_tables
 from service.run.validation import ConfigError
 from service.weights import BroadcastPublisher
 
@@ -479,7 +481,7 @@ def _replay_client(
     addresses: list[str], token: Optional[str], *, home: int = 0
 ) -> ReplayClient | ShardedReplayClient:
     """One server's client, or a sharded one inserting into shard `home` mod N (as a run's
-    actor `home` does: service/run/replay_shards.py)."""
+    actor `home` does: service/run/replay_host/shards.py)."""
     if len(addresses) == 1:
         return ReplayClient(addresses[0], token=token)
     return ShardedReplayClient(addresses, token=token, home=home % len(addresses))
