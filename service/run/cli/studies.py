@@ -125,7 +125,8 @@ def _experiment(args: argparse.Namespace) -> None:
 
 def _tune(args: argparse.Namespace) -> None:
     from service.run.tuning import report as tune_report
-    from service.run.tuning.sweep import Costs, parse_grid, plan, sweep
+    from service.run.tuning.grid import Costs, parse_grid, plan
+    from service.run.tuning.sweep import sweep
     from service.run.validation import ConfigError
 
     for flag, value in (("--warmup", args.warmup), ("--measure", args.measure)):
