@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from service.replay.client import ReplayClient, ReplayError
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 
 SIGNATURE = {"x": {"dtype": "int64", "shape": []}}
 MAX_SIZE = 4_000_000

@@ -29,7 +29,7 @@ from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network, make_td3_learner
 from learner.td3.config import TD3Config
 from service.replay.client import ReplayClient
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 from service.weights import WeightBroadcaster, WeightSubscriber
 
 TABLE = "minecraft"

@@ -27,7 +27,7 @@ import ray
 
 import graft
 from service.run.config import load_preset
-from service.run.launcher import train
+from service.run.orchestration.launcher import train
 
 PRESETS = Path(__file__).resolve().parents[1] / "examples" / "mountaincar" / "presets"
 TRAINED = {

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.replay.client import ReplayClient
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,10 @@ from typing import Optional
 import ray
 
 from service.metrics import MetricsLogger
-from service.run.cli import parse_settings
+from service.run.cli.flags import parse_settings
 from service.run.config import load_preset
-from service.run.launcher import connect_ray, train
+from service.run.orchestration.launcher import train
+from service.run.orchestration.ray_session import connect_ray
 
 
 def comparable_rows(csv_path: Path) -> list[str]:

@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from service.run.stats import summarize
+from service.run.experiments.stats import summarize
 
 GRAFT = [sys.executable, "-m", "service.run.cli"]
 
@@ -35,7 +35,8 @@ class SeedResult:
 
 
 def format_ci(values: Sequence[float]) -> str:
-    """'mean M [low, high], IQM …, N seeds (95 % bootstrap CI)', as `service.run.stats` prints."""
+    """'mean M [low, high], IQM …, N seeds (95 % bootstrap CI)', as
+    `service.run.experiments.stats` prints."""
     return summarize(values).line()
 
 

@@ -1,13 +1,13 @@
 """What an algorithm provides to a run: its phases, its learner and its actors' behaviour.
 
-`train` (service/run/launcher.py) wires a preset into a run like this::
+`train_here` (service/run/orchestration/driver.py) wires a preset into a run like this::
 
     builder = make_builder(config)                     # service/run/registry.py
     behaviour = builder.make_behaviour(num_actors=n)   # pickled to every actor
     phases = builder.phases()
     tables = preset_tables(config, phases=phases, signature=...)  # one table per phase
     algorithm = builder.make_learner()                 # lives in the learner process
-    EnvActor.remote(behaviour=behaviour, ...).run.remote(_segments(phases, n))
+    EnvActor.remote(behaviour=behaviour, ...).run.remote(actor_segments(phases, n))
     LearnerLoop(algorithm, phases=phases, ...).run()   # phase.step(algorithm, batch)
 """
 

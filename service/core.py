@@ -115,8 +115,8 @@ class WeightSource(Protocol):
 
 class StepClaims(Protocol):
     """One actor's draw on the env-step budget all actors share (`BudgetClaims`,
-    service/run/budget.py): a phase's steps are claimed one insert batch at a time, so no
-    actor idles while another still has steps to act.
+    service/run/orchestration/budget.py): a phase's steps are claimed one insert batch at a
+    time, so no actor idles while another still has steps to act.
 
     `EnvActor.run` (actors/env_actor.py) claims each batch before it acts it::
 
@@ -139,7 +139,7 @@ UpdateStep = Callable[["Algorithm", TensorBatch], Metrics]
 
 class Algorithm(Protocol):
     """A learning algorithm, as `LearnerLoop.run` (learner/loop.py) drives it (and
-    `train` in service/run/launcher.py resumes a run with `load_state_dict`)::
+    `restore` in service/run/orchestration/resume.py resumes a run with `load_state_dict`)::
 
         for phase in phases:
             stream = open_stream(phase)
@@ -229,7 +229,8 @@ class Evaluator(Protocol):
 
 
 class LockstepActors(Protocol):
-    """Actors the learner advances itself, in reproducible mode (service/run/lockstep.py).
+    """Actors the learner advances itself, in reproducible mode
+    (service/run/orchestration/lockstep.py).
 
     `LearnerLoop` (learner/loop.py) then samples only what the held ratio allows::
 

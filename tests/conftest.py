@@ -15,7 +15,7 @@ import pytest
 import ray
 
 from service.replay.client import ReplayClient
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 
 TESTS = Path(__file__).resolve().parent
 USERTASK = TESTS / "fixtures" / "usertask"

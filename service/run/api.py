@@ -132,7 +132,7 @@ def train(
     Raises:
         ValueError: A preset, override or task the method cannot use (one line).
     """
-    from service.run.launcher import train as launch
+    from service.run.orchestration.launcher import train as launch
     from service.run.trained import run_config
 
     if config_or_preset is None:

@@ -72,7 +72,7 @@ class TrainConfig:
     clients: list[str] = field(default_factory=list)
     """Minecraft (Malmo) clients to play in, ``host:port`` each: `envs_per_actor` per
     actor, then one for the evaluator. Empty: every environment starts its own simulated
-    world on its actor's node (service/run/clients.py)."""
+    world on its actor's node (service/run/orchestration/clients.py)."""
     clients_file: Optional[str] = None
     """A file listing `clients`, one ``host:port`` a line (``#`` comments allowed)."""
     envs_per_actor: int = 4

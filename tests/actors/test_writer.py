@@ -11,7 +11,7 @@ import pytest
 
 from actors.writer import BackgroundWriter
 from service.replay.client import ReplayClient, TableNotFound
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 from tests.conftest import PENDULUM_SIGNATURE, pendulum_batch
 
 

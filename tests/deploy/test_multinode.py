@@ -52,7 +52,7 @@ RUN_LIMIT_S = 600.0
 """Only a guard against a hang: how long one run may take on a loaded machine."""
 START_LIMIT_S = 900.0
 """Only a guard against a hang: how long Ray's start on three nodes may take."""
-REPLAY_SERVER = "service.run.replay_cli serve"
+REPLAY_SERVER = "service.run.cli.replay serve"
 """What the replay server's command line holds."""
 
 # The commands of deploy/README.md's namespace walk-through, with {head}, {worker} and

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from service.replay.client import DeadlineExceeded, ReplayClient
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
 TABLE = [{"name": "log", "max_size": 1_000_000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]
@@ -147,7 +147,7 @@ def test_non_loopback_bind_without_token_is_refused_by_the_cli():
         [
             sys.executable,
             "-m",
-            "service.run.replay_cli",
+            "service.run.cli.replay",
             "serve",
             "--host",
             "0.0.0.0",
@@ -179,7 +179,7 @@ def test_sample_stream_reconnects_after_a_server_restart(tmp_path):
 
 LAUNCHER = """
 import sys, time
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 table = [{"name": "log", "max_size": 100, "sampler": "fifo",
           "signature": {"x": {"dtype": "float32", "shape": []}}}]
 server = ReplayProcess(table, extra_args=["--checkpoint-dir", sys.argv[1]])

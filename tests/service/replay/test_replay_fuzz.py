@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
 TABLE = [{"name": "t", "max_size": 1000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]

@@ -21,7 +21,7 @@ import pytest
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient, ReplayError
 from service.replay.codec import encode_batch
-from service.run.replay_process import EXIT_FOLDER_UNUSABLE, ReplayProcess
+from service.run.replay_host.process import EXIT_FOLDER_UNUSABLE, ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
 
@@ -57,7 +57,7 @@ class Started:
 
         with open(self.log_path, "wb") as log:
             self.process = subprocess.Popen(
-                [sys.executable, "-m", "service.run.replay_cli", "serve", "--config", str(config),
+                [sys.executable, "-m", "service.run.cli.replay", "serve", "--config", str(config),
                  "--port", "0", "--ready-file", str(ready), "--checkpoint-dir", str(folder),
                  *extra],
                 stdout=log, stderr=subprocess.STDOUT, preexec_fn=limit_file_size,

@@ -14,7 +14,7 @@ import urllib.request
 import pytest
 
 from service.replay.client import ReplayClient, Unauthenticated, Unavailable
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch, self_signed_cert
 
 TABLE = [{"name": "t", "max_size": 100, "signature": SCALAR_SIGNATURE}]
@@ -47,7 +47,7 @@ def test_serve_reads_the_token_from_a_file(tmp_path):
 
 def test_a_token_on_the_command_line_is_refused():
     result = subprocess.run(
-        [sys.executable, "-m", "service.run.replay_cli", "serve", "--port", "0", "--token", TOKEN],
+        [sys.executable, "-m", "service.run.cli.replay", "serve", "--port", "0", "--token", TOKEN],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert result.returncode != 0

@@ -10,7 +10,7 @@ from service.replay._proto import replay_pb2
 from service.replay.client import DeadlineExceeded, InvalidArgument, ReplayClient, TableNotFound
 from service.replay.codec import encode_batch
 from service.replay.server.table_config import make_table
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
 # Chi-square critical value for 99 degrees of freedom at p = 0.001.

@@ -9,7 +9,7 @@ import numpy as np
 
 from service.replay.client import DeadlineExceeded
 from service.replay.sharding import ShardedReplayClient
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
 
 TABLE = [

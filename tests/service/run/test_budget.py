@@ -22,9 +22,9 @@ from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network
 from learner.td3.config import TD3Config
 from service.replay.client import ReplayClient
-from service.run.budget import Budget, BudgetClaims, StepBudget
-from service.run.replay_process import ReplayProcess
-from service.run.supervision import ActorFleet
+from service.run.orchestration.budget import Budget, BudgetClaims, StepBudget
+from service.run.orchestration.supervision import ActorFleet
+from service.run.replay_host.process import ReplayProcess
 from service.weights import WeightBroadcaster, WeightSubscriber
 
 ENV_ID = "usertask.envs:Reach1D-v0"

@@ -9,7 +9,7 @@ import pytest
 
 from service.run.cli import main
 from service.run.config import PRESETS, load_preset, preset_descriptions, preset_names
-from service.run.preflight import local_cpus
+from service.run.orchestration.preflight import local_cpus
 
 TRAIN = ["train", "--preset", "pendulum-td3"]
 

@@ -9,7 +9,7 @@ import pytest
 
 from service.run.cli import main
 from service.run.config import load_preset
-from service.run.launcher import train
+from service.run.orchestration.launcher import train
 
 
 def tiny_preset(*, env_steps: int):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.run.experiments import read_rows, run_experiment
-from service.run.plots import curves
+from service.run.experiments.plots import curves
+from service.run.experiments.runner import read_rows, run_experiment
 
 
 def test_fig5_two_seeds_in_parallel_writes_csv_and_figure(ray_local, tmp_path):

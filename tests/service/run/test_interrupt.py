@@ -103,7 +103,7 @@ def test_a_stop_signal_checkpoints_summarises_and_leaves_no_process(
             assert time.monotonic() < deadline, "no metrics row: the run did not start"
             time.sleep(0.5)
         started = _descendants(process.pid)
-        replay = {p for p in started if "service.run.replay_cli serve" in _cmdline(p)}
+        replay = {p for p in started if "service.run.cli.replay serve" in _cmdline(p)}
         raylets = {p for p in started if "raylet" in _cmdline(p)}
         assert len(replay) == 1 and raylets, {p: _cmdline(p) for p in started}
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from actors.env_actor import Segment
 from learner.agent import Phase
-from service.run.launcher import PENDING_INSERTS, _segments
+from service.run.orchestration.roles import PENDING_INSERTS, actor_segments
 
 
 def test_rate_limited_phases_wait_for_each_insert() -> None:
@@ -16,7 +16,7 @@ def test_rate_limited_phases_wait_for_each_insert() -> None:
         warmup_steps=1000,
     )  # fmt: skip
     empty = Phase("pretrain", env_steps=0, updates=500, min_size=1)
-    assert _segments([demos, empty, online], num_actors=2) == [
+    assert actor_segments([demos, empty, online], num_actors=2) == [
         Segment("demos", 501, 501, pending_inserts=PENDING_INSERTS),
         Segment("transitions", 2500, 500, pending_inserts=0),
     ]
@@ -29,15 +29,15 @@ def test_behaviour_scalars_stand_where_the_shared_budget_stood(tmp_path) -> None
     import csv
 
     from service.metrics import MetricsLogger
-    from service.run.launcher import _log_behaviour_stats
+    from service.run.orchestration.summary import log_behaviour_stats
 
     logger = MetricsLogger(tmp_path, tensorboard=False)
     shared = [  # 2 actors, 3,000 steps split 2,360 / 640
         {"behaviour_stats": [{"actor_steps": 2360, "run_steps": 2990, "charts/epsilon": 0.1}]},
         {"behaviour_stats": [{"actor_steps": 640, "run_steps": 3000, "charts/epsilon": 0.2}]},
     ]
-    _log_behaviour_stats(logger, shared, num_actors=2, offset=100)
-    _log_behaviour_stats(logger, [{"behaviour_stats": [{"actor_steps": 700, "x": 1.0}]}], 2, 0)
+    log_behaviour_stats(logger, shared, num_actors=2, offset=100)
+    log_behaviour_stats(logger, [{"behaviour_stats": [{"actor_steps": 700, "x": 1.0}]}], 2, 0)
     logger.close()
     with (tmp_path / "metrics.csv").open() as f:
         rows = [(int(r["env_steps"]), r["key"]) for r in csv.DictReader(f)]

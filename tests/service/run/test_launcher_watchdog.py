@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import ray
 
-from service.run.launcher import _check_actors
+from service.run.orchestration.progress import check_actors
 
 
 @ray.remote
@@ -22,11 +22,11 @@ def test_a_crashed_actor_surfaces_its_error(ray_local):
     refs = [crashed_actor_run.remote(), finished_actor_run.remote()]
     ray.wait(refs, num_returns=2)
     with pytest.raises(ValueError, match="env exploded at step 12"):
-        _check_actors(refs)
+        check_actors(refs)
 
 
 def test_all_actors_done_but_learner_waiting_is_an_error(ray_local):
     refs = [finished_actor_run.remote()]
     ray.wait(refs)
     with pytest.raises(RuntimeError, match="still waiting for sampled batches"):
-        _check_actors(refs)
+        check_actors(refs)

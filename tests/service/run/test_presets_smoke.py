@@ -9,7 +9,7 @@ from learner.checkpoint import save_checkpoint
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
 from service.run.config import load_preset, preset_names
-from service.run.launcher import train
+from service.run.orchestration.launcher import train
 
 TINY = {
     "learning_starts": 100,
@@ -93,9 +93,10 @@ def test_train_flag_given_twice_is_named() -> None:
 
 
 def test_train_set_alone_overrides_a_flag_field() -> None:
-    from service.run.cli import _train_overrides, build_parser
+    from service.run.cli.parser import build_parser
+    from service.run.cli.train import train_overrides
 
     args = build_parser().parse_args(["train", "--set", "seed=2", "--set", "td3.gamma=0.9"])
-    overrides = _train_overrides(args)
+    overrides = train_overrides(args)
     assert overrides["seed"] == 2 and overrides["td3.gamma"] == 0.9
     assert load_preset("pendulum-td3", **overrides).seed == 2

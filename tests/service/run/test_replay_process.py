@@ -11,7 +11,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[3]
 PARENT = """
-from service.run.replay_process import ReplayProcess
+from service.run.replay_host.process import ReplayProcess
 from tests.conftest import PENDULUM_SIGNATURE
 server = ReplayProcess([{"name": "t", "max_size": 10, "signature": PENDULUM_SIGNATURE}])
 print(server.process.pid, flush=True)

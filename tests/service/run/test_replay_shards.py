@@ -17,9 +17,9 @@ import pytest
 from service.replay.client import DeadlineExceeded
 from service.replay.sharding import ShardedReplayClient
 from service.run.config import load_preset
-from service.run.launcher import train
-from service.run.replay_process import ReplayProcess
-from service.run.replay_shards import shard_tables
+from service.run.orchestration.launcher import train
+from service.run.replay_host.process import ReplayProcess
+from service.run.replay_host.shards import shard_tables
 from service.run.validation import ConfigError
 from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
 
@@ -127,7 +127,7 @@ def _own_shard_server(run_dir: Path, shard: int) -> int:
             ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
         except (OSError, ValueError, IndexError):
             continue
-        if ppid == os.getpid() and b"service.run.replay_cli" in argv and folder.encode() in argv:
+        if ppid == os.getpid() and b"service.run.cli.replay" in argv and folder.encode() in argv:
             return int(entry.name)
     raise AssertionError(f"no replay server of {folder} among this process's children")
 

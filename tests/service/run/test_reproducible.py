@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import pytest
 
-from service.run.cli import _train_overrides, build_parser
+from service.run.cli.parser import build_parser
+from service.run.cli.train import train_overrides
 from service.run.config import load_preset, preset_names
-from service.run.launcher import train
+from service.run.orchestration.launcher import train
 
 
 def tiny(**overrides):
@@ -56,6 +57,6 @@ def test_a_seed_rewrites_the_same_metrics_csv(ray_local, tmp_path):
 def test_the_default_mode_is_asynchronous():
     assert not any(load_preset(name).reproducible for name in preset_names())
     args = build_parser().parse_args(["train", "--preset", "pendulum-td3"])
-    assert _train_overrides(args)["reproducible"] is None
+    assert train_overrides(args)["reproducible"] is None
     args = build_parser().parse_args(["train", "--reproducible"])
-    assert _train_overrides(args)["reproducible"] is True
+    assert train_overrides(args)["reproducible"] is True

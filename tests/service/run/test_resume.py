@@ -28,9 +28,9 @@ from service.replay.server import durability
 from service.replay.server.store import ReplayCore
 from service.replay.server.table_config import make_table
 from service.run.config import load_preset
-from service.run.launcher import train
-from service.run.replay_folder import Restored
-from service.run.resume import check_resumable, resumed_phases
+from service.run.orchestration.launcher import train
+from service.run.orchestration.resume import check_resumable, resumed_phases
+from service.run.replay_host.folder import Restored
 from tests.service.run.test_interrupt import _cmdline, _descendants, _wait_until_gone
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -168,7 +168,7 @@ def _kill_mid_training(run_dir: Path) -> None:
                     break
             time.sleep(0.05)
         started = _descendants(process.pid)
-        replay = [p for p in started if "service.run.replay_cli serve" in _cmdline(p)]
+        replay = [p for p in started if "service.run.cli.replay serve" in _cmdline(p)]
         assert len(replay) == 1, {p: _cmdline(p) for p in started}
         os.kill(replay[0], signal.SIGKILL)  # no last checkpoint: the log must bring it back
         process.kill()

@@ -74,7 +74,7 @@ def test_existing_run_dir_is_refused_without_resume(checkpoint, tmp_path, capsys
 
 
 def test_an_empty_run_dir_is_taken(tmp_path) -> None:
-    from service.run.preflight import check_run_dir
+    from service.run.orchestration.preflight import check_run_dir
 
     (tmp_path / "run").mkdir()
     config = load_preset("pendulum-td3")

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from service.run.experiments import summarise
-from service.run.stats import bootstrap_ci, iqm, main, summarize
+from service.run.experiments.runner import summarise
+from service.run.experiments.stats import bootstrap_ci, iqm, main, summarize
 
 
 @pytest.mark.parametrize(

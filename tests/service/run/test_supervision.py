@@ -11,12 +11,8 @@ import ray
 
 from actors.env_actor import Segment
 from service.replay.client import ReplayClient
-from service.run.supervision import (
-    ActorFleet,
-    SupervisedReplay,
-    TooManyRestarts,
-    remaining_segments,
-)
+from service.run.orchestration.supervision import ActorFleet, remaining_segments
+from service.run.replay_host.supervised import SupervisedReplay, TooManyRestarts
 from tests.conftest import PENDULUM_SIGNATURE, pendulum_batch
 
 DEMOS, ONLINE = Segment("demos", 100, 100, 8), Segment("transitions", 500, 50)

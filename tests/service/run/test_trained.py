@@ -5,7 +5,7 @@ from __future__ import annotations
 import yaml
 
 from service.run.config import load_preset
-from service.run.provenance import config_record
+from service.run.orchestration.provenance import config_record
 from service.run.trained import run_config
 
 

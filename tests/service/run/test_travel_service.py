@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from service.run.config import load_preset
-from service.run.launcher import train
+from service.run.orchestration.launcher import train
 
 TINY = {
     "num_actors": 2,

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from service.run.tune import Costs, bottleneck, parse_grid, plan, run_point
-from service.run.tune_report import preset_lines, table
+from service.run.tuning.grid import Costs, parse_grid, plan
+from service.run.tuning.measure import bottleneck
+from service.run.tuning.report import preset_lines, table
+from service.run.tuning.sweep import run_point
 from service.run.validation import ConfigError
 
 

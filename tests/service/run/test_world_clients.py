@@ -8,11 +8,11 @@ import pytest
 
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.sim.pool import ServerPool
-from service.run import launcher
 from service.run.cli import main
-from service.run.clients import actor_env, evaluator_env, world_clients
 from service.run.config import load_preset
-from service.run.launcher import train
+from service.run.orchestration import driver
+from service.run.orchestration.clients import actor_env, evaluator_env, world_clients
+from service.run.orchestration.launcher import train
 from tests.service.run.test_travel_service import TINY
 
 TRAIN = ["train", "--preset", "minecraft-backbone", "--actors", "2"]
@@ -31,7 +31,7 @@ def _refused(argv: list[str], capsys) -> str:
         raise AssertionError(f"Ray was started ({address}) before the refusal")
 
     with pytest.MonkeyPatch.context() as patch, pytest.raises(SystemExit) as exit:
-        patch.setattr(launcher, "connect_ray", no_ray)
+        patch.setattr(driver, "connect_ray", no_ray)
         main(argv)
     assert exit.value.code == 2
     err = capsys.readouterr().err

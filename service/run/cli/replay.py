@@ -17,7 +17,7 @@ from service.replay.server.serve import serve_forever
 from service.replay.server.store import FolderUnusable, ReplayCore
 from service.replay.server.table_config import make_table
 from service.replay.server.writers import DEFAULT_MAX_WRITERS
-from service.run.replay_process import EXIT_FOLDER_UNUSABLE
+from service.run.replay_host.process import EXIT_FOLDER_UNUSABLE
 
 
 def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
@@ -127,7 +127,7 @@ def _table_specs(args: argparse.Namespace) -> list[dict]:
             raise SystemExit(f"{args.config}: expected a mapping with a 'tables' list")
         return data["tables"]
     from service.run.config import load_preset
-    from service.run.launcher import transition_table_spec
+    from service.run.orchestration.tables import transition_table_spec
 
     return [transition_table_spec(load_preset(args.preset))]
 

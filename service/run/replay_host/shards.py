@@ -21,7 +21,7 @@ import numpy as np
 
 from service.replay.client import ReplayClient, ReplayError
 from service.replay.sharding import ShardedReplayClient
-from service.run.supervision import SupervisedReplay
+from service.run.replay_host.supervised import SupervisedReplay
 
 
 def _split(total: int, n: int, k: int) -> int:

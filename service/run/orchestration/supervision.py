@@ -1,6 +1,7 @@
 """Keeping a run alive through faults: the replay server restarted from its checkpoint
-folder, dead env actors replaced by new ones that take over the rest of their work (of
-the run's shared step budget, or of a fixed share when no budget is given).
+folder (`replay_host.supervised`), dead env actors replaced by new ones that take over the
+rest of their work (of the run's shared step budget, or of a fixed share when no budget is
+given).
 
 A `Supervisor` thread checks both twice a second while the learner trains. Every
 restart is said in one line (`note`) and counted (`faults/replay_restarts`,
@@ -15,87 +16,17 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any, Optional, Protocol
 
 import ray
 from ray.exceptions import RayActorError
 
 from actors.env_actor import Segment
-from service.run.budget import BudgetClaims, BudgetHandle
-from service.run.replay_process import ReplayProcess
+from service.run.orchestration.budget import BudgetClaims, BudgetHandle
+from service.run.replay_host.supervised import TooManyRestarts
 
 CHECK_EVERY_S = 0.5
 """How often the supervisor looks at the replay server and the actors."""
-
-
-class TooManyRestarts(RuntimeError):
-    """A role died more often than its ``max_restarts`` allows."""
-
-
-class SupervisedReplay:
-    """The run's replay server; `check()` restarts it on the same port and checkpoint
-    folder when it has died, so clients reconnect to the address they know."""
-
-    def __init__(
-        self,
-        tables: list[dict[str, Any]],
-        *,
-        host: str,
-        port: int,
-        token: Optional[str],
-        checkpoint_dir: Path,
-        checkpoint_every_s: float,
-        log_path: Path,
-        max_restarts: int,
-    ) -> None:
-        self._tables, self._host, self._token = tables, host, token
-        self._log_path, self.max_restarts = log_path, max_restarts
-        self._args = [
-            "--checkpoint-dir",
-            str(checkpoint_dir),
-            "--checkpoint-every-s",
-            str(checkpoint_every_s),
-        ]
-        self.restarts = 0
-        self.process = self._start(port)
-        self.address = self.process.address
-        self.port = int(self.address.rsplit(":", 1)[1])
-
-    def _start(self, port: int) -> ReplayProcess:
-        return ReplayProcess(
-            self._tables,
-            host=self._host,
-            port=port,
-            token=self._token,
-            log_path=self._log_path,
-            extra_args=self._args,
-        )
-
-    def check(self) -> Optional[str]:
-        """Restarts a dead server; returns the line saying so (None if it is alive).
-
-        Raises:
-            TooManyRestarts: it died more than `max_restarts` times.
-        """
-        code = self.process.process.poll()
-        if code is None:
-            return None
-        self.process.stop()  # reaps it and cleans up its start-up files
-        if self.restarts >= self.max_restarts:
-            raise TooManyRestarts(
-                f"the replay server died (exit code {code}) after {self.restarts} restarts "
-                f"(replay.max_restarts={self.max_restarts}); see {self._log_path}"
-            )
-        self.restarts += 1
-        self.process = self._start(self.port)
-        return (
-            f"replay server died (exit code {code}); restarted from its checkpoint folder "
-            f"on port {self.port} (restart {self.restarts})"
-        )
-
-    def stop(self) -> None:
-        self.process.stop()
 
 
 def remaining_segments(segments: Sequence[Segment], done: int) -> list[Segment]:

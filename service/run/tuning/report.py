@@ -7,7 +7,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from service.run.tune import COST_KNOBS, SATURATED, SKIPPED_LIMIT, knob_key
+from service.run.tuning.grid import COST_KNOBS, knob_key
+from service.run.tuning.measure import SATURATED, SKIPPED_LIMIT
 
 OBJECTIVES = {
     "inserted": "inserted_per_s",

@@ -9,7 +9,7 @@ Few seeds give intervals that are too narrow (the bootstrap cannot see beyond th
 it was given): below `MIN_SEEDS` there is no interval, and `line()` lists the values
 instead. The resampling generator is seeded, so the same values print the same interval.
 
-    python -m service.run.stats -- -132.8 -136.9 -135.9 -135.2 -134.8
+    python -m service.run.experiments.stats -- -132.8 -136.9 -135.9 -135.2 -134.8
 """
 
 from __future__ import annotations

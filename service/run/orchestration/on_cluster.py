@@ -4,26 +4,25 @@ Through Ray Client this process is outside the cluster: a replay server started 
 listen behind the client machine's loopback or firewall, where the actors cannot reach it.
 So the whole run (learner, replay server, supervision) runs as one Ray task on the head
 node (or where the preset's ``learner`` section places it) with ``address='auto'``, exactly
-as `graft train --address auto` would run there; this process waits for its result. The
-run folder is written on that node.
+as `graft train --address auto` would run there (`driver.train_here`); this process waits
+for its result. The run folder is written on that node.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Optional
+from typing import Any, Optional
 
 import ray
 from ray.exceptions import AuthenticationError, RayTaskError
 
 from service.run.config import TrainConfig
+from service.run.orchestration.driver import RunResult, train_here
+from service.run.orchestration.preflight import default_run_dir
+from service.run.orchestration.ray_session import connect_ray
 from service.run.placement import LearnerPlacement, check_placement, cluster_nodes
-from service.run.preflight import default_run_dir
 from service.run.validation import ConfigError
-
-if TYPE_CHECKING:
-    from service.run.launcher import RunResult
 
 HEAD_NODE = "node:__internal_head__"
 """The resource only Ray's head node carries."""
@@ -42,12 +41,10 @@ def _run_there(
     config: TrainConfig, run_dir: Optional[str], resume: bool, address: str
 ) -> tuple[RunResult, str]:
     """The Ray task: the run, on the node Ray placed it, joined to its cluster."""
-    from service.run.launcher import train
-
     folder = Path(run_dir).expanduser() if run_dir else default_run_dir(config)
     if not folder.is_absolute():
         folder = Path.home() / folder  # a Ray worker's working folder is Ray's own
-    result = train(config, address="auto", run_dir=folder, resume=resume, progress=False)
+    result = train_here(config, address="auto", run_dir=folder, resume=resume, progress=False)
     return result, ray.util.get_node_ip_address()
 
 
@@ -73,8 +70,6 @@ def train_on_cluster(
             or no or a wrong token), the learner cannot be placed, or the run refuses a
             value there.
     """
-    from service.run.launcher import connect_ray
-
     try:
         connect_ray(address)
     except (ConnectionError, AuthenticationError) as error:

@@ -1,6 +1,6 @@
 """The paper's figures as data: each a title and its variants (a preset plus overrides).
 
-`service.run.experiments` runs a figure's variants over seeds; `service.run.plots` draws it.
+`runner` runs a figure's variants over seeds; `plots` draws it.
 """
 
 from __future__ import annotations

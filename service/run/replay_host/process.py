@@ -47,7 +47,7 @@ class ReplayProcess:
         command = [
             sys.executable,
             "-m",
-            "service.run.replay_cli",
+            "service.run.cli.replay",
             "serve",
             "--config",
             str(config),

@@ -5,7 +5,7 @@
          actors, evaluator and learner), at most --parallel at a time
       └─ runs/experiments/fig4/{results.csv, fig4.png, <variant>-s<seed>/}
 
-The figures themselves are data in `service.run.figures`; `service.run.plots` draws them.
+The figures themselves are data in `figures`; `plots` draws them.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from typing import Any, Optional
 import numpy as np
 import ray
 
-from service.run.figures import FIGURES, Variant
-from service.run.plots import curves, plot_figure
-from service.run.stats import MIN_SEEDS, summarize
+from service.run.experiments.figures import FIGURES, Variant
+from service.run.experiments.plots import curves, plot_figure
+from service.run.experiments.stats import MIN_SEEDS, summarize
 from service.run.validation import ConfigError
 
 
@@ -31,7 +31,7 @@ def _run_one(preset: str, overrides: dict[str, Any], run_dir: str, address: str)
     import torch
 
     from service.run.config import load_preset
-    from service.run.launcher import train
+    from service.run.orchestration.launcher import train
 
     torch.set_num_threads(1)
     result = train(
@@ -68,7 +68,7 @@ def plan_experiment(
             in parallel than a local Ray instance can place.
     """
     from service.run.config import load_preset
-    from service.run.preflight import local_cpus, ray_cpus, run_cpus
+    from service.run.orchestration.preflight import local_cpus, ray_cpus, run_cpus
 
     if name not in FIGURES:
         raise ConfigError(f"unknown experiment {name!r}; choose from {sorted(FIGURES)}")
@@ -227,7 +227,7 @@ def summarise(
     rows: list[dict[str, str]], labels: list[str], *, threshold: float = -200.0, at: int = 5000
 ) -> list[dict[str, Any]]:
     """Per variant: seeds, final return (mean ± std over seeds; from 3 seeds on also its
-    95 % bootstrap interval and the IQM, service/run/stats.py), the first env-step count
+    95 % bootstrap interval and the IQM, service/run/experiments/stats.py), the first env-step count
     at which the across-seed mean reaches `threshold`, and the across-seed std at the
     evaluation nearest `at` env steps."""
     out = []

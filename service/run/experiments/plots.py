@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from service.run.figures import HARD_CODED_LEVEL, Figure
+from service.run.experiments.figures import HARD_CODED_LEVEL, Figure
 
 
 def curves(rows: list[dict[str, str]], variant: str, key: str = "return_mean") -> dict[str, Any]:

@@ -11,7 +11,7 @@ from learner.agent import Phase
 from learner.checkpoint import load_checkpoint
 from learner.loop import LoopState, updates_allowed
 from service.run.config import TrainConfig
-from service.run.replay_folder import Restored
+from service.run.replay_host.folder import Restored
 from service.run.validation import ConfigError
 
 

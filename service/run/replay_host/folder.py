@@ -19,8 +19,8 @@ from typing import Any, Optional
 
 from service.replay.client import ReplayClient
 from service.replay.server.folder_lock import FolderInUse, lock_folder
-from service.run.replay_process import FolderRefused
-from service.run.replay_shards import RunReplay
+from service.run.replay_host.process import FolderRefused
+from service.run.replay_host.shards import RunReplay
 
 FOLDER = "replay"
 RECORD = "replay.json"
