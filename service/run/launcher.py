@@ -41,6 +41,7 @@ from actors.env_actor import EnvActor, Segment
 from actors.evaluator import RemoteEvaluator
 from actors.transitions import replay_signature
 from learner.agent import Phase
+from learner.device import CompileMode, device_name, resolve_compile, resolve_device
 from learner.loop import LearnerLoop, Lockstep, LoopSettings, LoopState
 from service.core import Behaviour, Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
@@ -265,6 +266,23 @@ def _probe(config: TrainConfig) -> tuple[Any, Any, dict[str, Any]]:
         raise ConfigError(str(e).splitlines()[0] if str(e) else type(e).__name__) from None
 
 
+def learner_device(config: TrainConfig) -> tuple[torch.device, CompileMode]:
+    """The device and compile mode the preset's ``learner`` section means here; ``auto``
+    says in one line what it picked.
+
+    Raises:
+        ConfigError: a CUDA device this process does not see, or CUDA graphs without one.
+    """
+    try:
+        device = resolve_device(config.learner.device)
+        compile_mode = resolve_compile(config.learner.compile, device)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+    if config.learner.device == "auto":
+        _print(f"learner.device=auto picked {device} ({device_name(device)})")
+    return device, compile_mode
+
+
 @dataclass
 class RunResult:
     """What a finished (or interrupted) run reports (also written to summary.json)."""
@@ -299,11 +317,12 @@ def train(
         return train_on_cluster(config, address=address, run_dir=run_dir, resume=resume)
     run_dir, checkpoint = check_run_dir(config, run_dir, resume)
     check_fits_locally(config, address)
+    device, compile_mode = learner_device(config)  # a GPU that is not here: refused before Ray
     clients = world_clients(config)
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
     start = time.perf_counter()
     builder, behaviour, signature = _probe(config)
-    algorithm = builder.make_learner()
+    algorithm = builder.make_learner(device=device, compile=compile_mode)
     state, phases = LoopState(), builder.phases()
     # A phase's table does not depend on its budget: a resumed run serves the same one.
     tables = preset_tables(config, phases=phases, signature=signature)
@@ -311,7 +330,8 @@ def train(
         refill = config.reproducible or not reusable(run_dir, tables)
         state = restore(algorithm, checkpoint, phases, config, refill=refill)
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(config_record(config))
+    hardware = {"learner_device": str(device), "learner_device_name": device_name(device)}
+    (run_dir / "config.yaml").write_text(config_record(config, hardware=hardware))
     if checkpoint is not None:
         print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
     started_ray = connect_ray(address)
@@ -447,6 +467,8 @@ def train(
             else lambda: _watch(supervisor, actors, faults, loop.state),
             lockstep=lockstep,
             env_steps_offset=restored.env_steps_before if restored is not None else None,
+            device=device,
+            prefetch_to_device=config.learner.prefetch_to_device,
         )
         try:
             final = loop.run()
@@ -480,6 +502,7 @@ def train(
         summary["interrupted"] = interrupted
         summary["replay_restored"] = dataclasses.asdict(restored) if restored else None
         summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
+        summary.update(hardware, learner_compile=compile_mode)
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         plot_learning_curve(
             run_dir / "metrics.csv",
