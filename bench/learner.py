@@ -98,6 +98,8 @@ def _teacher(folder: Path, config: TrainConfig) -> str:
         3, 1, np.array([-2.0]), np.array([2.0]), config=config.td3, seed=config.seed
     )
     save_checkpoint(folder / "checkpoints", {"algorithm": learner.state_dict()}, updates=0)
+    hidden = ", ".join(str(h) for h in config.td3.hidden_sizes)
+    (folder / "config.yaml").write_text(f"td3:\n  hidden_sizes: [{hidden}]\n")
     return str(folder)
 
 
