@@ -6,7 +6,7 @@
     behaviour = builder.make_behaviour(num_actors=n)   # pickled to every actor
     phases = builder.phases()
     tables = preset_tables(config, phases=phases, signature=...)  # one table per phase
-    algorithm = builder.make_learner()                 # lives in the learner process
+    algorithm = builder.make_learner(device=device, compile=compile)  # the learner's process
     EnvActor.remote(behaviour=behaviour, ...).run.remote(actor_segments(phases, n))
     LearnerLoop(algorithm, phases=phases, ...).run()   # phase.step(algorithm, batch)
 """
@@ -16,6 +16,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional, Protocol
 
+import torch
+
+from learner.device import CPU, CompileMode
 from service.core import Algorithm, Behaviour, Metrics, TensorBatch, UpdateStep
 
 
@@ -90,5 +93,10 @@ class AgentBuilder(Protocol):
     batch_size: int
 
     def phases(self) -> list[Phase]: ...
-    def make_learner(self) -> Algorithm: ...
+    def make_learner(
+        self, *, device: torch.device = CPU, compile: CompileMode = "off"
+    ) -> Algorithm:
+        """The algorithm, its networks on `device`, compiled as `compile` says."""
+        ...
+
     def make_behaviour(self, *, num_actors: int) -> Behaviour: ...

@@ -32,6 +32,7 @@ import torch
 
 from learner.agent import Phase
 from learner.checkpoint import save_checkpoint
+from learner.device import CPU, BatchFeed
 from service.core import (
     Algorithm,
     Columns,
@@ -124,7 +125,12 @@ class LearnerLoop:
         watchdog: Optional[Callable[[], None]] = None,
         lockstep: Optional[Lockstep] = None,
         env_steps_offset: Optional[int] = None,
+        device: torch.device = CPU,
+        prefetch_to_device: int = 0,
     ) -> None:
+        """`device` is where the algorithm computes; on CUDA `prefetch_to_device` batches
+        beyond the current one are copied there ahead of their update (none in lock-step,
+        which draws each batch only once the actors have made it allowed)."""
         self.algorithm = algorithm
         self.phases = phases
         self.open_stream = open_stream
@@ -138,6 +144,8 @@ class LearnerLoop:
         self.watchdog = watchdog
         """Called while no batch arrives; raises if the data can never come."""
         self.lockstep = lockstep
+        self.device = device
+        self.prefetch_to_device = 0 if lockstep is not None else prefetch_to_device
         self._pending_evals: list[Future[Evaluation]] = []
         # The run's env steps when the table was empty: a table refilled on resume counts
         # from zero (offset: the checkpoint's env steps), a restored one goes on counting.
@@ -234,13 +242,21 @@ class LearnerLoop:
         window_start, window_updates = time.perf_counter(), 0
         first_batch = True
         feed = None if self.lockstep is None else _Feed(self.lockstep, phase, first=s.updates)
+        batches = BatchFeed(
+            lambda: self._next_batch(stream),
+            device=self.device,
+            depth=self.prefetch_to_device,
+            to_tensors=to_tensors,
+        )
         try:
             while s.updates < end:
                 if feed is not None:
                     s.env_steps = offset + feed.until_allowed(s.updates + 1, s.version)
-                wait_before = stream.wait_s
-                batch = self._next_batch(stream)
+                wait_before, drawing = stream.wait_s, time.perf_counter()
+                batch, tensors = batches.next(left=end - s.updates)
                 waited = stream.wait_s - wait_before
+                # Making tensors of the batch (and copying it to the device) is update work.
+                s.update_s += max(time.perf_counter() - drawing - waited, 0.0)
                 if first_batch:
                     s.warmup_s += waited  # filling to min_size is not starvation
                     first_batch = False
@@ -249,7 +265,7 @@ class LearnerLoop:
                 if feed is None:
                     s.env_steps = offset + stream.table_inserts
                 t = time.perf_counter()
-                metrics = phase.step(self.algorithm, to_tensors(batch))
+                metrics = phase.step(self.algorithm, tensors)
                 s.update_s += time.perf_counter() - t
                 s.updates += 1
                 window_updates += 1

@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from typing import Optional
 
 import numpy as np
+import torch
 
 from actors.behaviours.backbone import BackboneBehaviour
 from actors.hardcoded import HardCodedPolicy, required_policy
@@ -13,6 +14,7 @@ from learner.agent import Phase
 from learner.backbone.config import BackboneConfig
 from learner.backbone.learning import ObservingBackboneLearner, TeacherBackboneLearner
 from learner.backbone.networks import TeacherActor, load_teacher, zero_output_
+from learner.device import CPU, CompileMode
 from learner.td3.builder import TD3Builder, make_actor_network
 from learner.td3.learning import TD3Learner
 
@@ -57,7 +59,9 @@ class BackboneBuilder:
     def phases(self) -> list[Phase]:
         return self.td3.phases()  # TD3's, its warm-up being the prefill a = μ(s) + ε
 
-    def make_learner(self) -> TD3Learner:
+    def make_learner(
+        self, *, device: torch.device = CPU, compile: CompileMode = "off"
+    ) -> TD3Learner:
         t = self.td3
         if self.teacher is not None:
             learner: TD3Learner = TeacherBackboneLearner(
@@ -66,14 +70,29 @@ class BackboneBuilder:
                 teacher=self.teacher,
                 config=t.config,
                 seed=t.seed,
+                device=device,
+                compile=compile,
             )
         elif self.config.observe_backbone:
             learner = ObservingBackboneLearner(
-                t.obs_dim, self.bound, t.high, config=t.config, seed=t.seed
+                t.obs_dim,
+                self.bound,
+                t.high,
+                config=t.config,
+                seed=t.seed,
+                device=device,
+                compile=compile,
             )
         else:
             learner = TD3Learner(
-                t.obs_dim, t.act_dim, -self.bound, self.bound, config=t.config, seed=t.seed
+                t.obs_dim,
+                t.act_dim,
+                -self.bound,
+                self.bound,
+                config=t.config,
+                seed=t.seed,
+                device=device,
+                compile=compile,
             )
         # The correction starts at zero output: at first the agent is the backbone.
         zero_output_(learner.actor)

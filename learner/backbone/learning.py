@@ -8,10 +8,13 @@ its prediction is Q̂(s, μ̂(s)) + Q_θ(s, c) and its target is eq. (11).
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import torch
 
 from actors.behaviours.backbone import backbone_input
+from learner.device import CPU, CompileMode, compile_networks
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner, td3_target
 from learner.td3.networks import Actor, TwinCritic
@@ -49,12 +52,29 @@ class ObservingBackboneLearner(TD3Learner):
     """
 
     def __init__(
-        self, obs_dim: int, bound: np.ndarray, scale: np.ndarray, *, config: TD3Config, seed: int
+        self,
+        obs_dim: int,
+        bound: np.ndarray,
+        scale: np.ndarray,
+        *,
+        config: TD3Config,
+        seed: int,
+        device: torch.device = CPU,
+        compile: CompileMode = "off",
     ) -> None:
         """`bound` is L per action dimension; `scale` the half-width of the action box."""
         act_dim = bound.shape[0]
-        super().__init__(obs_dim + act_dim, act_dim, -bound, bound, config=config, seed=seed)
-        self._scale = torch.as_tensor(scale, dtype=torch.float32)
+        super().__init__(
+            obs_dim + act_dim,
+            act_dim,
+            -bound,
+            bound,
+            config=config,
+            seed=seed,
+            device=device,
+            compile=compile,
+        )
+        self._scale = torch.as_tensor(scale, dtype=torch.float32, device=self.device)
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         for name in ("backbone_action", "next_backbone_action"):
@@ -82,11 +102,25 @@ class TeacherBackboneLearner(TD3Learner):
         teacher: tuple[Actor, TwinCritic],
         config: TD3Config,
         seed: int,
+        device: torch.device = CPU,
+        compile: CompileMode = "off",
     ) -> None:
+        """The teacher is copied onto the learner's device (the actors keep theirs)."""
         act_dim = teacher[0].action_low.shape[0]
         bound = np.full(act_dim, limit, dtype=np.float32)
-        super().__init__(obs_dim, act_dim, -bound, bound, config=config, seed=seed)
-        self.teacher_actor, self.teacher_critic = teacher
+        super().__init__(
+            obs_dim,
+            act_dim,
+            -bound,
+            bound,
+            config=config,
+            seed=seed,
+            device=device,
+            compile=compile,
+        )
+        self.teacher_actor = copy.deepcopy(teacher[0]).to(self.device)
+        self.teacher_critic = copy.deepcopy(teacher[1]).to(self.device)
+        compile_networks([self.teacher_actor, self.teacher_critic], compile)
 
     @torch.no_grad()
     def _teacher_value(self, obs: torch.Tensor) -> torch.Tensor:

@@ -6,11 +6,13 @@ import dataclasses
 from collections.abc import Sequence
 from typing import Optional
 
+import torch
 from gymnasium import spaces
 
 from actors.behaviours.epsilon_greedy import EpsilonGreedyBehaviour
 from actors.hardcoded import ImportedPolicy, required_policy
 from learner.agent import Budget, Phase, online_phase
+from learner.device import CPU, CompileMode
 from learner.dqn.config import DQNConfig
 from learner.dqn.learning import DQNLearner
 from learner.dqn.networks import make_q_network
@@ -63,7 +65,9 @@ class DQNBuilder:
         # n-step returns come from windows of n steps of one episode, drawn from replay.
         return [dataclasses.replace(phase, sequence_length=self.config.n_step)]
 
-    def make_learner(self) -> DQNLearner:
+    def make_learner(
+        self, *, device: torch.device = CPU, compile: CompileMode = "off"
+    ) -> DQNLearner:
         (phase,) = self.phases()
         return DQNLearner(
             self.obs_dim,
@@ -71,6 +75,8 @@ class DQNBuilder:
             config=self.config,
             seed=self.seed,
             total_updates=phase.updates,
+            device=device,
+            compile=compile,
         )
 
     def make_behaviour(self, *, num_actors: int) -> EpsilonGreedyBehaviour:

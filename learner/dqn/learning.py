@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from learner.device import CPU, CompileMode, adam, compile_networks
 from learner.dqn.config import DQNConfig
 from learner.dqn.networks import make_q_network
 from learner.td3.learning import soft_update
@@ -107,8 +108,12 @@ class DQNLearner:
         config: DQNConfig,
         seed: int,
         total_updates: Optional[int] = None,
+        device: torch.device = CPU,
+        compile: CompileMode = "off",
     ) -> None:
-        """`total_updates` (the run's update count) is needed iff the rate decays."""
+        """`total_updates` (the run's update count) is needed iff the rate decays; the
+        networks are drawn on the CPU, then live and learn on `device`, their forward
+        passes compiled as `compile` says."""
         if config.learning_rate_end is not None and (total_updates is None or total_updates < 0):
             raise ValueError(
                 f"learning_rate_end={config.learning_rate_end} decays the rate over the run's "
@@ -118,8 +123,11 @@ class DQNLearner:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
             self.q = make_q_network(obs_dim, num_actions, config.hidden_sizes)
+        self.device = torch.device(device)
+        self.q.to(self.device)
         self.target_q = copy.deepcopy(self.q).requires_grad_(False)
-        self.optimizer = torch.optim.Adam(self.q.parameters(), lr=config.learning_rate)
+        self.optimizer = adam(self.q.parameters(), lr=config.learning_rate, device=self.device)
+        compile_networks([self.q, self.target_q], compile)
         self._gamma = config.gamma
         self._target_every = config.target_update_every
         self._target_tau = config.target_tau
@@ -149,6 +157,7 @@ class DQNLearner:
                 warmup: hardcoded, also ``backbone_action`` (μ(s), int64) of the same shape
                 as ``action``.
         """
+        batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
         expert = None
         if self.num_updates < self._margin_updates and self._margin > 0.0:
             expert = batch["backbone_action"]
@@ -162,8 +171,8 @@ class DQNLearner:
         returns, discounts = window_returns(batch["reward"], batch["terminated"], self._gamma)
         b, n = returns.shape
         bootstrap = double_q_target(
-            torch.zeros(b),
-            torch.ones(b),
+            torch.zeros(b, device=self.device),
+            torch.ones(b, device=self.device),
             batch["next_obs"][:, -1],
             online=self.q,
             target=self.target_q,
@@ -189,11 +198,13 @@ class DQNLearner:
         q_all = self.q(obs)
         q = q_all.gather(1, action.long().unsqueeze(1)).squeeze(1)
         loss = F.smooth_l1_loss(q, y)
-        metrics = {}
+        margin_loss = None
         if expert_action is not None:
             margin_loss = large_margin_loss(q_all, expert_action, self._margin)
             loss = loss + margin_loss
-            metrics["losses/margin"] = float(margin_loss.detach())
+        scalars = [loss.detach(), q.detach().mean()]
+        if margin_loss is not None:
+            scalars.append(margin_loss.detach())
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         nn.utils.clip_grad_norm_(self.q.parameters(), self._max_grad_norm)
@@ -204,15 +215,16 @@ class DQNLearner:
         self.num_updates += 1
         if self.num_updates % self._target_every == 0:
             soft_update(self.target_q, self.q, self._target_tau)
-        return {
-            "losses/q": float(loss.detach()),
-            "values/q_mean": float(q.detach().mean()),
-            "charts/learning_rate": lr,
-            **metrics,
-        }
+        # One host transfer for all metrics (a single sync on an accelerator).
+        values = torch.stack(scalars).tolist()
+        metrics = {"losses/q": values[0], "values/q_mean": values[1], "charts/learning_rate": lr}
+        if margin_loss is not None:
+            metrics["losses/margin"] = values[2]
+        return metrics
 
     def policy_state(self) -> dict[str, torch.Tensor]:
-        return {k: v.detach().clone() for k, v in self.q.state_dict().items()}
+        """The Q network's weights as detached CPU copies, for broadcasting to actors."""
+        return {k: v.detach().to("cpu", copy=True) for k, v in self.q.state_dict().items()}
 
     def state_dict(self) -> dict[str, Any]:
         return {

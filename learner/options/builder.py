@@ -13,6 +13,7 @@ from actors.behaviours.options import OptionsBehaviour
 from actors.hardcoded import required_policy
 from learner.agent import Phase
 from learner.backbone.networks import zero_output_
+from learner.device import CPU, CompileMode
 from learner.dqn.config import DQNConfig
 from learner.dqn.learning import DQNLearner
 from learner.options.config import OptionsConfig
@@ -60,19 +61,37 @@ class OptionsBuilder:
         bound = np.full(t.act_dim, limit, dtype=np.float32)
         return t.obs_dim + t.act_dim, -bound, bound
 
-    def make_learner(self) -> OptionsLearner:
+    def make_learner(
+        self, *, device: torch.device = CPU, compile: CompileMode = "off"
+    ) -> OptionsLearner:
         t = self.td3
         option_seed, rl_seed = np.random.SeedSequence(t.seed).generate_state(2)
         rl_in, low, high = self._rl_spaces()
         # Intra-option learning trains the RL option with TD3's own target, not eq. (14).
         kind: type[TD3Learner] = TD3Learner if self.config.intra_option else RetraceTD3Learner
-        rl = kind(rl_in, t.act_dim, low, high, config=t.config, seed=int(rl_seed))
+        rl = kind(
+            rl_in,
+            t.act_dim,
+            low,
+            high,
+            config=t.config,
+            seed=int(rl_seed),
+            device=device,
+            compile=compile,
+        )
         residual = self.config.residual_limit is not None
         if residual:  # the residual RL option starts as the hard-coded policy
             zero_output_(rl.actor)
             rl.target_actor.load_state_dict(rl.actor.state_dict())
         return OptionsLearner(
-            DQNLearner(t.obs_dim, NUM_OPTIONS, config=self.dqn, seed=int(option_seed)),
+            DQNLearner(
+                t.obs_dim,
+                NUM_OPTIONS,
+                config=self.dqn,
+                seed=int(option_seed),
+                device=device,
+                compile=compile,
+            ),
             rl,
             option_length=self.config.option_length,
             retrace_lambda=self.config.retrace_lambda,

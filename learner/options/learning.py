@@ -68,13 +68,15 @@ class OptionsLearner:
                 is then a plain `TD3Learner`), not on its own steps with Retrace.
         """
         self.options, self.rl = options, rl
-        self.residual_scale = residual_scale
+        self.residual_scale = None if residual_scale is None else residual_scale.to(rl.device)
         self.intra_option = intra_option
         self.k, self.lam, self.std, self.gamma = option_length, retrace_lambda, behaviour_std, gamma
         self.num_updates = 0
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         """One step of each learner on a batch of windows [B, k, ...]."""
+        device = self.rl.device  # both learners live on it
+        batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
         self.num_updates += 1
         metrics: dict[str, float] = {}
         starts = batch["option_step"][:, 0] == 0

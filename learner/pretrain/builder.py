@@ -5,9 +5,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Optional
 
+import torch
+
 from actors.behaviours.gaussian import GaussianBehaviour
 from actors.hardcoded import required_policy
 from learner.agent import Phase, online_phase
+from learner.device import CPU, CompileMode
 from learner.pretrain.config import PretrainConfig
 from learner.pretrain.learning import PretrainLearner, pretrain_step
 from learner.td3.builder import TD3Builder, make_actor_network
@@ -60,7 +63,9 @@ class PretrainBuilder:
         )
         return [demos, online]
 
-    def make_learner(self) -> PretrainLearner:
+    def make_learner(
+        self, *, device: torch.device = CPU, compile: CompileMode = "off"
+    ) -> PretrainLearner:
         t, c = self.td3, self.config
         return PretrainLearner(
             t.obs_dim,
@@ -72,6 +77,8 @@ class PretrainBuilder:
             pretrain_loss=c.pretrain_loss,
             online_loss=c.online_loss,
             bc_alpha=c.bc_alpha,
+            device=device,
+            compile=compile,
         )
 
     def make_behaviour(self, *, num_actors: int) -> GaussianBehaviour:

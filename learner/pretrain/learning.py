@@ -20,6 +20,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from learner.device import CPU, CompileMode
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner, actor_loss
 from service.core import Algorithm, Metrics, TensorBatch
@@ -53,8 +54,19 @@ class PretrainLearner(TD3Learner):
         pretrain_loss: str,
         online_loss: str,
         bc_alpha: float,
+        device: torch.device = CPU,
+        compile: CompileMode = "off",
     ) -> None:
-        super().__init__(obs_dim, act_dim, action_low, action_high, config=config, seed=seed)
+        super().__init__(
+            obs_dim,
+            act_dim,
+            action_low,
+            action_high,
+            config=config,
+            seed=seed,
+            device=device,
+            compile=compile,
+        )
         self._losses = {"pretrain": pretrain_loss, "online": online_loss}
         self._objective = pretrain_loss
         self._bc_alpha = bc_alpha

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import torch
 from gymnasium import spaces
 
 from actors.behaviours.gaussian import GaussianBehaviour
 from learner.agent import Budget, Phase, online_phase
+from learner.device import CPU, CompileMode
 from learner.spaces import box_action_dim, observation_dim
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
@@ -40,14 +42,19 @@ def make_td3_learner(
     action_space: spaces.Space,
     config: TD3Config,
     seed: int,
+    *,
+    device: torch.device = CPU,
+    compile: CompileMode = "off",
 ) -> TD3Learner:
-    """Builds a CPU `TD3Learner` for the given spaces.
+    """Builds a `TD3Learner` for the given spaces, on `device`.
 
     Args:
         obs_space: 1-D Box observation space.
         action_space: 1-D Box action space with finite bounds.
         config: TD3 hyper-parameters.
         seed: Seeds network initialisation and target smoothing noise.
+        device: Where the learner computes.
+        compile: Whether its networks are compiled (`learner.device.compile_networks`).
 
     Returns:
         The learner.
@@ -65,6 +72,8 @@ def make_td3_learner(
         np.asarray(action_space.high, dtype=np.float32),
         config=config,
         seed=seed,
+        device=device,
+        compile=compile,
     )
 
 
@@ -107,8 +116,17 @@ class TD3Builder:
             )
         ]
 
-    def make_learner(self) -> TD3Learner:
-        return make_td3_learner(self.obs_space, self.action_space, self.config, self.seed)
+    def make_learner(
+        self, *, device: torch.device = CPU, compile: CompileMode = "off"
+    ) -> TD3Learner:
+        return make_td3_learner(
+            self.obs_space,
+            self.action_space,
+            self.config,
+            self.seed,
+            device=device,
+            compile=compile,
+        )
 
     def make_behaviour(self, *, num_actors: int) -> GaussianBehaviour:
         network = make_actor_network(self.obs_dim, self.act_dim, self.low, self.high, self.config)

@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from learner.device import CompileMode, adam, compile_networks
 from learner.td3.config import TD3Config
 from learner.td3.networks import Actor, TwinCritic
 
@@ -141,6 +142,7 @@ class TD3Learner:
         config: TD3Config,
         seed: int,
         device: str | torch.device = "cpu",
+        compile: CompileMode = "off",
     ) -> None:
         """Builds the networks (seeded, without touching the global RNG) and optimisers.
 
@@ -151,7 +153,9 @@ class TD3Learner:
             action_high: Upper action bounds, shape [act_dim].
             config: Hyper-parameters.
             seed: Seeds the network initialisation and the smoothing noise.
-            device: Where the networks live and the update runs.
+            device: Where the networks live and the update runs (the initial weights
+                are drawn on the CPU, so every device starts from the same ones).
+            compile: Compile the networks' forward passes (`learner.device.compile_networks`).
         """
         self.device = torch.device(device)
         self._gamma = config.gamma
@@ -170,8 +174,11 @@ class TD3Learner:
         self.critic.to(self.device)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
+        self.actor_optimizer = adam(self.actor.parameters(), lr=config.actor_lr, device=self.device)
+        self.critic_optimizer = adam(
+            self.critic.parameters(), lr=config.critic_lr, device=self.device
+        )
+        compile_networks(self._networks(), compile)
         self._generator = torch.Generator(device=self.device)
         self._generator.manual_seed(int(noise_seed))
 
@@ -179,6 +186,10 @@ class TD3Learner:
         """Calls to `update` so far (= critic updates)."""
         self.num_actor_updates = 0
         """Actor gradient steps so far (delayed, and none while frozen)."""
+
+    def _networks(self) -> list[nn.Module]:
+        """The networks an update runs (what `compile` compiles)."""
+        return [self.actor, self.critic, self.target_actor, self.target_critic]
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         """Runs one TD3 step: critic always; actor and targets every `policy_delay` calls.
@@ -323,4 +334,16 @@ class TD3Learner:
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.num_updates = int(state["num_updates"])
         self.num_actor_updates = int(state["num_actor_updates"])
-        self._generator.set_state(state["noise_rng"].cpu())
+        load_generator_state(self._generator, state["noise_rng"])
+
+
+def load_generator_state(generator: torch.Generator, saved: torch.Tensor) -> None:
+    """Restores a generator's state, or, when it was saved on another kind of device
+    (CPU and CUDA generators keep different states), reseeds it from that state: the noise
+    goes on from a fixed point, not the same stream."""
+    saved = saved.cpu()
+    try:
+        generator.set_state(saved)
+    except RuntimeError:
+        seed = int.from_bytes(bytes(saved.tolist())[:8], "little") & (2**63 - 1)
+        generator.manual_seed(seed)

@@ -34,6 +34,8 @@ SECTIONS = {
     "learner": LearnerPlacement,
     "replay": ReplaySettings,
 }
+RECORDS = ("versions", "hardware")
+"""What a run folder's config.yaml records beside the config (orchestration/provenance.py)."""
 
 
 @dataclass(frozen=True)
@@ -372,12 +374,12 @@ def load_preset(name_or_path: str | Path, **overrides: Any) -> TrainConfig:
 
 def config_from_data(data: dict[str, Any], **overrides: Any) -> TrainConfig:
     """A config from parsed preset data (e.g. a run folder's config.yaml); `overrides` as
-    in `load_preset`. A ``versions`` record in the data is ignored.
+    in `load_preset`. The ``versions`` and ``hardware`` records in the data are ignored.
 
     Raises:
         ConfigError: unknown keys, or values a run cannot use, in one line.
     """
-    data = {k: v for k, v in data.items() if k != "versions"}
+    data = {k: v for k, v in data.items() if k not in RECORDS}
     _check_keys(_keys(data))
     _check_keys(key for key, value in overrides.items() if value is not None)
     for key, value in overrides.items():

@@ -4,7 +4,7 @@ actors can be placed on the cluster before any of them starts.
 
     actors:    {num_cpus: 0.25, resources: {minecraft: 1}, label_selector: {zone: gpu-a}}
     evaluator: {num_cpus: 0.25}
-    learner:   {num_gpus: 1}            # the learner's Ray task (ray:// runs)
+    learner:   {num_gpus: 1, device: cuda}  # the learner's Ray task (ray:// runs), its device
     replay:    {port: 9100, shards: 2}  # the servers' first port, fixed for firewalls
 
 A role that cannot be placed would wait forever for a node (Ray keeps such actors
@@ -18,6 +18,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Optional
+
+from learner.device import check_compile_mode, check_device_spec
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,21 @@ class LearnerPlacement(Placement):
 
     num_cpus: float = 0.0
     """CPUs the learner's task reserves (0: a head node started with no CPUs takes it)."""
+    device: str = "auto"
+    """Where the learner computes: auto (CUDA when this process sees a GPU, else the CPU),
+    cpu, cuda or cuda:N; a ``ray://`` run's learner sees a GPU only with ``num_gpus: 1``."""
+    compile: str = "auto"
+    """The update's networks: off (eager), compile (torch.compile), cuda_graphs (compiled
+    and replayed as CUDA graphs) or auto (compile on CUDA, eager on the CPU)."""
+    prefetch_to_device: int = 2
+    """Sampled batches copied to a CUDA device ahead of their update (none on the CPU)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_device_spec(self.device)
+        check_compile_mode(self.compile)
+        if self.prefetch_to_device < 0:
+            raise ValueError(f"prefetch_to_device={self.prefetch_to_device} must be >= 0")
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from tqdm import tqdm
 from actors.env_actor import EnvActor
 from actors.evaluator import RemoteEvaluator
 from learner.agent import Phase
+from learner.device import device_name
 from learner.loop import LearnerLoop, Lockstep, LoopSettings, LoopState
 from service.core import Evaluation, SampleStream
 from service.metrics import MetricsLogger, plot_learning_curve
@@ -39,7 +40,13 @@ from service.run.orchestration.progress import FaultLog, say_and_keep, watch
 from service.run.orchestration.provenance import config_record
 from service.run.orchestration.ray_session import connect_ray
 from service.run.orchestration.resume import restore, resume_with
-from service.run.orchestration.roles import ACTOR_FINISH_S, actor_segments, probe, start_replay
+from service.run.orchestration.roles import (
+    ACTOR_FINISH_S,
+    actor_segments,
+    learner_device,
+    probe,
+    start_replay,
+)
 from service.run.orchestration.summary import REFERENCE_LEVELS, log_behaviour_stats, summarise
 from service.run.orchestration.supervision import ActorFleet, Supervisor
 from service.run.orchestration.tables import preset_tables
@@ -79,11 +86,12 @@ def train_here(
     """
     run_dir, checkpoint = check_run_dir(config, run_dir, resume)
     check_fits_locally(config, address)
+    device, compile_mode = learner_device(config)  # a GPU that is not here: refused before Ray
     clients = world_clients(config)
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
     start = time.perf_counter()
     builder, behaviour, signature = probe(config)
-    algorithm = builder.make_learner()
+    algorithm = builder.make_learner(device=device, compile=compile_mode)
     state, phases = LoopState(), builder.phases()
     # A phase's table does not depend on its budget: a resumed run serves the same one.
     tables = preset_tables(config, phases=phases, signature=signature)
@@ -91,7 +99,8 @@ def train_here(
         refill = config.reproducible or not reusable(run_dir, tables)
         state = restore(algorithm, checkpoint, phases, config, refill=refill)
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(config_record(config))
+    hardware = {"learner_device": str(device), "learner_device_name": device_name(device)}
+    (run_dir / "config.yaml").write_text(config_record(config, hardware=hardware))
     if checkpoint is not None:
         print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
     started_ray = connect_ray(address)
@@ -227,6 +236,8 @@ def train_here(
             else lambda: watch(supervisor, actors, faults, loop.state),
             lockstep=lockstep,
             env_steps_offset=restored.env_steps_before if restored is not None else None,
+            device=device,
+            prefetch_to_device=config.learner.prefetch_to_device,
         )
         try:
             final = loop.run()
@@ -260,6 +271,7 @@ def train_here(
         summary["interrupted"] = interrupted
         summary["replay_restored"] = dataclasses.asdict(restored) if restored else None
         summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
+        summary.update(hardware, learner_compile=compile_mode)
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         plot_learning_curve(
             run_dir / "metrics.csv",

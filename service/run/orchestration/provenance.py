@@ -3,7 +3,8 @@
 ``RUN/config.yaml`` is the full resolved config (import strings, import path and every
 hyper-parameter), loadable without the preset it came from, followed by ``versions``:
 graft's, Python's and the main libraries', and those of the packages the import strings
-name (the user's task), so a run can be traced to the code that produced it.
+name (the user's task), so a run can be traced to the code that produced it, and
+``hardware``: the device the learner computed on and its name.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import functools
 import importlib.metadata as metadata
 import platform
 import sys
-from typing import Any
+from typing import Any, Optional
 
 import yaml
 
@@ -75,8 +76,10 @@ def versions(config: TrainConfig) -> dict[str, Any]:
     return record
 
 
-def config_record(config: TrainConfig) -> str:
-    """The text of ``RUN/config.yaml``: the config, then its ``versions``."""
-    return yaml.safe_dump(
-        {**config.to_dict(), "versions": versions(config)}, sort_keys=False, allow_unicode=True
-    )
+def config_record(config: TrainConfig, *, hardware: Optional[dict[str, str]] = None) -> str:
+    """The text of ``RUN/config.yaml``: the config, then its ``versions`` and the
+    ``hardware`` it ran on (e.g. the learner's device and its name)."""
+    record = {**config.to_dict(), "versions": versions(config)}
+    if hardware:
+        record["hardware"] = dict(hardware)
+    return yaml.safe_dump(record, sort_keys=False, allow_unicode=True)

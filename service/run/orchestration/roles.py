@@ -7,9 +7,11 @@ from pathlib import Path
 from typing import Any, Optional
 
 import ray
+import torch
 
 from actors.env_actor import Segment
 from learner.agent import Phase
+from learner.device import CompileMode, device_name, resolve_compile, resolve_device
 from service.run.config import TrainConfig
 from service.run.orchestration.preflight import check_task
 from service.run.orchestration.tables import signature_of
@@ -86,3 +88,20 @@ def probe(config: TrainConfig) -> tuple[Any, Any, dict[str, Any]]:
         return builder, behaviour, signature_of(config, behaviour)
     except (ValueError, FileNotFoundError, gym.error.Error) as e:
         raise ConfigError(str(e).splitlines()[0] if str(e) else type(e).__name__) from None
+
+
+def learner_device(config: TrainConfig) -> tuple[torch.device, CompileMode]:
+    """The device and compile mode the preset's ``learner`` section means here; ``auto``
+    says in one line what it picked.
+
+    Raises:
+        ConfigError: a CUDA device this process does not see, or CUDA graphs without one.
+    """
+    try:
+        device = resolve_device(config.learner.device)
+        compile_mode = resolve_compile(config.learner.compile, device)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+    if config.learner.device == "auto":
+        print(f"learner.device=auto picked {device} ({device_name(device)})", flush=True)
+    return device, compile_mode

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import torch
 
 from service.run.cli import main
 from service.run.config import PRESETS, load_preset, preset_descriptions, preset_names
@@ -158,6 +159,14 @@ BAD_INPUTS = {
         "graft eval: --env-id: env_id='NoSuchEnv-v0' is not a registered gymnasium "
         "environment; give a registered id, package.module:Env-v0 or package.module:EnvClass",
     ),
+    "learner.device misspelt": (
+        [*TRAIN, "--set", "learner.device=gpu"],
+        "graft train: learner.device='gpu' must be auto, cpu, cuda or cuda:N (N a GPU index)",
+    ),
+    "learner.compile unknown": (
+        [*TRAIN, "--set", "learner.compile=fast"],
+        "graft train: learner.compile='fast' must be one of off, auto, compile, cuda_graphs",
+    ),
     "--actors 0": ([*TRAIN, "--actors", "0"], "graft train: --actors=0 must be >= 1"),
     "--env-steps 0": ([*TRAIN, "--env-steps", "0"], "graft train: --env-steps=0 must be >= 1"),
     "--seed -1": ([*TRAIN, "--seed", "-1"], "graft train: --seed=-1 must be >= 0"),
@@ -290,3 +299,10 @@ def test_numbers_written_as_yaml_strings_are_read_as_numbers() -> None:
     # YAML 1.1 reads 1e-3 as a string; a float field takes it as the number it means.
     config = load_preset("pendulum-td3", **{"td3.actor_lr": "1e-3", "env_steps": 2.0e4})
     assert config.td3.actor_lr == 1e-3 and config.env_steps == 20_000
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="the refusal is for a machine without CUDA")
+def test_cuda_without_cuda_is_refused_before_ray_starts(capsys) -> None:
+    line = _refused([*TRAIN, "--set", "learner.device=cuda"], capsys)
+    assert line.startswith("graft train: learner.device=cuda: this process sees 0 CUDA device(s)")
+    assert not Path("runs").exists()

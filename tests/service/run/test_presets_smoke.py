@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
+import yaml
 
 from learner.checkpoint import save_checkpoint
 from learner.td3.config import TD3Config
@@ -73,6 +75,10 @@ def test_preset_runs_through_the_service(preset, ray_local, tmp_path):
     assert s["updates"] == expected_updates
     assert np.isfinite(s["final_eval_return_mean"])
     assert (tmp_path / "run" / "learning_curve.png").stat().st_size > 0
+    # learner.device: auto, recorded with the run.
+    assert s["learner_device"] == ("cuda:0" if torch.cuda.is_available() else "cpu")
+    recorded = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
+    assert recorded["hardware"]["learner_device"] == s["learner_device"]
 
 
 def test_checkpoints_keep_the_newest_or_all(tmp_path) -> None:

@@ -1,0 +1,193 @@
+"""Where the learner computes: the device it resolves to, the fast update it may compile,
+and the batches moved onto that device ahead of their update.
+
+A preset's ``learner`` section names them (``device: auto | cpu | cuda | cuda:N``,
+``compile: off | auto | compile | cuda_graphs``, ``prefetch_to_device``); the run resolves
+them once, before anything starts (`resolve_device`, `resolve_compile`), and hands the
+results to the builder's ``make_learner(device=..., compile=...)`` and to `BatchFeed`.
+On the CPU every piece is the plain path: no pinned memory, no copies ahead, eager
+networks and the default (for-each) Adam, so a CPU run computes what it always did.
+"""
+
+from __future__ import annotations
+
+import collections
+import re
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Literal, Optional
+
+import torch
+from torch import nn
+
+from service.core import Columns, TensorBatch
+
+DEVICE_SPEC = re.compile(r"auto|cpu|cuda(:\d+)?")
+"""The spellings of ``learner.device``."""
+COMPILE_MODES = ("off", "auto", "compile", "cuda_graphs")
+"""The values of ``learner.compile``."""
+CompileMode = Literal["off", "compile", "cuda_graphs"]
+"""A resolved compile mode: eager, ``torch.compile``, or ``torch.compile`` with CUDA graphs."""
+CPU = torch.device("cpu")
+
+
+def check_device_spec(spec: str) -> None:
+    """Refuses a ``learner.device`` that is none of auto, cpu, cuda, cuda:N (its spelling only;
+    whether CUDA is there is `resolve_device`'s question, asked where the learner runs).
+
+    Raises:
+        ValueError: ``device=...`` naming the value and what is allowed.
+    """
+    if not isinstance(spec, str) or not DEVICE_SPEC.fullmatch(spec):
+        raise ValueError(f"device={spec!r} must be auto, cpu, cuda or cuda:N (N a GPU index)")
+
+
+def check_compile_mode(mode: str) -> None:
+    """Refuses a ``learner.compile`` outside `COMPILE_MODES`."""
+    if mode not in COMPILE_MODES:
+        raise ValueError(f"compile={mode!r} must be one of {', '.join(COMPILE_MODES)}")
+
+
+def resolve_device(spec: str) -> torch.device:
+    """The device ``learner.device`` names on this machine: ``auto`` is the first CUDA
+    device when one is visible, else the CPU.
+
+    Raises:
+        ValueError: a CUDA device was asked for and this process sees none (or fewer), in
+            one line naming the field, the value and what is allowed.
+    """
+    check_device_spec(spec)
+    if spec == "auto":
+        return torch.device("cuda", 0) if torch.cuda.is_available() else CPU
+    device = torch.device(spec)
+    if device.type != "cuda":
+        return device
+    visible = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    index = device.index or 0
+    if index >= visible:
+        build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
+        raise ValueError(
+            f"learner.device={spec}: this process sees {visible} CUDA device(s) (torch "
+            f"{torch.__version__}, {build}); use learner.device=auto or cpu here, or place "
+            "the learner on a GPU node (learner.num_gpus: 1)"
+        )
+    return torch.device("cuda", index)
+
+
+def device_name(device: torch.device) -> str:
+    """What the device is, in words: the GPU's name, or the CPU's model."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+
+    return platform.processor() or platform.machine() or "cpu"
+
+
+def resolve_compile(mode: str, device: torch.device) -> CompileMode:
+    """The compile mode ``learner.compile`` means on `device`: ``auto`` compiles on CUDA and
+    stays eager on the CPU (where compiling TD3's small networks gains nothing, bench/learner.py).
+
+    Raises:
+        ValueError: ``cuda_graphs`` on a device that is not CUDA.
+    """
+    check_compile_mode(mode)
+    if mode == "auto":
+        return "compile" if device.type == "cuda" else "off"
+    if mode == "cuda_graphs" and device.type != "cuda":
+        raise ValueError(
+            f"learner.compile=cuda_graphs needs a CUDA device, the learner runs on {device}; "
+            "use compile, auto or off"
+        )
+    return "off" if mode == "off" else "compile" if mode == "compile" else "cuda_graphs"
+
+
+def compile_networks(modules: Iterable[nn.Module], mode: CompileMode) -> None:
+    """Compiles each module's forward in place (`nn.Module.compile`: parameters, state-dict
+    keys and checkpoints stay as they are); ``cuda_graphs`` replays them as CUDA graphs
+    (torch.compile's reduce-overhead mode). ``off`` leaves them eager."""
+    if mode == "off":
+        return
+    options = {"mode": "reduce-overhead"} if mode == "cuda_graphs" else {}
+    for module in modules:
+        module.compile(**options)
+
+
+def adam(
+    params: Iterable[nn.Parameter], *, lr: float, device: torch.device
+) -> torch.optim.Optimizer:
+    """Adam, fused into one kernel on CUDA; on the CPU the default for-each Adam (the fused
+    CPU kernel rounds differently, which would change every CPU run's numbers)."""
+    return torch.optim.Adam(params, lr=lr, fused=True if device.type == "cuda" else None)
+
+
+def pinned_tensors(batch: Columns) -> TensorBatch:
+    """Data columns copied once into pinned (page-locked) host memory, from which a
+    non-blocking copy to the GPU runs while the GPU computes; service columns stay behind."""
+    return {k: torch.tensor(v, pin_memory=True) for k, v in batch.items() if not k.startswith("_")}
+
+
+class BatchFeed:
+    """Sampled batches, each on the learner's device by the time its update starts.
+
+    On CUDA it keeps up to `depth` batches beyond the current one in flight: drawn from
+    the stream, pinned, and copied on a side stream while the update before them runs.
+    On the CPU (or with depth 0) each batch is drawn when its update needs it and becomes
+    tensors where it is (`to_tensors`), exactly as without a feed.
+    """
+
+    def __init__(
+        self,
+        draw: Callable[[], Columns],
+        *,
+        device: torch.device,
+        depth: int,
+        to_tensors: Callable[[Columns], TensorBatch],
+    ) -> None:
+        """`draw` returns the next sampled batch (waiting for it); `to_tensors` is the CPU
+        conversion."""
+        if depth < 0:
+            raise ValueError(f"depth={depth} must be >= 0")
+        self.draw, self.device, self.to_tensors = draw, device, to_tensors
+        self.on_cuda = device.type == "cuda"
+        self.depth = depth if self.on_cuda else 0
+        self._copies: Optional[torch.cuda.Stream] = (
+            torch.cuda.Stream(device=device) if self.on_cuda else None
+        )
+        self._ahead: collections.deque[tuple[Columns, TensorBatch, Optional[torch.cuda.Event]]]
+        self._ahead = collections.deque()
+
+    def next(self, *, left: int) -> tuple[Columns, TensorBatch]:
+        """The next batch, as drawn and as tensors on the device; `left` (>= 1) is how many
+        batches the phase still needs, so that nothing is drawn past its end."""
+        if not self._ahead:
+            self._ahead.append(self._start(self.draw()))
+        columns, tensors, ready = self._ahead.popleft()
+        # Start the next batches' copies before this batch's update is queued behind them.
+        while len(self._ahead) < min(self.depth, left - 1):
+            self._ahead.append(self._start(self.draw()))
+        if ready is not None:
+            torch.cuda.current_stream(self.device).wait_event(ready)
+            for tensor in tensors.values():  # the allocator must not reuse it too early
+                tensor.record_stream(torch.cuda.current_stream(self.device))
+        return columns, tensors
+
+    def _start(self, columns: Columns) -> tuple[Columns, TensorBatch, Optional[torch.cuda.Event]]:
+        if not self.on_cuda:
+            return columns, self.to_tensors(columns), None
+        assert self._copies is not None
+        pinned = pinned_tensors(columns)
+        with torch.cuda.stream(self._copies):
+            tensors = {k: v.to(self.device, non_blocking=True) for k, v in pinned.items()}
+            ready = torch.cuda.Event()
+            ready.record(self._copies)
+        return columns, tensors, ready
+
+    def in_flight(self) -> int:
+        """Batches drawn ahead and not yet handed out."""
+        return len(self._ahead)
