@@ -5,15 +5,30 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 TORCH  := 2.13.0
 
-.PHONY: demo test setup lint proto proto-check bench clean
+.PHONY: demo test test-fast test-long setup lint proto proto-check bench clean
 
 demo: setup
 	$(BIN)/graft train --preset pendulum-td3
 
 # The user-task fixture and each example project are packages of their own, installed the
 # way a user installs theirs.
-test: setup $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example-cartpole
-	$(BIN)/python -m pytest -q
+TEST_PACKAGES := $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example-cartpole
+# The suite mostly waits (Ray and servers starting, real-time clocks), so it runs on more
+# xdist workers than cores; tests that measure real-time pacing run after it, alone.
+TEST_WORKERS ?= 4
+
+# Every test: the parallel part, then the real-time part.
+test: setup $(TEST_PACKAGES)
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not realtime and not long"
+	$(BIN)/python -m pytest -q -m "realtime and not long"
+
+# The inner loop: no Ray, no server processes (starting either fails the test here).
+test-fast: setup $(TEST_PACKAGES)
+	GRAFT_TEST_FAST=1 $(BIN)/python -m pytest -q -n 2 -m "not service and not slow and not realtime and not long"
+
+# Checks too long for `make test` (a C++ build of compiled kernels); CI runs them too.
+test-long: setup $(TEST_PACKAGES)
+	$(BIN)/python -m pytest -q -m long
 
 $(VENV)/.usertask: tests/fixtures/usertask/pyproject.toml $(VENV)/.installed
 	$(BIN)/pip install --no-deps -e tests/fixtures/usertask

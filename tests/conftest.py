@@ -1,10 +1,17 @@
 """Shared fixtures: a real replay server process and a real local Ray instance; the user
 task of tests/fixtures/usertask and the projects in examples/ installed as their own
-distributions."""
+distributions; the markers that split the suite into its quick subset and the rest.
+
+A test that starts Ray or a server process is marked ``service`` (tests using the
+``ray_local``, ``replay_server`` or ``replay_client`` fixtures are marked here; others say
+so themselves). ``make test-fast`` runs what is left with ``GRAFT_TEST_FAST=1``, under
+which starting Ray or a subprocess fails the test, so a missing mark cannot go unnoticed.
+"""
 
 from __future__ import annotations
 
 import importlib.util
+import os
 import site
 import subprocess
 import sys
@@ -45,6 +52,47 @@ def pytest_sessionstart(session: pytest.Session) -> None:
             for pth in Path(site_folder).glob("__editable__.*.pth"):
                 site.addpackage(site_folder, pth.name, None)  # type: ignore[attr-defined]
         importlib.invalidate_caches()
+
+
+SERVICE_FIXTURES = {"ray_local", "replay_server", "replay_client"}
+"""Fixtures that start Ray or a server process: their tests are ``service`` tests."""
+QUICK = os.environ.get("GRAFT_TEST_FAST") == "1"
+"""Set by ``make test-fast``: the quick subset, where Ray and subprocesses are refused."""
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Marks ``service`` tests, and keeps the tests of a module that shares a costly
+    module-scoped fixture (a world server, a cluster) on one xdist worker."""
+    for item in items:
+        if SERVICE_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.service)
+        info = getattr(item, "_fixtureinfo", None)
+        scopes = {d.scope for ds in info.name2fixturedefs.values() for d in ds} if info else ()
+        if "module" in scopes or "class" in scopes:
+            item.add_marker(pytest.mark.xdist_group(item.module.__name__))
+
+
+class NotInTheFastSubset(RuntimeError):
+    """A test of the quick subset started Ray or a process: mark it ``service``."""
+
+
+@pytest.fixture(autouse=True)
+def _quick_subset_starts_nothing(request: pytest.FixtureRequest, monkeypatch) -> None:
+    """Under ``GRAFT_TEST_FAST=1``, refuses Ray and subprocesses in unmarked tests."""
+    if not QUICK or request.node.get_closest_marker("service"):
+        return
+
+    def refuse(what: str):
+        def refused(*args, **kwargs):
+            raise NotInTheFastSubset(
+                f"{request.node.nodeid} starts {what}: mark it @pytest.mark.service"
+            )
+
+        return refused
+
+    monkeypatch.setattr(subprocess.Popen, "__init__", refuse("a subprocess"))
+    monkeypatch.setattr(ray, "init", refuse("Ray"))
 
 
 PENDULUM_SIGNATURE = {

@@ -214,7 +214,7 @@ COMPILED_TOLERANCE = 1e-5
 (float32; the compiled kernels may fuse and reorder sums)."""
 
 
-@pytest.mark.slow  # torch.compile on the CPU: a C++ build of the kernels, minutes here
+@pytest.mark.long  # torch.compile on the CPU: a C++ build of the kernels, minutes here
 @pytest.mark.parametrize(
     ("device", "mode"),
     [

@@ -3,6 +3,7 @@ the phases, and the settings they run with."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any, Optional
 
@@ -103,5 +104,6 @@ def learner_device(config: TrainConfig) -> tuple[torch.device, CompileMode]:
     except ValueError as e:
         raise ConfigError(str(e)) from None
     if config.learner.device == "auto":
-        print(f"learner.device=auto picked {device} ({device_name(device)})", flush=True)
+        # On stderr, beside the progress bar: stdout stays the commands' own output.
+        print(f"learner.device=auto picked {device} ({device_name(device)})", file=sys.stderr)
     return device, compile_mode
