@@ -10,11 +10,13 @@
 5. A Minecraft world server (``minecraft serve``, default limits) under 300 idle
    connections, 16 connections announcing a 4 MiB message and sending 1 byte, and a
    2000x2000 VideoProducer mission: its threads, RSS and replies.
+6. 10,000 refused requests of each kind the replay server refuses (most carrying a 1 MiB
+   field): its RSS before and after each kind, flat within 10 %.
 
 Every table is audited the same way: the server is stopped gracefully, restarted on its
 folder with a plain min-size limiter, and read whole. Loopback only.
 
-    python bench/chaos.py [--quick]
+    python bench/chaos.py [--quick] [--only-refusals] [--refusals N]
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from typing import Any
 
 from chaos_faults import dropped_connections, kill_restart  # bench/, beside this script
 from chaos_load import idle_streams
+from chaos_refusals import refused_requests
 from chaos_world import world_server_limits
 
 
@@ -42,10 +45,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="about a minute (fewer cycles)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--refusals", type=int, default=None, help="refused requests of each kind (10,000)"
+    )
+    parser.add_argument("--only-refusals", action="store_true", help="run part 6 only")
     args = parser.parse_args()
     random.seed(args.seed)
     cycles = 5 if args.quick else 24
     load_s = 8.0 if args.quick else 60.0
+    refusals = args.refusals or (1_000 if args.quick else 10_000)
+    if args.only_refusals:
+        print_refusals(timed(f"{refusals:,} refused requests of each kind",
+                             lambda: refused_requests(refusals)))  # fmt: skip
+        return
 
     kill = timed(f"{cycles} SIGKILL/restart cycles, 4 writers", lambda: kill_restart(cycles))
     drop = timed(
@@ -56,6 +68,8 @@ def main() -> None:
                  lambda: idle_streams(load_s))  # fmt: skip
     world = timed("a world server: 300 idle connections, 16 announcing 4 MiB, a 2000x2000 "
                   "frame", world_server_limits)  # fmt: skip
+    refused = timed(f"{refusals:,} refused requests of each kind",
+                    lambda: refused_requests(refusals))  # fmt: skip
 
     print()
     print("| fault | cycles | acked items | lost | doubled | stored, not acked | writer errors |")
@@ -90,6 +104,26 @@ def main() -> None:
         f"announcing 4 MiB -> {world['announcing rss']:+.1f} MiB RSS; a 2000x2000 "
         f"VideoProducer -> answered {ok} in {ms:.0f} ms, peak RSS "
         f"{world['frame peak']:+.1f} MiB: {reason}"
+    )
+    print_refusals(refused)
+
+
+def print_refusals(r: dict[str, Any]) -> None:
+    """Part 6's table: the server's RSS over each kind of refused request."""
+    print()
+    print(f"| refused request, {r['n']:,} each | status | RSS before MiB | after MiB | ratio |")
+    print("|---|---|---|---|---|")
+    for kind in r["kinds"]:
+        before, after = kind["rss"]
+        print(
+            f"| {kind['kind']} | {', '.join(kind['codes'])} | {before:.0f} | {after:.0f} "
+            f"| {after / before:.3f} |"
+        )
+    ratio = r["end"] / r["warm"]
+    print(
+        f"server RSS: {r['started']:.0f} MiB at start, {r['warm']:.0f} MiB after the warm-up, "
+        f"{r['end']:.0f} MiB after {r['n'] * len(r['kinds']):,} refused requests: ratio "
+        f"{ratio:.3f} (target: at most 1.10)"
     )
 
 

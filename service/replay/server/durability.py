@@ -24,10 +24,10 @@ import os
 import struct
 import threading
 import zlib
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Generic, Optional, TypeVar
 
 import msgpack
 import numpy as np
@@ -48,6 +48,8 @@ _HEADER = struct.Struct(">4sIII")
 
 Record = tuple[str, str, int, bytes]
 """An insert: (table, writer id, sequence, encoded batch)"""
+
+B = TypeVar("B")
 
 
 @dataclass(frozen=True)
@@ -181,6 +183,10 @@ def _framed(record: bytes) -> bytes:
     return head + struct.pack(">I", zlib.crc32(head)) + record
 
 
+MAX_DAMAGE_NOTES = 10
+"""Damaged records whose offset and reason a warning lists (all are counted)."""
+
+
 @dataclass
 class LogDamage:
     """What reading log segments had to skip."""
@@ -190,6 +196,24 @@ class LogDamage:
     bytes: int = 0
     torn_bytes: int = 0
     """An incomplete last record: a write cut short by a crash, never acknowledged."""
+    notes: list[str] = field(default_factory=list)
+    """"at offset <n> (<reason>)" for the first MAX_DAMAGE_NOTES damaged records."""
+
+    def skipped(self, at: int, size: int, reason: str) -> None:
+        self.records += 1
+        self.bytes += size
+        if len(self.notes) < MAX_DAMAGE_NOTES:
+            self.notes.append(f"at offset {at} ({reason})")
+
+
+@dataclass(frozen=True)
+class Inserted(Generic[B]):
+    """An insert record, its batch decoded."""
+
+    table: str
+    writer: str
+    sequence: int
+    batch: B
 
 
 def _frame(data: bytes, at: int) -> Optional[tuple[int, int, int]]:
@@ -216,13 +240,17 @@ def _next_record(data: bytes, start: int) -> int:
     return -1
 
 
-def read_segment(path: Path, damage: LogDamage) -> Iterator[Record | Sampled]:
-    """Yields the records of one segment (inserts and sample records), oldest first,
-    skipping damaged ones.
+def read_segment(
+    path: Path, damage: LogDamage, decode: Callable[[bytes], B]
+) -> Iterator[Inserted[B] | Sampled]:
+    """Yields the records of one segment (inserts, their batches decoded by `decode`, and
+    sample records), oldest first, skipping damaged ones.
 
-    A record whose checksum fails is skipped and counted in `damage`, and reading goes
-    on with the next: one bad record loses that record's batch, never the ones after it.
-    An incomplete last record is a write cut short; it is counted as torn.
+    A record whose checksum fails, or whose checksum holds but whose fields or batch do
+    not decode (`decode` raises ValueError), is skipped and noted in `damage` with its
+    offset, and reading goes on with the next: one bad record loses that record's batch,
+    never the ones after it. An incomplete last record is a write cut short; it is
+    counted as torn.
     """
     data = path.read_bytes()
     at = 0
@@ -234,11 +262,9 @@ def read_segment(path: Path, damage: LogDamage) -> Iterator[Record | Sampled]:
                 if len(data) - at < _HEADER.size:
                     damage.torn_bytes += len(data) - at
                 else:
-                    damage.records += 1
-                    damage.bytes += len(data) - at
+                    damage.skipped(at, len(data) - at, "no header holds after it")
                 return
-            damage.records += 1
-            damage.bytes += following - at
+            damage.skipped(at, following - at, "damaged header")
             at = following
             continue
         begin, length, crc = frame
@@ -247,20 +273,20 @@ def read_segment(path: Path, damage: LogDamage) -> Iterator[Record | Sampled]:
             damage.torn_bytes += len(data) - at
             return
         record = data[begin:end]
-        at = end
+        start, at = at, end
         try:
             if zlib.crc32(record) != crc:
-                raise ValueError("checksum")
+                raise ValueError("checksum fails")
             fields = msgpack.unpackb(record, raw=False)
             if len(fields) == 2:
                 yield Sampled(str(fields[0]), int(fields[1]))
                 continue
             table, writer, sequence, payload = fields
-        except (ValueError, TypeError):  # msgpack's errors are ValueErrors
-            damage.records += 1
-            damage.bytes += _HEADER.size + length
+            found = Inserted(str(table), str(writer), int(sequence), decode(payload))
+        except (ValueError, TypeError) as error:  # msgpack's errors are ValueErrors
+            damage.skipped(start, _HEADER.size + length, str(error) or type(error).__name__)
             continue
-        yield table, writer, sequence, payload
+        yield found
 
 
 # ------------------------------------------------------------------ checkpoints
@@ -370,6 +396,16 @@ def remove_temporary_files(folder: Path) -> list[Path]:
 # -------------------------------------------------------------------- manifest
 
 
+def started_segment(folder: Path) -> int:
+    """The newest log segment a server started on this folder, as `tables.json` records
+    it (0 if it records none): every segment up to it existed."""
+    path = folder / MANIFEST
+    try:
+        return int(json.loads(path.read_text()).get("segment", 0))
+    except (OSError, ValueError, AttributeError):
+        return 0  # no manifest, or one read_manifest refuses with a reason
+
+
 def read_manifest(folder: Path) -> Optional[dict[str, Any]]:
     """The folder's `tables.json` ({table: {"signature": ..., "max_size": ...}}), or None."""
     path = folder / MANIFEST
@@ -385,11 +421,14 @@ def read_manifest(folder: Path) -> Optional[dict[str, Any]]:
         raise ValueError(f"{path} is unreadable ({error})") from None
 
 
-def write_manifest(folder: Path, tables: dict[str, Any]) -> None:
+def write_manifest(folder: Path, tables: dict[str, Any], *, segment: int) -> None:
+    """Writes `tables.json` atomically: the tables' layout and `segment`, the log segment
+    now started (a restart then knows it must find it)."""
     path = folder / MANIFEST
     tmp = folder / f".{MANIFEST}.tmp"
     try:
-        tmp.write_text(json.dumps({"format": FORMAT, "tables": tables}, indent=1))
+        manifest = {"format": FORMAT, "tables": tables, "segment": segment}
+        tmp.write_text(json.dumps(manifest, indent=1))
         os.replace(tmp, path)
         _fsync_dir(folder)
     except OSError:

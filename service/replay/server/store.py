@@ -62,7 +62,7 @@ class DurabilityStats:
     checkpoint_failures: int = 0
     log_append_failures: int = 0
     damaged_log_records: int = 0
-    """Log records skipped at start-up because their checksum failed."""
+    """Log records skipped at start-up: their checksum failed, or their batch did not decode."""
     damaged_checkpoints: int = 0
     """Checkpoints found unreadable at start-up (set aside as `*.damaged`)."""
     unlogged_samples: int = 0
@@ -125,8 +125,12 @@ class ReplayCore:
             segment = self._restore(folder)
         except ValueError as error:  # a manifest, checkpoint or logged batch that does not fit
             raise FolderUnusable(str(error)) from None
-        durability.write_manifest(folder, self._layout())
         self._wal = durability.WriteAheadLog(folder, segment, fsync=fsync)
+        try:  # once the segment exists: a restart that misses it knows data may be lost
+            durability.write_manifest(folder, self._layout(), segment=segment)
+        except BaseException:
+            self._wal.close()
+            raise
         for table in self.tables.values():  # after the restore: replaying logs nothing
             table.log_samples(self._log_samples)
 
@@ -242,7 +246,8 @@ class ReplayCore:
                     snapshots = {name: t.snapshot() for name, t in self.tables.items()}
                     acked = self.writers.snapshot()
                     segment = self._wal.rotate()
-                # Locks released: inserts and samples go on while the file is written.
+                # Locks released: inserts and samples go on while the files are written.
+                durability.write_manifest(self.checkpoint_dir, self._layout(), segment=segment)
                 path = durability.write_checkpoint(self.checkpoint_dir, snapshots, acked, segment)
             except (OSError, StorageError) as error:
                 self.durability.checkpoint_failures += 1
@@ -309,10 +314,14 @@ class ReplayCore:
         number of the log segment to start.
 
         A checkpoint that fails its checksums is set aside and the one before it used,
-        with the longer log after it: nothing acknowledged is lost on the way back.
+        with the longer log after it: nothing acknowledged is lost on the way back. Every
+        log segment from the base checkpoint's own up to the newest one known to have been
+        started (on disk, named by a checkpoint or by `tables.json`) must be there: a
+        missing one may have held acknowledged inserts, so that way back is not whole.
         """
         segments = durability.segment_numbers(folder)
         checkpoints = durability.checkpoint_numbers(folder)
+        newest = max([*segments, *checkpoints, durability.started_segment(folder)])
         damaged: list[Path] = []
         reasons: list[str] = []
         # The way back from an empty start is whole while the log reaches its first segment.
@@ -322,9 +331,13 @@ class ReplayCore:
             bases.append(None)
         for base in bases:
             first = base if base is not None else 1
-            missing = sorted(set(range(first, max(segments, default=0) + 1)) - set(segments))
+            missing = sorted(set(range(first, newest + 1)) - set(segments))
             if missing:
-                reasons.append(f"log segments {missing} after segment {first} are missing")
+                reasons.append(
+                    f"log segments {missing} of {first}..{newest} (from "
+                    f"{'checkpoint ' + str(base) if base is not None else 'the start'}) "
+                    "are missing"
+                )
                 continue
             found: Optional[durability.Checkpoint] = None
             if base is not None:
@@ -384,24 +397,25 @@ class ReplayCore:
         for number in segments:
             path = durability.segment_path(folder, number)
             damage = durability.LogDamage()
-            for record in durability.read_segment(path, damage):
+            for record in durability.read_segment(path, damage, decode_batch):
                 if isinstance(record, durability.Sampled):
                     if record.table in self.tables:
                         self.tables[record.table].stats.samples += record.items
                     continue
-                table, writer, sequence, payload = record
-                if table not in self.tables:
+                writer, sequence = record.writer, record.sequence
+                if record.table not in self.tables:
                     continue
                 if writer and sequence <= self.writers.acked(writer):
                     continue
-                self.tables[table].insert(decode_batch(payload), writer=writer, rate_limited=False)
+                self.tables[record.table].insert(record.batch, writer=writer, rate_limited=False)
                 if writer:
                     self.writers.ack(writer, sequence)
                 replayed += 1
             if damage.records:
                 log.warning(
-                    "%s: skipped %d damaged record(s) (%d bytes): their batches are lost, the "
-                    "records after them were read", path.name, damage.records, damage.bytes,
+                    "%s: skipped %d damaged record(s) (%d bytes), %s: their batches are lost, "
+                    "the records after them were read", path.name, damage.records, damage.bytes,
+                    "; ".join(damage.notes),
                 )  # fmt: skip
             if damage.torn_bytes:
                 log.info(

@@ -15,12 +15,14 @@ import urllib.request
 from pathlib import Path
 from typing import Optional
 
+import msgpack
 import numpy as np
 import pytest
 
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient, ReplayError
 from service.replay.codec import encode_batch
+from service.replay.server import durability
 from service.run.replay_host.process import EXIT_FOLDER_UNUSABLE, ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
@@ -161,6 +163,76 @@ def test_flipped_byte_in_one_log_record_loses_that_record_only(tmp_path, where):
         )  # fmt: skip
         assert client.stub.Insert(iter([request])).items_inserted == stored_items
     server.stop()
+
+
+def test_a_record_whose_checksum_holds_but_payload_does_not_decode_loses_that_record_only(
+    tmp_path,
+):
+    """A record that is not a batch is skipped like one that fails its checksum, and the
+    warning names the file and the offset of each."""
+    folder = tmp_path / "replay"
+    _kill_after_batches(folder, 3)
+    [segment] = [p for p in folder.glob("wal-*.log") if p.stat().st_size]
+    bad = msgpack.packb(["log", "w", 4, b"\xc1 not a batch"], use_bin_type=True)
+    at = segment.stat().st_size
+    with open(segment, "ab") as f:  # a fourth record, checksums and all, then a fifth good one
+        f.write(durability._framed(bad))
+        good = ["log", "w", 5, encode_batch(scalar_batch(range(50, 60)))]
+        f.write(durability._framed(msgpack.packb(good, use_bin_type=True)))
+
+    server = Started(table(max_size=10_000), folder)
+    try:
+        assert server.address is not None, server.log
+        stored = read_all(ReplayClient(server.address), "log")
+    finally:
+        server.stop()
+    np.testing.assert_array_equal(stored, np.r_[np.arange(30), np.arange(50, 60)])
+    assert f"{segment.name}: skipped 1 damaged record(s)" in server.log
+    assert f"at offset {at} (payload is not valid msgpack" in server.log
+
+
+# ---------------------------------------------------------------- missing log segments
+
+
+def _checkpoint_then_kill(folder: Path) -> Path:
+    """1000 items in a checkpoint, then 500 in the log after it; the server SIGKILLed.
+    Returns the log segment that holds the 500 (the newest non-empty one)."""
+    server = durable(folder, table(max_size=10_000))
+    client = ReplayClient(server.address, writer_id="w")
+    client.insert("log", scalar_batch(range(1000)))
+    client.checkpoint()
+    for i in range(5):
+        client.insert("log", scalar_batch(range(1000 + 100 * i, 1100 + 100 * i)))
+    server.kill()
+    server.stop()
+    return max(p for p in folder.glob("wal-*.log") if p.stat().st_size)
+
+
+def _restart_then_kill(folder: Path) -> Path:
+    """500 items logged, a SIGKILL, a restart (a new segment), 500 more, a SIGKILL; no
+    checkpoint. Returns the segment that holds the second 500 (the newest)."""
+    for start in (0, 500):
+        server = durable(folder, table(max_size=10_000))
+        ReplayClient(server.address).insert("log", scalar_batch(range(start, start + 500)))
+        server.kill()
+        server.stop()
+    return max(p for p in folder.glob("wal-*.log") if p.stat().st_size)
+
+
+@pytest.mark.parametrize("fill", [_checkpoint_then_kill, _restart_then_kill])
+def test_a_deleted_newest_log_segment_is_refused_not_skipped(tmp_path, fill):
+    """Acknowledged inserts in the newest segment: with that segment gone the folder has
+    no way back whole, and the server refuses to start naming it, as for any missing
+    segment, instead of serving the items before it as if nothing were lost."""
+    folder = tmp_path / "replay"
+    newest = fill(folder)
+    newest.unlink()
+    server = Started(table(max_size=10_000), folder)
+    server.stop()
+    assert server.address is None, "the server started without the acknowledged 500 items"
+    assert server.process.returncode == EXIT_FOLDER_UNUSABLE
+    assert f"log segments [{durability._number(newest)}]" in server.log
+    assert "are missing" in server.log and "Traceback" not in server.log
 
 
 # ---------------------------------------------------------------- damaged checkpoints

@@ -1,0 +1,80 @@
+"""The chaos benchmark's refusals: 10,000 refused requests of each kind a replay server
+refuses, most carrying a 1 MiB field, against one server process; its RSS before and after.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import grpc
+from procfs import rss_mib  # bench/, beside this script
+
+from service.replay._proto import replay_pb2, replay_pb2_grpc
+from service.run.replay_host.process import ReplayProcess
+
+MIB = "n" * 2**20
+SIGNATURE = {"x": {"dtype": "int64", "shape": []}}
+
+Refusal = Callable[[replay_pb2_grpc.ReplayServiceStub], Any]
+
+REFUSALS: dict[str, Refusal] = {
+    "Insert, 1 MiB table name": lambda s: s.Insert(iter([replay_pb2.InsertRequest(table=MIB)])),
+    "Insert, 1 MiB writer id": lambda s: s.Insert(
+        iter([replay_pb2.InsertRequest(table="t", writer_id=MIB, sequence=1)])
+    ),
+    "Insert, 1 MiB payload, not msgpack": lambda s: s.Insert(
+        iter([replay_pb2.InsertRequest(table="t", batch=b"\xc1" * 2**20)])
+    ),
+    "Insert, unknown table": lambda s: s.Insert(iter([replay_pb2.InsertRequest(table="u")])),
+    "Sample, 1 MiB table name": lambda s: list(
+        s.Sample(iter([replay_pb2.SampleRequest(table=MIB, batch_size=1)]))
+    ),
+    "Sample, batch_size over the message limit": lambda s: list(
+        s.Sample(iter([replay_pb2.SampleRequest(table="t", batch_size=2**31 - 1)]))
+    ),
+    "UpdatePriorities, 1 MiB table name": lambda s: s.UpdatePriorities(
+        replay_pb2.UpdatePrioritiesRequest(table=MIB)
+    ),
+}
+
+
+def _send(address: str, refuse: Refusal, n: int, *, threads: int = 4) -> set[str]:
+    """Sends `n` copies of one refused request over `threads` channels; the status codes."""
+    codes: set[str] = set()
+
+    def run(count: int) -> None:
+        with grpc.insecure_channel(address) as channel:
+            stub = replay_pb2_grpc.ReplayServiceStub(channel)
+            for _ in range(count):
+                try:
+                    refuse(stub)
+                    codes.add("OK")
+                except grpc.RpcError as error:
+                    codes.add(error.code().name)
+
+    workers = [threading.Thread(target=run, args=(n // threads,)) for _ in range(threads)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    return codes
+
+
+def refused_requests(n: int, *, warm_up: int = 200) -> dict[str, Any]:
+    """`n` refused requests of each kind in REFUSALS, after `warm_up` of each (the
+    allocator's arenas and gRPC's buffers reach their working size); RSS per kind."""
+    tables = [{"name": "t", "max_size": 1000, "signature": SIGNATURE}]
+    with ReplayProcess(tables) as server:
+        pid = server.process.pid
+        started = rss_mib(pid)
+        for refuse in REFUSALS.values():
+            _send(server.address, refuse, warm_up)
+        warm = rss_mib(pid)
+        kinds = []
+        for name, refuse in REFUSALS.items():
+            before = rss_mib(pid)
+            codes = _send(server.address, refuse, n)
+            kinds.append({"kind": name, "codes": sorted(codes), "rss": (before, rss_mib(pid))})
+        return {"n": n, "started": started, "warm": warm, "end": rss_mib(pid), "kinds": kinds}
