@@ -82,11 +82,7 @@ def test_samples_the_simulator_lacks_are_refused_by_name(
 
 
 def test_default_frame_limit_covers_every_sample() -> None:
-    biggest = max(
-        int(w) * int(h)
-        for p in SAMPLES.glob("*.xml")
-        for w, h in _sizes(p.read_text())
-    )
+    biggest = max(int(w) * int(h) for p in SAMPLES.glob("*.xml") for w, h in _sizes(p.read_text()))
     assert biggest == 800 * 600 <= DEFAULT_LIMITS.max_frame_pixels
 
 
