@@ -4,6 +4,7 @@ a short episode). Run standalone with ``python -m actors.minecraft.cli minecraft
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import signal
 import sys
@@ -14,16 +15,17 @@ import numpy as np
 
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.sim.limits import DEFAULT_LIMITS, Limits
-from actors.minecraft.sim.timing import IDEAL, WAIT_S, Timing
+from actors.minecraft.sim.timing import IDEAL, JOIN_S, WAIT_S, Timing
 
 
 def _timing(args: argparse.Namespace) -> Timing:
-    if args.ideal:
-        return IDEAL
     try:
+        if args.ideal:
+            return dataclasses.replace(IDEAL, join_s=args.join_s)
         return Timing(
-            loading_s=args.loading_s, ending_s=args.ending_s, fps=args.fps, wait_s=args.wait_s
-        )
+            loading_s=args.loading_s, ending_s=args.ending_s, fps=args.fps, wait_s=args.wait_s,
+            join_s=args.join_s,
+        )  # fmt: skip
     except ValueError as e:
         raise SystemExit(f"graft minecraft serve: {e}") from None
 
@@ -167,6 +169,13 @@ def add_minecraft_commands(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         default=WAIT_S,
         help="longest wait of a Peek or step for a frame (Malmo: 3 s)",
+    )
+    serve.add_argument(
+        "--join-s",
+        type=float,
+        default=JOIN_S,
+        help="seconds a multi-agent mission waits for its other roles before it ends "
+        "(Malmo: 2,000 client ticks, 100 s)",
     )
     d = DEFAULT_LIMITS
     limit_flags: list[tuple[str, type, object, str]] = [

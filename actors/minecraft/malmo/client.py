@@ -17,8 +17,9 @@ What it tolerates, as Malmo's own ``malmoenv`` client does where Malmo documents
 
 * a MissionInit answered 0: Malmo is still ending the previous mission or loading (it
   asks a running one to quit); retried with exponential backoff for ``mission_timeout``
-  seconds, then ``MissionRefused`` with the server's reason when it gave one (graft's
-  simulator says ``busy: ...`` or ``error: ...``; an ``error`` is not retried);
+  seconds, then ``MissionRefused`` (Malmo gives no reason); a mission graft's simulator
+  will never run is answered with one ``error: ...`` message instead, raised at once as
+  ``MissionRefused``;
 * Peek returning an empty frame while the world loads: ``reset()`` peeks until the
   first real frame (``first_frame_timeout``);
 * a step answered sent = 0 (no frame yet, not our turn): resent until accepted
@@ -282,7 +283,10 @@ class MalmoClient:
         delay = 0.05
         while True:
             sock = self._call(xml, token)
-            ok = P.unpack_int(P.recv(sock))
+            first = P.recv(sock)
+            if first.startswith(b"error: "):  # graft's simulator: it will never run this
+                raise MissionRefused(first.decode("utf-8", "replace"))
+            ok = P.unpack_int(first)
             reply = "" if self.synchronous else P.recv(sock).decode("utf-8", "replace")
             if ok == 1:
                 # Malmo's initial turn key is empty. A turn-based agent must not step
@@ -293,15 +297,13 @@ class MalmoClient:
                 self.last_info = {}
                 return
             self.busy_replies += 1
-            if reply.startswith("error:"):
-                raise MissionRefused(reply)
             waited = time.monotonic() - t0
             if waited > self.mission_timeout:
-                why = reply or (
-                    "Malmo gives no reason: still ending or loading a mission, or "
-                    "a mission it cannot run"
+                raise MissionRefused(
+                    f"MissionInit answered 0 for {waited:.0f} s; Malmo gives no reason: "
+                    "still ending or loading a mission, or a mission it cannot run (graft's "
+                    "simulator names it in <Status/>'s last_refusal)"
                 )
-                raise MissionRefused(f"MissionInit answered 0 for {waited:.0f} s: {why}")
             time.sleep(delay)
             delay = min(delay * 2, self.max_backoff)
 

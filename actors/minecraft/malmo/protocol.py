@@ -36,7 +36,8 @@ DEFAULT_PORT = 9000
 _LEN = struct.Struct("!I")
 _INT = struct.Struct("!i")
 _STEP_RECORD = struct.Struct("!dbb")
-_STEP_RE = re.compile(r"<Step([0-3])>(.*)</Step\1\s*>\s*$", re.DOTALL)
+_STEP_RE = re.compile(r"<Step([0-9])>(.*)</Step[0-9]?\s*>\Z", re.DOTALL)
+_STEP_CUT = len("</Step0 >")  # what Malmo's server cuts off the end of a step message
 _STEP_CLIENT_RE = re.compile(r"<StepClient([0-3])>(.*)</StepClient\1\s*>\s*$", re.DOTALL)
 STEP_SERVER = b"<StepServer></StepServer>"
 
@@ -123,7 +124,8 @@ def unpack_step_record(payload: bytes) -> tuple[float, bool, bool]:
 
 
 def step_flags(options: int) -> tuple[bool, bool]:
-    """(with_turn_key, with_info) for Step option 0..3, as Malmo defines them."""
+    """(with_turn_key, with_info) for Step option 0..9, as Malmo defines them (4..9 are
+    read as 3 would be: neither)."""
     return options < 2, options in (0, 2)
 
 
@@ -141,14 +143,24 @@ def parse_step(message: str) -> tuple[int, list[str]]:
     """Split a ``<StepN>`` or ``<StepClientN>`` request into its option and commands (one
     per line).
 
+    A ``<StepN>``'s commands are what Malmo's server takes: everything between the
+    opening tag and the last 9 characters (``</StepN >``, with Malmo's space), so a
+    closing tag without the space costs the commands their last character.
+
     Raises:
         ProtocolError: the message is not a well-formed step.
     """
-    m = (_STEP_CLIENT_RE if message.startswith("<StepClient") else _STEP_RE).match(message)
+    client = message.startswith("<StepClient")
+    m = (_STEP_CLIENT_RE if client else _STEP_RE).match(message)
     if m is None:
         raise ProtocolError(f"malformed step message {message[:80]!r}")
-    body = m.group(2)
+    body = m.group(2) if client else message[len("<Step0>") : len(message) - _STEP_CUT]
     return int(m.group(1)), [c.strip() for c in body.split("\n") if c.strip()]
+
+
+def step_is_cut(message: str) -> bool:
+    """Malmo's server cuts into this ``<StepN>``'s commands (no space before ``>``)."""
+    return not message.endswith(" >")
 
 
 def tag_body(message: str, tag: str) -> str:

@@ -130,7 +130,8 @@ class Instance:
 
     def poll_phase(self, now: float) -> None:
         """Move loading -> running when loaded (and every agent is), and end the mission
-        when its session ended for another agent (call under ``cond``)."""
+        when its session ended for another agent, or when it waits for agents that will
+        not come (call under ``cond``)."""
         if self.phase == LOADING and now >= self.loaded_at and self.session is not None:
             if self.session.loaded(self.role):
                 self.phase, self.run_t0 = RUNNING, now
@@ -138,14 +139,35 @@ class Instance:
                 if self.quit:
                     self._end("quit")
                 self.cond.notify_all()
+            else:
+                self._give_up_waiting(now)
         if self.phase == RUNNING and self.session is not None:
             reason = self.session.end_reason
             if reason is not None:
                 self._end(reason)
 
+    def _give_up_waiting(self, now: float) -> None:
+        # Loaded, waiting for the other agents: a quit (role 0's connection closed, or
+        # Malmo's MALMOBUSY) or another agent's end ends the mission at once, and it ends
+        # after join_s whatever happens (Malmo's client waits 2,000 ticks). Otherwise one
+        # client that leaves a multi-agent mission would hold this instance for good.
+        assert self.session is not None
+        reason = self.session.end_reason
+        if reason is None and self.quit:
+            reason = "quit while waiting for the other agents to join"
+        if reason is None and now >= self.loaded_at + self.timing.join_s:
+            reason = f"the other agents did not join within {self.timing.join_s:g} s (--join-s)"
+        if reason is not None:
+            self._end(reason)
+
     def _end(self, reason: str) -> None:
         assert self.world is not None
         self.world.end(reason)
+        if self.phase == LOADING and self.role == 0 and self.session is not None:
+            # Never started: the other roles' tokens go too, so a late <Find> answers 0.
+            sess = self.session
+            for i in range(1, sess.agent_count):
+                self.tokens.pop(f"{sess.exp_uid}:{i}:{sess.reset}", None)
         self.phase, self.ended_at = ENDED, time.monotonic()
         self.tokens.pop(self.token, None)
         if self.session is not None:

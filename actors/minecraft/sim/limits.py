@@ -19,7 +19,8 @@ class Limits:
     """A world server's caps on what one client may cost it.
 
     Attributes:
-        max_frame_pixels: VideoProducer Width × Height (640×480 by default).
+        max_frame_pixels: VideoProducer Width × Height (800×600 by default, the largest of
+            Malmo's sample missions: a 1.4 MB RGB frame, 1.9 MB with depth).
         max_grid_cells: ObservationFromGrid cells summed over a mission's grids (each
             cell is a block name in every observation's JSON).
         max_message_bytes: the longest request message (MissionInit XML included); a
@@ -29,7 +30,7 @@ class Limits:
             error and closed (a mission it owns is quit).
     """
 
-    max_frame_pixels: int = 640 * 480
+    max_frame_pixels: int = 800 * 600
     max_grid_cells: int = 100_000
     max_message_bytes: int = 4 * 1024 * 1024
     max_connections: int = 64

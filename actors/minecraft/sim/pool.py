@@ -66,10 +66,11 @@ def wait_ready(host: str, port: int, timeout: float = 30.0) -> None:
 def timing_flags(timing: Timing) -> list[str]:
     """The ``minecraft serve`` flags that give a server ``timing``."""
     if timing.ideal:
-        return ["--ideal"]
+        return ["--ideal", "--join-s", str(timing.join_s)]
     return [
         "--loading-s", str(timing.loading_s), "--ending-s", str(timing.ending_s),
         "--fps", str(timing.fps), "--wait-s", str(timing.wait_s),
+        "--join-s", str(timing.join_s),
     ]  # fmt: skip
 
 

@@ -14,7 +14,10 @@ Protocol errors (bad hello, oversized or unknown messages, the other dialect's s
 close that one connection with a logged reason, as Malmo does, after an ``error: ...``
 message saying why; the server keeps serving. What one client may cost the server
 (frame size, grid volume, message size, connections, idle time) is capped by
-``limits.Limits``. A mission the simulator raises on ends with an ``error: ...`` reason
+``limits.Limits``. MissionInit is answered as Malmo does (ok and an empty turn key;
+0 while busy, the reason in the log and ``<Status/>``), except that a mission this
+server will never run (invalid, unsupported, over a limit) gets one ``error: ...``
+message in place of the ok int. A mission the simulator raises on ends with an ``error: ...`` reason
 (``<Status/>``'s ``end_reason``); the instance runs the next mission as usual.
 """
 
@@ -71,6 +74,7 @@ class WorldServer:
         self.protocol_errors = 0
         self.busy_replies = 0
         self.refused_connections = 0
+        self.last_refusal = ""  # why the last MissionInit was answered 0 or refused
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> int:
@@ -298,6 +302,7 @@ class WorldServer:
                 "missions_started": inst.missions_started,
                 "missions_failed": inst.missions_failed,
                 "busy_replies": self.busy_replies,
+                "last_refusal": self.last_refusal,
                 "connections": len(self._conns),
                 "refused_connections": self.refused_connections,
             }
@@ -305,31 +310,32 @@ class WorldServer:
     # ------------------------------------------------------------ mission init
     def _mission_init(self, cid: int, conn: socket.socket, xml: str) -> None:
         token_text = self._recv(conn).decode("utf-8", "replace")
+        minerl = len(token_text.split(":")) > 4  # MineRL's 5th field: ok alone
         try:
             token = P.Token.parse(token_text)
-        except (P.ProtocolError, ValueError) as e:
-            self._reply_init(conn, False, f"error: {e}", minerl=len(token_text.split(":")) > 4)
-            return
-        try:
             ok, reason = self._missions.start(cid, token, xml)
-            if not ok:
-                self.busy_replies += 1
-        except MissionError as e:
-            log.warning("refusing mission: %s", e)
+        except (P.ProtocolError, ValueError, MissionError) as e:
             ok, reason = False, f"error: {e}"
         except Exception as e:  # the simulator failed on this mission: refuse it alone
             log.error("refusing mission: the simulator failed: %s", e, exc_info=e)
             ok, reason = False, f"error: the simulator failed: {type(e).__name__}: {e}"
-        self._reply_init(conn, ok, reason, minerl=token.minerl)
-
-    @staticmethod
-    def _reply_init(conn: socket.socket, ok: bool, reason: str, *, minerl: bool) -> None:
-        # Malmo replies ok and an empty turn key (graft puts a refusal's reason there);
-        # MineRL replies ok alone.
-        if minerl:
-            P.send(conn, P.pack_int(1 if ok else 0))
-        else:
-            P.send(conn, P.pack_int(1 if ok else 0), (reason if not ok else "").encode())
+        if ok:
+            # Malmo: ok and an empty turn key (its initial key is a TODO); MineRL: ok alone.
+            P.send(conn, P.pack_int(1), *([] if minerl else [b""]))
+            return
+        self.last_refusal = reason
+        if reason.startswith("error: "):
+            # A mission this server will never run. Malmo answers 0 as if busy, and
+            # malmoenv retries that for ever; one error message in place of the ok int
+            # makes malmoenv's init raise and names the reason to graft's client.
+            log.warning("refusing mission: %s", reason)
+            P.send(conn, reason.encode())
+            return
+        # Busy: Malmo's reply exactly (0 and an empty turn key); the reason is logged and
+        # in <Status/>.
+        self.busy_replies += 1
+        log.info("answering MissionInit 0: %s", reason)
+        P.send(conn, P.pack_int(0), *([] if minerl else [b""]))
 
     # ------------------------------------------------------------------ steps
     def _step(self, conn: socket.socket, msg: str) -> None:
@@ -338,6 +344,9 @@ class WorldServer:
                 "MineRL's server has no <StepN>: send <StepClientN>, <StepServer>"
             )
         options, commands = P.parse_step(msg)
+        if P.step_is_cut(msg):
+            log.warning("%r has no space before its last '>': as Malmo does, its commands "
+                        "lose their last character", msg[-40:])  # fmt: skip
         with_key, with_info = P.step_flags(options)
         step_key = P.recv(conn, 4096).decode("utf-8", "replace") if with_key else ""
         with self.inst.cond:

@@ -9,6 +9,9 @@ Real (what ``launchClient.sh -env`` does, read from Malmo's ``MalmoEnvServer.jav
 * a new mission loads for ``loading_s`` before its first frame and tick; a Peek or step
   meanwhile waits up to ``wait_s`` and gets an empty frame (sent = 0);
 * an ended mission takes ``ending_s`` before the instance is free again;
+* a multi-agent mission whose other roles have not all joined ``join_s`` after role 0
+  loaded ends (Malmo's client gives up after 2,000 client ticks, about 100 s); it ends
+  at once when role 0's connection closes while it waits;
 * frames come at ``fps`` whatever the tick rate; a step takes the newest frame (waiting
   for the next one if it already took it), and its info is empty when no tick produced
   an observation since the last step;
@@ -25,6 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 WAIT_S = 3.0  # Malmo's COND_WAIT_SECONDS
+JOIN_S = 100.0  # Malmo's ClientStateMachine waits 2,000 client ticks of 50 ms for the others
 
 
 @dataclass(frozen=True)
@@ -37,6 +41,8 @@ class Timing:
         ending_s: seconds from a mission's end until a new MissionInit is accepted.
         fps: frames per second while a mission runs (independent of the tick rate).
         wait_s: the longest a Peek or step waits for a frame or an observation.
+        join_s: seconds a multi-agent mission waits, once role 0 has loaded, for the
+            other roles to join and load before it ends (either timing).
     """
 
     ideal: bool = False
@@ -44,9 +50,10 @@ class Timing:
     ending_s: float = 0.5
     fps: float = 60.0
     wait_s: float = WAIT_S
+    join_s: float = JOIN_S
 
     def __post_init__(self) -> None:
-        for name in ("loading_s", "ending_s", "wait_s"):
+        for name in ("loading_s", "ending_s", "wait_s", "join_s"):
             v = getattr(self, name)
             if not v >= 0.0:
                 raise ValueError(f"Timing.{name} must be >= 0 seconds, got {v}")

@@ -77,10 +77,19 @@ def status(port: int) -> dict[str, Any]:
         return dict(json.loads(P.recv(s)))
 
 
+def init_reply(s: socket.socket, *, minerl: bool = False) -> tuple[int, str]:
+    """A MissionInit's reply: (ok, the turn key), or (0, ``error: ...``) for a mission
+    the server will never run (one message in place of the ok int)."""
+    first = P.recv(s)
+    if first.startswith(b"error: "):
+        return 0, first.decode()
+    return P.unpack_int(first), "" if minerl else P.recv(s).decode()
+
+
 def mission_init(s: socket.socket, xml: str, token: str = "exp:0:1:1") -> tuple[int, str]:
-    """Malmo's MissionInit on ``s``: (ok, the turn key or the refusal's reason)."""
+    """MissionInit on ``s``: (ok, the turn key or the refusal's ``error: ...``)."""
     P.send(s, P.mission_init_xml(xml, "exp").encode(), token.encode())
-    return P.unpack_int(P.recv(s)), P.recv(s).decode()
+    return init_reply(s, minerl=len(token.split(":")) > 4)
 
 
 @pytest.fixture

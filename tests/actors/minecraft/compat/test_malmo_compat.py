@@ -29,6 +29,7 @@ from actors.minecraft.malmo.client import MalmoClient, MissionRefused
 from actors.minecraft.sim.pool import free_port_block, wait_ready
 from actors.minecraft.sim.server import WorldServer
 from actors.minecraft.sim.timing import Timing
+from tests.actors.minecraft.conftest import init_reply
 
 MISSIONS = Path(__file__).with_name("missions")
 WALK = (MISSIONS / "walk.xml").read_text()
@@ -61,7 +62,7 @@ def _connect(port: int) -> socket.socket:
 
 def _init(s: socket.socket, xml: str, token: str) -> tuple[int, str]:
     P.send(s, P.mission_init_xml(xml, token.split(":")[0]).encode(), token.encode())
-    return P.unpack_int(P.recv(s)), P.recv(s).decode()
+    return init_reply(s)
 
 
 # ------------------------------------------------------------------ the raw replies
@@ -81,8 +82,9 @@ def test_loading_gives_empty_frames_and_unsent_steps() -> None:
 def test_busy_while_running_and_while_ending(server: WorldServer) -> None:
     with _connect(server.port) as a, _connect(server.port) as b:
         assert _init(a, WALK, "a:0:1:1")[0] == 1
-        ok, reason = _init(b, WALK, "b:0:1:1")
-        assert ok == 0 and reason.startswith("busy: a mission is")  # loading or running
+        # Malmo's busy reply: 0 and an empty turn key; graft's <Status/> says why.
+        assert _init(b, WALK, "b:0:1:1") == (0, "")
+        assert server.status()["last_refusal"].startswith("busy: a mission is")
         # Malmo's MALMOBUSY asks the running mission to quit: it ends once loaded ...
         for _ in range(200):
             P.send(a, b"<Peek/>")
@@ -92,8 +94,8 @@ def test_busy_while_running_and_while_ending(server: WorldServer) -> None:
         else:
             raise AssertionError("the busy reply did not end the running mission")
         # ... and the Minecraft stays busy while the mission ends.
-        ok, reason = _init(b, WALK, "b:0:1:1")
-        assert ok == 0 and reason.startswith("busy: the previous mission is still ending")
+        assert _init(b, WALK, "b:0:1:1") == (0, "")
+        assert server.status()["last_refusal"].startswith("busy: the previous mission is")
     assert server.status()["busy_replies"] == 2
 
 
@@ -166,14 +168,14 @@ def test_graft_client_names_the_missing_video_producer(server: WorldServer) -> N
         _malmoenv().make().init(NO_VIDEO, server.port)
 
 
-def test_graft_client_gives_up_on_a_busy_minecraft_with_the_reason() -> None:
+def test_graft_client_gives_up_on_a_busy_minecraft() -> None:
     with WorldServer(port=0, timing=Timing(loading_s=30.0, wait_s=0.15)) as server:
         with _connect(server.port) as s:
             assert _init(s, WALK, "other:0:1:1")[0] == 1  # loads for 30 s
             c = MalmoClient("127.0.0.1", server.port, timeout=10, mission_timeout=0.5)
             c.init(WALK)
-            # A real Malmo answers 0 without a reason; graft's simulator says why.
-            with pytest.raises(MissionRefused, match="answered 0 for .*busy: a mission is"):
+            # Malmo answers 0 without a reason; graft's simulator says why in <Status/>.
+            with pytest.raises(MissionRefused, match="answered 0 for .*last_refusal"):
                 c.reset()
             assert c.busy_replies >= 2  # retried with backoff before giving up
             c.close()
