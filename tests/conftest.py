@@ -15,11 +15,14 @@ import os
 import site
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import ray
+import torch
 
 from service.replay.client import ReplayClient
 from service.run.replay_host.process import ReplayProcess
@@ -54,6 +57,9 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         importlib.invalidate_caches()
 
 
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    torch.set_num_threads(1)  # several workers share the cores: one torch thread each
+
 SERVICE_FIXTURES = {"ray_local", "replay_server", "replay_client"}
 """Fixtures that start Ray or a server process: their tests are ``service`` tests."""
 QUICK = os.environ.get("GRAFT_TEST_FAST") == "1"
@@ -77,22 +83,33 @@ class NotInTheFastSubset(RuntimeError):
     """A test of the quick subset started Ray or a process: mark it ``service``."""
 
 
-@pytest.fixture(autouse=True)
-def _quick_subset_starts_nothing(request: pytest.FixtureRequest, monkeypatch) -> None:
-    """Under ``GRAFT_TEST_FAST=1``, refuses Ray and subprocesses in unmarked tests."""
-    if not QUICK or request.node.get_closest_marker("service"):
+_running: list[pytest.Item] = []
+"""The test being set up, run or torn down (its fixtures included)."""
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    _running[:] = [item]
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under ``GRAFT_TEST_FAST=1``, Ray and subprocesses are refused in unmarked tests,
+    from the first fixture a test sets up (module-scoped ones too) to its teardown."""
+    if not QUICK:
         return
+    popen_init, ray_init = subprocess.Popen.__init__, ray.init
 
-    def refuse(what: str):
-        def refused(*args, **kwargs):
-            raise NotInTheFastSubset(
-                f"{request.node.nodeid} starts {what}: mark it @pytest.mark.service"
-            )
+    def guarded(what: str, start: Callable[..., Any]) -> Callable[..., Any]:
+        def checked(*args: Any, **kwargs: Any) -> Any:
+            if _running and not _running[0].get_closest_marker("service"):
+                raise NotInTheFastSubset(
+                    f"{_running[0].nodeid} starts {what}: mark it @pytest.mark.service"
+                )
+            return start(*args, **kwargs)
 
-        return refused
+        return checked
 
-    monkeypatch.setattr(subprocess.Popen, "__init__", refuse("a subprocess"))
-    monkeypatch.setattr(ray, "init", refuse("Ray"))
+    subprocess.Popen.__init__ = guarded("a subprocess", popen_init)  # type: ignore[method-assign]
+    ray.init = guarded("Ray", ray_init)
 
 
 PENDULUM_SIGNATURE = {

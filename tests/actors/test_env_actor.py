@@ -164,6 +164,7 @@ def test_actor_reconnects_after_world_server_restart(ray_local, replay) -> None:
     ray.kill(broadcaster)
 
 
+@pytest.mark.service
 def test_a_slow_actor_meters_the_ticks_it_skipped(world) -> None:
     stepper = VectorStepper(EnvSpec(ENV_ID, env_kwargs(world.ports[0])), 1, 0)
     for _ in range(15):
@@ -262,6 +263,7 @@ def pooled_mission(*, max_episode_steps: int) -> gym.Env:
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_asynchronous_clients_skip_no_ticks_where_lock_step_ones_wait_for_each_other() -> None:
     """Four real-time clients (real Malmo timing: 20 ticks/s, 60 frames/s, a mission loads
     for a second) with short episodes. In lock-step each step waits for every client's

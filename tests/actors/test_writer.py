@@ -35,6 +35,7 @@ def test_max_pending_zero_returns_once_stored(replay_client: ReplayClient) -> No
     writer.close()
 
 
+@pytest.mark.service
 def test_a_rate_limiter_holding_inserts_holds_the_actor_back() -> None:
     # One sample per inserted item, 4 items before sampling, slack 1: two batches of 4 go
     # in, the third waits until the learner has sampled 3 more items.

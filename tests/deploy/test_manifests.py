@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+import pytest
 import yaml
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
@@ -37,6 +38,7 @@ def test_kuberay_rayjob_mounts_the_token_secret_on_every_pod() -> None:
     assert spec["headGroupSpec"]["rayStartParams"]["num-cpus"] == "0"
 
 
+@pytest.mark.service
 def test_the_node_script_refuses_a_missing_role_in_one_line() -> None:
     result = subprocess.run(
         ["bash", str(DEPLOY / "ray-node.sh")], capture_output=True, text=True, check=False

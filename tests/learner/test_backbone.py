@@ -171,15 +171,16 @@ def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_ac
         "pendulum-backbone",
         env_steps=3000,
         learning_starts=2000,
-        **{"td3.burn_in_updates": 500, "td3.frozen_actor_updates": 500},
+        **{"td3.burn_in_updates": 50, "td3.frozen_actor_updates": 50},
+        **{"td3.hidden_sizes": [32, 32]},
     )
     builder = make_builder(config)
     (phase,) = builder.phases()
-    # 1,000 online updates (3,000 - 2,000 steps at 1 per step) plus the 500 of the burn-in,
-    # which the rate limiter lets the learner draw at min_size: 500 batches of 256 items.
-    assert phase.updates == 1500
+    # 1,000 online updates (3,000 - 2,000 steps at 1 per step) plus the 50 of the burn-in,
+    # which the rate limiter lets the learner draw at min_size: 50 batches of 256 items.
+    assert phase.updates == 1050
     assert phase.min_size == 2000
-    assert phase.sample_credit == 500 * 256
+    assert phase.sample_credit == 50 * 256
     learner = builder.make_learner()
     before = [p.clone() for p in learner.actor.parameters()]
     batch = {
@@ -191,7 +192,7 @@ def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_ac
         "terminated": torch.zeros(256, dtype=torch.bool),
         "next_obs": torch.zeros(256, 3),
     }
-    for _ in range(500):
+    for _ in range(50):
         learner.update(batch)
     assert learner.num_actor_updates == 0  # the correction is still exactly zero
     assert all(torch.equal(a, b) for a, b in zip(before, learner.actor.parameters(), strict=True))

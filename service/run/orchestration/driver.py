@@ -13,6 +13,7 @@ import dataclasses
 import json
 import secrets
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -103,6 +104,8 @@ def train_here(
     (run_dir / "config.yaml").write_text(config_record(config, hardware=hardware))
     if checkpoint is not None:
         print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
+    if config.learner.device == "auto":  # said once every check passed; stdout stays clean
+        print(f"learner.device=auto picked {device} ({device_name(device)})", file=sys.stderr)
     started_ray = connect_ray(address)
     actors: Optional[ActorFleet] = None
     replay: Optional[RunReplay] = None

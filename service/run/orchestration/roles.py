@@ -3,7 +3,6 @@ the phases, and the settings they run with."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Any, Optional
 
@@ -12,7 +11,7 @@ import torch
 
 from actors.env_actor import Segment
 from learner.agent import Phase
-from learner.device import CompileMode, device_name, resolve_compile, resolve_device
+from learner.device import CompileMode, resolve_compile, resolve_device
 from service.run.config import TrainConfig
 from service.run.orchestration.preflight import check_task
 from service.run.orchestration.tables import signature_of
@@ -92,8 +91,7 @@ def probe(config: TrainConfig) -> tuple[Any, Any, dict[str, Any]]:
 
 
 def learner_device(config: TrainConfig) -> tuple[torch.device, CompileMode]:
-    """The device and compile mode the preset's ``learner`` section means here; ``auto``
-    says in one line what it picked.
+    """The device and compile mode the preset's ``learner`` section means here.
 
     Raises:
         ConfigError: a CUDA device this process does not see, or CUDA graphs without one.
@@ -103,7 +101,4 @@ def learner_device(config: TrainConfig) -> tuple[torch.device, CompileMode]:
         compile_mode = resolve_compile(config.learner.compile, device)
     except ValueError as e:
         raise ConfigError(str(e)) from None
-    if config.learner.device == "auto":
-        # On stderr, beside the progress bar: stdout stays the commands' own output.
-        print(f"learner.device=auto picked {device} ({device_name(device)})", file=sys.stderr)
     return device, compile_mode

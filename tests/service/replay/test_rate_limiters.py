@@ -112,6 +112,7 @@ def test_ratio_holds_under_concurrent_writers_and_sampler():
     assert worst[0] <= 40 + max(10 * 2, 20)
 
 
+@pytest.mark.service
 def test_ratio_holds_over_grpc_with_concurrent_clients():
     """A real server process: 4 writer clients and a sampling client, ratio 2 ± 40."""
     from service.replay.client import ReplayClient

@@ -21,6 +21,8 @@ from service.replay.codec import encode_batch
 from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
+pytestmark = pytest.mark.service  # a real server process per module
+
 TABLE = [{"name": "t", "max_size": 1000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]
 EXAMPLES_PER_STRATEGY = 2_600  # four strategies: 10,400 payloads in all
 

@@ -81,6 +81,7 @@ def let_the_server_take_in(client: ReplayClient) -> None:
 # ------------------------------------------------------------------ 1. exactly-once
 
 
+@pytest.mark.service
 def test_same_batch_on_two_streams_while_waiting_is_stored_once(tmp_path):
     """(writer, sequence) in flight on two streams at once, both waiting on the rate
     limiter: once the limiter admits inserts, the batch is stored once, and stays once
@@ -103,6 +104,7 @@ def test_same_batch_on_two_streams_while_waiting_is_stored_once(tmp_path):
         assert table_figures(ReplayClient(server.address)) == (6, 6)
 
 
+@pytest.mark.service
 def test_batch_resent_after_a_dropped_connection_is_stored_once(tmp_path):
     """A writer's batch waits on the rate limiter; its connection drops and it resends
     the batch on a new one. The dropped call must not store it as well."""
@@ -127,6 +129,7 @@ def test_batch_resent_after_a_dropped_connection_is_stored_once(tmp_path):
         assert table_figures(ReplayClient(server.address)) == (6, 6)
 
 
+@pytest.mark.service
 def test_a_call_that_timed_out_waiting_stores_nothing():
     with ReplayProcess([RATIO_TABLE]) as server:
         client = ReplayClient(server.address, max_retries=0)
@@ -146,6 +149,7 @@ def test_a_call_that_timed_out_waiting_stores_nothing():
 # ------------------------------------------------------------------ 2. no starvation
 
 
+@pytest.mark.service
 def test_idle_and_paused_sample_streams_starve_no_insert_or_health_check():
     """64 open sample streams, half waiting on an empty table's rate limiter and half
     paused learners that stopped reading, while 16 writers insert: every insert, Info
@@ -224,6 +228,7 @@ def second_server(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr)
 
 
+@pytest.mark.service
 def test_a_second_server_on_the_same_port_exits_with_one_line(tmp_path):
     port = free_port()
     with ReplayProcess(TABLE, port=port) as first:
@@ -235,6 +240,7 @@ def test_a_second_server_on_the_same_port_exits_with_one_line(tmp_path):
         assert table_figures(ReplayClient(first.address)) == (3, 3)
 
 
+@pytest.mark.service
 def test_a_second_server_on_the_same_checkpoint_folder_exits_with_one_line(tmp_path):
     folder = tmp_path / "state"
     with ReplayProcess(TABLE, extra_args=["--checkpoint-dir", str(folder)]) as first:
@@ -250,6 +256,7 @@ def test_a_second_server_on_the_same_checkpoint_folder_exits_with_one_line(tmp_p
         assert table_figures(ReplayClient(again.address)) == (5, 5)  # the lock was released
 
 
+@pytest.mark.service
 def test_a_port_out_of_range_is_refused_with_one_line(tmp_path):
     result = second_server(tmp_path, "--port", "70000")
     assert result.returncode != 0
@@ -268,6 +275,7 @@ def peak_rss_mib(pid: int) -> float:
     )
 
 
+@pytest.mark.service
 def test_a_huge_sample_batch_size_is_refused_before_allocating():
     with ReplayProcess(TABLE) as server:
         client = ReplayClient(server.address, max_retries=0)
@@ -284,6 +292,7 @@ def test_a_huge_sample_batch_size_is_refused_before_allocating():
         assert client.sample("t", 4)["x"].shape == (4,)  # the server goes on serving
 
 
+@pytest.mark.service
 def test_a_huge_sample_credit_is_refused():
     with ReplayProcess(TABLE) as server:
         ReplayClient(server.address).insert("t", scalar_batch(range(10)))
@@ -295,6 +304,7 @@ def test_a_huge_sample_credit_is_refused():
         assert "num_batches 4294967295" in caught.value.details()
 
 
+@pytest.mark.service
 def test_a_failed_insert_stream_leaves_nothing_of_itself_stored():
     with ReplayProcess(TABLE) as server:
         client = ReplayClient(server.address, max_retries=0)
@@ -311,6 +321,7 @@ def test_a_failed_insert_stream_leaves_nothing_of_itself_stored():
         assert table_figures(client) == (5, 5)
 
 
+@pytest.mark.service
 def test_an_insert_stream_of_too_many_batches_is_refused_whole():
     with ReplayProcess(TABLE) as server:
         client = ReplayClient(server.address, max_retries=0)
@@ -324,6 +335,7 @@ def test_an_insert_stream_of_too_many_batches_is_refused_whole():
 
 
 @pytest.mark.parametrize("byte", [0x02, 0xFF])
+@pytest.mark.service
 def test_booleans_other_than_0_and_1_are_refused(byte):
     columns = {
         "x": {"dtype": "<i8", "shape": [2], "data": np.arange(2, dtype=np.int64).tobytes()},
@@ -341,6 +353,7 @@ def test_booleans_other_than_0_and_1_are_refused(byte):
         assert table_figures(client) == (0, 0)
 
 
+@pytest.mark.service
 def test_writer_ids_are_bounded_in_length():
     """100 writers with ids of 1 MiB each are refused, not remembered (for ever)."""
     with ReplayProcess(TABLE) as server:
@@ -363,6 +376,7 @@ def rss_mib(pid: int) -> float:
     )
 
 
+@pytest.mark.service
 def test_refused_megabyte_requests_leave_the_server_memory_flat():
     """Refused calls free their requests at once. Aborted calls once kept theirs in
     reference cycles (a traceback holding the handler's frame): 200 refused 1 MiB table
@@ -393,6 +407,7 @@ def test_refused_megabyte_requests_leave_the_server_memory_flat():
         assert ReplayClient(server.address).insert("t", scalar_batch(range(3))) == 3
 
 
+@pytest.mark.service
 def test_the_writer_map_keeps_the_most_recent_writers_only():
     """With room for 4 writers, the fifth evicts the least recently written one: a resend
     from it is stored again (the documented cost), a resend from a kept one is not."""

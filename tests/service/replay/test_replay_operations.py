@@ -14,6 +14,8 @@ from service.replay.client import ReplayClient, Unavailable
 from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch, self_signed_cert
 
+pytestmark = pytest.mark.service  # real server processes, or Ray
+
 TABLE = [{"name": "t", "max_size": 100, "signature": SCALAR_SIGNATURE}]
 
 

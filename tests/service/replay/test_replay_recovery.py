@@ -102,6 +102,7 @@ def refusal(tables: list[dict], folder: Path) -> str:
     ],
     ids=["dtype", "max_size"],
 )
+@pytest.mark.service
 def test_restart_refuses_a_changed_signature_or_size(tmp_path, stop, change, named):
     """Stopped gracefully, everything is in a checkpoint and the log is empty; SIGKILLed,
     everything is in the log. Either way an edited table config is refused, never
@@ -138,6 +139,7 @@ def _kill_after_batches(folder: Path, batches: int) -> None:
 
 
 @pytest.mark.parametrize("where", ["header", "payload"])
+@pytest.mark.service
 def test_flipped_byte_in_one_log_record_loses_that_record_only(tmp_path, where):
     folder = tmp_path / "replay"
     _kill_after_batches(folder, 10)
@@ -165,6 +167,7 @@ def test_flipped_byte_in_one_log_record_loses_that_record_only(tmp_path, where):
     server.stop()
 
 
+@pytest.mark.service
 def test_a_record_whose_checksum_holds_but_payload_does_not_decode_loses_that_record_only(
     tmp_path,
 ):
@@ -220,6 +223,7 @@ def _restart_then_kill(folder: Path) -> Path:
 
 
 @pytest.mark.parametrize("fill", [_checkpoint_then_kill, _restart_then_kill])
+@pytest.mark.service
 def test_a_deleted_newest_log_segment_is_refused_not_skipped(tmp_path, fill):
     """Acknowledged inserts in the newest segment: with that segment gone the folder has
     no way back whole, and the server refuses to start naming it, as for any missing
@@ -239,6 +243,7 @@ def test_a_deleted_newest_log_segment_is_refused_not_skipped(tmp_path, fill):
 
 
 @pytest.mark.parametrize("damage", ["truncated", "flipped"])
+@pytest.mark.service
 def test_damaged_newest_checkpoint_falls_back_to_the_previous_one(tmp_path, damage):
     folder = tmp_path / "replay"
     server = durable(folder)
@@ -267,6 +272,7 @@ def test_damaged_newest_checkpoint_falls_back_to_the_previous_one(tmp_path, dama
     server.stop()
 
 
+@pytest.mark.service
 def test_half_written_checkpoint_files_are_removed_at_start(tmp_path):
     folder = tmp_path / "replay"
     folder.mkdir()
@@ -280,6 +286,7 @@ def test_half_written_checkpoint_files_are_removed_at_start(tmp_path):
 # ---------------------------------------------------------------- a full disk
 
 
+@pytest.mark.service
 def test_failed_log_append_stores_nothing_and_the_server_keeps_serving(tmp_path):
     """The server may write no file past 64 KiB (a full disk, as a file-size limit): the
     insert whose log append fails is refused and none of its rows is ever served."""
@@ -318,6 +325,7 @@ def _wait_for(what: str, done, server: Started, timeout_s: float = 60.0) -> None
         time.sleep(0.05)
 
 
+@pytest.mark.service
 def test_failed_periodic_checkpoint_keeps_the_server_running(tmp_path):
     """Checkpoints grow past a 256 KiB file-size limit while each log segment stays under
     it: every periodic checkpoint then fails, and the server goes on serving and logging."""
@@ -353,6 +361,7 @@ def test_failed_periodic_checkpoint_keeps_the_server_running(tmp_path):
         )
 
 
+@pytest.mark.service
 def test_a_folder_of_the_previous_format_is_restored(tmp_path):
     """Format 2 (a log of inserts only) is still read: a folder written by the previous
     version restores, and is written on in the current format."""

@@ -13,6 +13,8 @@ from service.replay.server.table_config import make_table
 from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
+pytestmark = pytest.mark.service  # a real server process per module
+
 # Chi-square critical value for 99 degrees of freedom at p = 0.001.
 CHI2_99_P001 = 148.2
 

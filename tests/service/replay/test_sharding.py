@@ -6,11 +6,14 @@ import pickle
 import threading
 
 import numpy as np
+import pytest
 
 from service.replay.client import DeadlineExceeded
 from service.replay.sharding import ShardedReplayClient
 from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
+
+pytestmark = pytest.mark.service  # real server processes, or Ray
 
 TABLE = [
     {

@@ -195,6 +195,7 @@ BAD_INPUTS = {
 
 
 @pytest.mark.parametrize("argv, message", BAD_INPUTS.values(), ids=BAD_INPUTS.keys())
+@pytest.mark.service
 def test_bad_input_is_one_line(argv, message, capsys) -> None:
     assert _refused(argv, capsys) == message
     assert not Path("runs").exists()  # nothing written
@@ -209,6 +210,7 @@ def test_malformed_preset_yaml_names_line_and_column(tmp_path, capsys) -> None:
     )
 
 
+@pytest.mark.service
 def test_dqn_demonstrations_need_a_hard_coded_policy(tmp_path, capsys) -> None:
     preset = tmp_path / "cartpole.yaml"
     preset.write_text("env_id: CartPole-v1\nalgorithm: ddqn\ndqn: {warmup: hardcoded}\n")

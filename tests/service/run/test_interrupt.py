@@ -19,6 +19,8 @@ import pytest
 
 from learner.checkpoint import latest_checkpoint, load_checkpoint
 
+pytestmark = pytest.mark.service  # real server processes, or Ray
+
 ROOT = Path(__file__).resolve().parents[3]
 STARTUP_LIMIT_S = 600.0
 """Only a guard against a hang: how long the run may take to log its first metrics row."""

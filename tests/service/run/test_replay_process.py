@@ -9,6 +9,10 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.service  # real server processes, or Ray
+
 ROOT = Path(__file__).resolve().parents[3]
 PARENT = """
 from service.run.replay_host.process import ReplayProcess

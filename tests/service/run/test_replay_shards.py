@@ -67,6 +67,7 @@ def test_a_shard_count_the_run_cannot_use_is_one_line(overrides, message) -> Non
     assert str(caught.value).startswith(message) and "\n" not in str(caught.value)
 
 
+@pytest.mark.service
 def test_two_shards_hold_the_ratio_over_the_whole_replay() -> None:
     # 4 samples per inserted item over two real shards, the learner slower than the
     # writers (so both limiters hold inserts at the top of their buffers): each limiter

@@ -110,6 +110,7 @@ def test_resume_with_another_preset_is_refused(tmp_path, capsys) -> None:
     assert _snapshot(run) == before
 
 
+@pytest.mark.service
 def test_resume_with_networks_that_do_not_fit_the_checkpoint_is_refused(tmp_path, capsys):
     run = _run_folder(tmp_path / "run")
     before = _snapshot(run)
@@ -123,6 +124,7 @@ def test_resume_with_networks_that_do_not_fit_the_checkpoint_is_refused(tmp_path
     assert _snapshot(run) == before
 
 
+@pytest.mark.service
 def test_resume_with_nothing_left_to_train_is_refused(tmp_path, capsys) -> None:
     run = _run_folder(tmp_path / "run")
     before = _snapshot(run)
@@ -134,6 +136,7 @@ def test_resume_with_nothing_left_to_train_is_refused(tmp_path, capsys) -> None:
     assert _snapshot(run) == before
 
 
+@pytest.mark.service
 def test_resume_without_preset_takes_the_recorded_config_and_its_preset(tmp_path, capsys):
     # A run trained from a YAML file that is gone since: its folder's config.yaml is enough.
     mine = tmp_path / "mine.yaml"

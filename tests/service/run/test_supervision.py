@@ -33,6 +33,7 @@ def test_remaining_segments(done, left) -> None:
     assert remaining_segments([DEMOS, ONLINE], done) == left
 
 
+@pytest.mark.service
 def test_a_killed_replay_server_restarts_on_its_port_with_its_data(tmp_path) -> None:
     tables = [{"name": "transitions", "max_size": 1000, "signature": PENDULUM_SIGNATURE}]
     replay = SupervisedReplay(

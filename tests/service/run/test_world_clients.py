@@ -76,6 +76,7 @@ REFUSED = {
 
 
 @pytest.mark.parametrize("case", REFUSED, ids=list(REFUSED))
+@pytest.mark.service
 def test_a_run_refuses_clients_it_cannot_give_each_actor_alone(case, capsys) -> None:
     extra, expected = REFUSED[case]
     assert _refused([*TRAIN, *extra], capsys) == f"graft train: {expected}"

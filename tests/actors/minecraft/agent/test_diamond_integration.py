@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from actors.minecraft.agent.diamond_tree import run_episode
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.sim.pool import ServerPool
 from tests.actors.minecraft.conftest import flat_mission
+
+pytestmark = pytest.mark.service  # real server processes, or Ray
 
 
 def _pool() -> ServerPool:

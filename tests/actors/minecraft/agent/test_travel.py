@@ -364,6 +364,7 @@ print(json.dumps({"arrived": info["arrived"], "modules": sorted(sys.modules)}))
 """
 
 
+@pytest.mark.service
 def test_env_plays_a_given_address_without_the_simulator(server: WorldServer) -> None:
     """The agent runs against a Minecraft at an address (here a simulated one, in this
     process) with the simulator package unimportable in its own process."""

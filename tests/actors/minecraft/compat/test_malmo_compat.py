@@ -291,6 +291,7 @@ def test_a_turn_based_step_out_of_turn_is_not_sent(
         c.close()
 
 
+@pytest.mark.service
 def test_two_agents_against_minecraft_serve_with_two_instances(
     run_together: Callable[..., None],
 ) -> None:

@@ -69,6 +69,7 @@ def ideal_port() -> Iterator[int]:
         ("RewardForSendingCommand", "reward", BIG),
     ],
 )
+@pytest.mark.service
 def test_numbers_that_are_not_finite_are_refused_naming_the_attribute(
     ideal_port: int, tag: str, attr: str, value: str
 ) -> None:
@@ -84,6 +85,7 @@ def test_numbers_that_are_not_finite_are_refused_naming_the_attribute(
 
 
 @pytest.mark.parametrize("synchronous", [False, True], ids=["malmo", "minerl"])
+@pytest.mark.service
 def test_a_mission_the_simulator_fails_on_ends_alone_and_the_server_goes_on(
     synchronous: bool,
 ) -> None:

@@ -65,6 +65,7 @@ def default_server() -> Iterator[tuple[int, int]]:
         yield proc.pid, port
 
 
+@pytest.mark.service
 def test_frames_and_grids_over_the_limits_are_refused_before_anything_is_built(
     default_server: tuple[int, int],
 ) -> None:
@@ -85,6 +86,7 @@ def test_frames_and_grids_over_the_limits_are_refused_before_anything_is_built(
     assert proc_status(pid, "VmHWM") - peak < 40 * 1024
 
 
+@pytest.mark.service
 def test_a_long_message_is_held_only_as_its_bytes_arrive_and_capped(
     default_server: tuple[int, int],
 ) -> None:
@@ -116,6 +118,7 @@ def test_a_long_message_is_held_only_as_its_bytes_arrive_and_capped(
         s.close()
 
 
+@pytest.mark.service
 def test_connections_are_capped_and_idle_ones_closed() -> None:
     cap, opened = 8, 30
     with served("--max-connections", str(cap), "--idle-timeout-s", "1") as (proc, [port]):
