@@ -11,6 +11,7 @@ import queue
 import threading
 import time
 import uuid
+from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, Optional, Protocol, Union
@@ -23,8 +24,10 @@ from service.replay.codec import (
     DEFAULT_MAX_BYTES,
     TOKEN_METADATA_KEY,
     Batch,
+    CodecError,
     decode_batch,
     encode_batch,
+    split_batch,
 )
 
 
@@ -214,14 +217,26 @@ class ReplayClient:
         raise ReplayError("server closed the sample stream without a batch")
 
     def sample_stream(
-        self, table: str, batch_size: int, *, prefetch: int = 4, sequence_length: int = 1
+        self,
+        table: str,
+        batch_size: int,
+        *,
+        prefetch: int = 4,
+        sequence_length: int = 1,
+        batches_per_message: Optional[int] = None,
     ) -> SampleStream | OnDemandStream:
         """An endless iterator of batches, fetched ahead by a background thread; with
-        `prefetch=0`, each batch is drawn only when asked for (`OnDemandStream`)."""
+        `prefetch=0`, each batch is drawn only when asked for (`OnDemandStream`). See
+        `SampleStream` for `batches_per_message`."""
         if prefetch == 0:
             return OnDemandStream(self, table, batch_size, sequence_length=sequence_length)
         return SampleStream(
-            self, table, batch_size, prefetch=prefetch, sequence_length=sequence_length
+            self,
+            table,
+            batch_size,
+            prefetch=prefetch,
+            sequence_length=sequence_length,
+            batches_per_message=batches_per_message,
         )
 
     def update_priorities(self, table: str, keys: np.ndarray, priorities: np.ndarray) -> int:
@@ -316,21 +331,25 @@ class _SampleCall(Protocol):
     def cancel(self) -> bool: ...
 
 
-_Sampled = Union[tuple[Batch, int, int], ReplayError, None]
-"""What the prefetch thread hands over: (batch, table_inserts, table_size), an error, or
-None once the stream has ended."""
+_Sampled = Union[tuple[list[Batch], int, int], ReplayError, None]
+"""What the prefetch thread hands over: (the batches of one response, table_inserts,
+table_size), an error, or None once the stream has ended."""
 
 
 class SampleStream:
     """Batches prefetched over one bidirectional stream with credit-based flow control.
 
-    The client grants the server `prefetch` batches up front and one more per batch
-    it consumes, so the server never samples more than `prefetch` batches ahead:
-    the table's rate limiter then sees the learner's true pace. `wait_s` adds up the
-    time the consumer waited for a batch (time lost to the replay server). If the
-    server becomes UNAVAILABLE (restart), the stream reconnects with backoff.
-    `on_arrival` is called (from the prefetch thread) after each batch arrives, so a
-    consumer of several streams can wait for whichever is `ready()` first.
+    The client grants the server `prefetch` batches up front and, as it consumes them,
+    grants them again `batches_per_message` at a time (default: half the prefetch, so
+    one message is in flight while the other is consumed). The server never samples more
+    than `prefetch` batches ahead: the table's rate limiter then sees the learner's true
+    pace. It stacks up to `batches_per_message` batches into one response, each admitted
+    and counted by the rate limiter on its own, so the fixed cost of a message is paid
+    once for several batches. `wait_s` adds up the time the consumer waited for a batch
+    (time lost to the replay server). If the server becomes UNAVAILABLE (restart), the
+    stream reconnects with backoff. `on_arrival` is called (from the prefetch thread)
+    after each response arrives, so a consumer of several streams can wait for
+    whichever is `ready()` first.
     """
 
     def __init__(
@@ -341,6 +360,7 @@ class SampleStream:
         *,
         prefetch: int,
         sequence_length: int = 1,
+        batches_per_message: Optional[int] = None,
         on_arrival: Optional[Callable[[], None]] = None,
     ) -> None:
         self.table_inserts = 0
@@ -353,9 +373,19 @@ class SampleStream:
         self._on_arrival = on_arrival
         self._client = client
         self._prefetch = max(prefetch, 1)
+        per_message = self._prefetch // 2 if batches_per_message is None else batches_per_message
+        self._per_message = min(max(per_message, 1), self._prefetch)
+        self._consumed = 0
+        """Batches consumed since credits were last granted."""
         self._batches: queue.Queue[_Sampled] = queue.Queue()
+        self._ready: deque[Batch] = deque()
+        """Batches of a received response not yet consumed."""
         self._request = replay_pb2.SampleRequest(
-            table=table, batch_size=batch_size, num_batches=1, sequence_length=sequence_length
+            table=table,
+            batch_size=batch_size,
+            num_batches=self._per_message,
+            sequence_length=sequence_length,
+            batches_per_message=self._per_message,
         )
         self._closed = threading.Event()
         self._credits: queue.Queue[Optional[replay_pb2.SampleRequest]] = queue.Queue()
@@ -386,8 +416,13 @@ class SampleStream:
                 for response in self._call:
                     attempt = 0
                     batch = decode_batch(response.batch, max_bytes=self._client.max_message_bytes)
+                    batches = split_batch(batch, max(response.num_batches, 1))
                     self.seen_inserts, self.seen_size = response.table_inserts, response.table_size
-                    self._put((batch, response.table_inserts, response.table_size))
+                    self._put((batches, response.table_inserts, response.table_size))
+                break
+            except CodecError as error:
+                self._put(ReplayError(f"the server sent a malformed sample response: {error}"))
+                self._call.cancel()
                 break
             except grpc.RpcError as error:
                 if self._closed.is_set() or error.code() == grpc.StatusCode.CANCELLED:
@@ -411,7 +446,7 @@ class SampleStream:
     def ready(self) -> bool:
         """A batch (or the stream's end, or its error) waits to be taken: `next_within(0)`
         returns it at once."""
-        return not self._batches.empty()
+        return bool(self._ready) or not self._batches.empty()
 
     def __iter__(self) -> Iterator[Batch]:
         return self
@@ -421,21 +456,26 @@ class SampleStream:
 
     def next_within(self, timeout: Optional[float]) -> Batch:
         """The next batch; raises TimeoutError if none arrives within `timeout` seconds."""
-        start = time.perf_counter()
-        try:
-            item = self._batches.get(timeout=timeout)
-        except queue.Empty:
-            raise TimeoutError(f"no sampled batch within {timeout} s") from None
-        finally:
-            self.wait_s += time.perf_counter() - start
-        if item is None:
-            self._batches.put(None)  # stay exhausted
-            raise StopIteration
-        if isinstance(item, ReplayError):
-            raise item
-        self._credits.put(self._request)  # one consumed, one more granted
-        batch, self.table_inserts, self.table_size = item
-        return batch
+        if not self._ready:
+            start = time.perf_counter()
+            try:
+                item = self._batches.get(timeout=timeout)
+            except queue.Empty:
+                raise TimeoutError(f"no sampled batch within {timeout} s") from None
+            finally:
+                self.wait_s += time.perf_counter() - start
+            if item is None:
+                self._batches.put(None)  # stay exhausted
+                raise StopIteration
+            if isinstance(item, ReplayError):
+                raise item
+            batches, self.table_inserts, self.table_size = item
+            self._ready.extend(batches)
+        self._consumed += 1
+        if self._consumed == self._per_message:  # consumed: granted again, in one request
+            self._credits.put(self._request)
+            self._consumed = 0
+        return self._ready.popleft()
 
     def close(self) -> None:
         self._closed.set()

@@ -50,6 +50,33 @@ def encode_batch(columns: Mapping[str, np.ndarray]) -> bytes:
     return payload
 
 
+def stack_batches(batches: list[Batch]) -> Batch:
+    """Several batches of equal size as one, batch i in rows [i * n, (i + 1) * n): what a
+    sample response carrying `num_batches` > 1 holds (`split_batch` undoes it)."""
+    if len(batches) == 1:
+        return batches[0]
+    return {name: np.concatenate([b[name] for b in batches]) for name in batches[0]}
+
+
+def split_batch(batch: Batch, count: int) -> list[Batch]:
+    """The `count` equal batches stacked in `batch` (views, no copies).
+
+    Raises:
+        CodecError: a column's length is not a multiple of `count`, or columns differ in
+            length.
+    """
+    if count == 1:
+        return [batch]
+    lengths = {len(a) for a in batch.values()}
+    if count < 1 or len(lengths) != 1 or next(iter(lengths)) % count:
+        raise CodecError(
+            f"a response of {count} stacked batches has columns of {sorted(lengths)} items; "
+            f"each must be a multiple of {count}, all equal"
+        )
+    n = next(iter(lengths)) // count
+    return [{name: a[i * n : (i + 1) * n] for name, a in batch.items()} for i in range(count)]
+
+
 def _refuse_ext(code: int, data: bytes) -> None:
     raise CodecError(f"msgpack ext type {code} is not allowed")
 

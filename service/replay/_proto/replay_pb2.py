@@ -24,7 +24,7 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\"service/replay/_proto/replay.proto\x12\x0fgraft.replay.v1\"e\n\rInsertRequest\x12\r\n\x05table\x18\x01 \x01(\t\x12\r\n\x05\x62\x61tch\x18\x02 \x01(\x0c\x12\x11\n\twriter_id\x18\x03 \x01(\t\x12\x10\n\x08sequence\x18\x04 \x01(\x04\x12\x11\n\ttimeout_s\x18\x05 \x01(\x01\"\xd1\x01\n\x0eInsertResponse\x12\x16\n\x0eitems_inserted\x18\x01 \x01(\x04\x12%\n\x1d\x62\x61tches_dropped_as_duplicates\x18\x02 \x01(\x04\x12J\n\x0e\x61\x63ked_sequence\x18\x03 \x03(\x0b\x32\x32.graft.replay.v1.InsertResponse.AckedSequenceEntry\x1a\x34\n\x12\x41\x63kedSequenceEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\"s\n\rSampleRequest\x12\r\n\x05table\x18\x01 \x01(\t\x12\x12\n\nbatch_size\x18\x02 \x01(\r\x12\x13\n\x0bnum_batches\x18\x03 \x01(\r\x12\x17\n\x0fsequence_length\x18\x04 \x01(\r\x12\x11\n\ttimeout_s\x18\x05 \x01(\x01\"J\n\x0eSampleResponse\x12\r\n\x05\x62\x61tch\x18\x01 \x01(\x0c\x12\x15\n\rtable_inserts\x18\x02 \x01(\x04\x12\x12\n\ntable_size\x18\x03 \x01(\x04\"J\n\x17UpdatePrioritiesRequest\x12\r\n\x05table\x18\x01 \x01(\t\x12\x0c\n\x04keys\x18\x02 \x03(\x04\x12\x12\n\npriorities\x18\x03 \x03(\x01\"+\n\x18UpdatePrioritiesResponse\x12\x0f\n\x07updated\x18\x01 \x01(\x04\"\r\n\x0bInfoRequest\"\xe4\x01\n\tTableInfo\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x0c\n\x04size\x18\x02 \x01(\x04\x12\x10\n\x08max_size\x18\x03 \x01(\x04\x12\x0f\n\x07inserts\x18\x04 \x01(\x04\x12\x0f\n\x07samples\x18\x05 \x01(\x04\x12\x0f\n\x07sampler\x18\x06 \x01(\t\x12\x0f\n\x07remover\x18\x07 \x01(\t\x12\x14\n\x0crate_limiter\x18\x08 \x01(\t\x12\x16\n\x0esignature_json\x18\t \x01(\t\x12\x17\n\x0f\x62ytes_in_memory\x18\n \x01(\x04\x12\x1e\n\x16rate_limiter_blocked_s\x18\x0b \x01(\x01\"L\n\x0cInfoResponse\x12*\n\x06tables\x18\x01 \x03(\x0b\x32\x1a.graft.replay.v1.TableInfo\x12\x10\n\x08uptime_s\x18\x02 \x01(\x01\"\x13\n\x11\x43heckpointRequest\"\"\n\x12\x43heckpointResponse\x12\x0c\n\x04path\x18\x01 \x01(\t2\xb0\x03\n\rReplayService\x12K\n\x06Insert\x12\x1e.graft.replay.v1.InsertRequest\x1a\x1f.graft.replay.v1.InsertResponse(\x01\x12M\n\x06Sample\x12\x1e.graft.replay.v1.SampleRequest\x1a\x1f.graft.replay.v1.SampleResponse(\x01\x30\x01\x12g\n\x10UpdatePriorities\x12(.graft.replay.v1.UpdatePrioritiesRequest\x1a).graft.replay.v1.UpdatePrioritiesResponse\x12\x43\n\x04Info\x12\x1c.graft.replay.v1.InfoRequest\x1a\x1d.graft.replay.v1.InfoResponse\x12U\n\nCheckpoint\x12\".graft.replay.v1.CheckpointRequest\x1a#.graft.replay.v1.CheckpointResponseb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\"service/replay/_proto/replay.proto\x12\x0fgraft.replay.v1\"e\n\rInsertRequest\x12\r\n\x05table\x18\x01 \x01(\t\x12\r\n\x05\x62\x61tch\x18\x02 \x01(\x0c\x12\x11\n\twriter_id\x18\x03 \x01(\t\x12\x10\n\x08sequence\x18\x04 \x01(\x04\x12\x11\n\ttimeout_s\x18\x05 \x01(\x01\"\xd1\x01\n\x0eInsertResponse\x12\x16\n\x0eitems_inserted\x18\x01 \x01(\x04\x12%\n\x1d\x62\x61tches_dropped_as_duplicates\x18\x02 \x01(\x04\x12J\n\x0e\x61\x63ked_sequence\x18\x03 \x03(\x0b\x32\x32.graft.replay.v1.InsertResponse.AckedSequenceEntry\x1a\x34\n\x12\x41\x63kedSequenceEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x04:\x02\x38\x01\"\x90\x01\n\rSampleRequest\x12\r\n\x05table\x18\x01 \x01(\t\x12\x12\n\nbatch_size\x18\x02 \x01(\r\x12\x13\n\x0bnum_batches\x18\x03 \x01(\r\x12\x17\n\x0fsequence_length\x18\x04 \x01(\r\x12\x11\n\ttimeout_s\x18\x05 \x01(\x01\x12\x1b\n\x13\x62\x61tches_per_message\x18\x06 \x01(\r\"_\n\x0eSampleResponse\x12\r\n\x05\x62\x61tch\x18\x01 \x01(\x0c\x12\x15\n\rtable_inserts\x18\x02 \x01(\x04\x12\x12\n\ntable_size\x18\x03 \x01(\x04\x12\x13\n\x0bnum_batches\x18\x04 \x01(\r\"J\n\x17UpdatePrioritiesRequest\x12\r\n\x05table\x18\x01 \x01(\t\x12\x0c\n\x04keys\x18\x02 \x03(\x04\x12\x12\n\npriorities\x18\x03 \x03(\x01\"+\n\x18UpdatePrioritiesResponse\x12\x0f\n\x07updated\x18\x01 \x01(\x04\"\r\n\x0bInfoRequest\"\xe4\x01\n\tTableInfo\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x0c\n\x04size\x18\x02 \x01(\x04\x12\x10\n\x08max_size\x18\x03 \x01(\x04\x12\x0f\n\x07inserts\x18\x04 \x01(\x04\x12\x0f\n\x07samples\x18\x05 \x01(\x04\x12\x0f\n\x07sampler\x18\x06 \x01(\t\x12\x0f\n\x07remover\x18\x07 \x01(\t\x12\x14\n\x0crate_limiter\x18\x08 \x01(\t\x12\x16\n\x0esignature_json\x18\t \x01(\t\x12\x17\n\x0f\x62ytes_in_memory\x18\n \x01(\x04\x12\x1e\n\x16rate_limiter_blocked_s\x18\x0b \x01(\x01\"L\n\x0cInfoResponse\x12*\n\x06tables\x18\x01 \x03(\x0b\x32\x1a.graft.replay.v1.TableInfo\x12\x10\n\x08uptime_s\x18\x02 \x01(\x01\"\x13\n\x11\x43heckpointRequest\"\"\n\x12\x43heckpointResponse\x12\x0c\n\x04path\x18\x01 \x01(\t2\xb0\x03\n\rReplayService\x12K\n\x06Insert\x12\x1e.graft.replay.v1.InsertRequest\x1a\x1f.graft.replay.v1.InsertResponse(\x01\x12M\n\x06Sample\x12\x1e.graft.replay.v1.SampleRequest\x1a\x1f.graft.replay.v1.SampleResponse(\x01\x30\x01\x12g\n\x10UpdatePriorities\x12(.graft.replay.v1.UpdatePrioritiesRequest\x1a).graft.replay.v1.UpdatePrioritiesResponse\x12\x43\n\x04Info\x12\x1c.graft.replay.v1.InfoRequest\x1a\x1d.graft.replay.v1.InfoResponse\x12U\n\nCheckpoint\x12\".graft.replay.v1.CheckpointRequest\x1a#.graft.replay.v1.CheckpointResponseb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -39,24 +39,24 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_INSERTRESPONSE']._serialized_end=368
   _globals['_INSERTRESPONSE_ACKEDSEQUENCEENTRY']._serialized_start=316
   _globals['_INSERTRESPONSE_ACKEDSEQUENCEENTRY']._serialized_end=368
-  _globals['_SAMPLEREQUEST']._serialized_start=370
-  _globals['_SAMPLEREQUEST']._serialized_end=485
-  _globals['_SAMPLERESPONSE']._serialized_start=487
-  _globals['_SAMPLERESPONSE']._serialized_end=561
-  _globals['_UPDATEPRIORITIESREQUEST']._serialized_start=563
-  _globals['_UPDATEPRIORITIESREQUEST']._serialized_end=637
-  _globals['_UPDATEPRIORITIESRESPONSE']._serialized_start=639
-  _globals['_UPDATEPRIORITIESRESPONSE']._serialized_end=682
-  _globals['_INFOREQUEST']._serialized_start=684
-  _globals['_INFOREQUEST']._serialized_end=697
-  _globals['_TABLEINFO']._serialized_start=700
-  _globals['_TABLEINFO']._serialized_end=928
-  _globals['_INFORESPONSE']._serialized_start=930
-  _globals['_INFORESPONSE']._serialized_end=1006
-  _globals['_CHECKPOINTREQUEST']._serialized_start=1008
-  _globals['_CHECKPOINTREQUEST']._serialized_end=1027
-  _globals['_CHECKPOINTRESPONSE']._serialized_start=1029
-  _globals['_CHECKPOINTRESPONSE']._serialized_end=1063
-  _globals['_REPLAYSERVICE']._serialized_start=1066
-  _globals['_REPLAYSERVICE']._serialized_end=1498
+  _globals['_SAMPLEREQUEST']._serialized_start=371
+  _globals['_SAMPLEREQUEST']._serialized_end=515
+  _globals['_SAMPLERESPONSE']._serialized_start=517
+  _globals['_SAMPLERESPONSE']._serialized_end=612
+  _globals['_UPDATEPRIORITIESREQUEST']._serialized_start=614
+  _globals['_UPDATEPRIORITIESREQUEST']._serialized_end=688
+  _globals['_UPDATEPRIORITIESRESPONSE']._serialized_start=690
+  _globals['_UPDATEPRIORITIESRESPONSE']._serialized_end=733
+  _globals['_INFOREQUEST']._serialized_start=735
+  _globals['_INFOREQUEST']._serialized_end=748
+  _globals['_TABLEINFO']._serialized_start=751
+  _globals['_TABLEINFO']._serialized_end=979
+  _globals['_INFORESPONSE']._serialized_start=981
+  _globals['_INFORESPONSE']._serialized_end=1057
+  _globals['_CHECKPOINTREQUEST']._serialized_start=1059
+  _globals['_CHECKPOINTREQUEST']._serialized_end=1078
+  _globals['_CHECKPOINTRESPONSE']._serialized_start=1080
+  _globals['_CHECKPOINTRESPONSE']._serialized_end=1114
+  _globals['_REPLAYSERVICE']._serialized_start=1117
+  _globals['_REPLAYSERVICE']._serialized_end=1549
 # @@protoc_insertion_point(module_scope)

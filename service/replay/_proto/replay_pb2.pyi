@@ -38,28 +38,32 @@ class InsertResponse(_message.Message):
     def __init__(self, items_inserted: _Optional[int] = ..., batches_dropped_as_duplicates: _Optional[int] = ..., acked_sequence: _Optional[_Mapping[str, int]] = ...) -> None: ...
 
 class SampleRequest(_message.Message):
-    __slots__ = ("table", "batch_size", "num_batches", "sequence_length", "timeout_s")
+    __slots__ = ("table", "batch_size", "num_batches", "sequence_length", "timeout_s", "batches_per_message")
     TABLE_FIELD_NUMBER: _ClassVar[int]
     BATCH_SIZE_FIELD_NUMBER: _ClassVar[int]
     NUM_BATCHES_FIELD_NUMBER: _ClassVar[int]
     SEQUENCE_LENGTH_FIELD_NUMBER: _ClassVar[int]
     TIMEOUT_S_FIELD_NUMBER: _ClassVar[int]
+    BATCHES_PER_MESSAGE_FIELD_NUMBER: _ClassVar[int]
     table: str
     batch_size: int
     num_batches: int
     sequence_length: int
     timeout_s: float
-    def __init__(self, table: _Optional[str] = ..., batch_size: _Optional[int] = ..., num_batches: _Optional[int] = ..., sequence_length: _Optional[int] = ..., timeout_s: _Optional[float] = ...) -> None: ...
+    batches_per_message: int
+    def __init__(self, table: _Optional[str] = ..., batch_size: _Optional[int] = ..., num_batches: _Optional[int] = ..., sequence_length: _Optional[int] = ..., timeout_s: _Optional[float] = ..., batches_per_message: _Optional[int] = ...) -> None: ...
 
 class SampleResponse(_message.Message):
-    __slots__ = ("batch", "table_inserts", "table_size")
+    __slots__ = ("batch", "table_inserts", "table_size", "num_batches")
     BATCH_FIELD_NUMBER: _ClassVar[int]
     TABLE_INSERTS_FIELD_NUMBER: _ClassVar[int]
     TABLE_SIZE_FIELD_NUMBER: _ClassVar[int]
+    NUM_BATCHES_FIELD_NUMBER: _ClassVar[int]
     batch: bytes
     table_inserts: int
     table_size: int
-    def __init__(self, batch: _Optional[bytes] = ..., table_inserts: _Optional[int] = ..., table_size: _Optional[int] = ...) -> None: ...
+    num_batches: int
+    def __init__(self, batch: _Optional[bytes] = ..., table_inserts: _Optional[int] = ..., table_size: _Optional[int] = ..., num_batches: _Optional[int] = ...) -> None: ...
 
 class UpdatePrioritiesRequest(_message.Message):
     __slots__ = ("table", "keys", "priorities")

@@ -77,7 +77,9 @@ class ReplayServiceServicer:
     def Sample(self, request_iterator, context):
         """Credit-based sampling: each request asks for `num_batches` more batches, and the
         server sends exactly that many, so a prefetching client bounds how far sampling
-        (and with it the rate limiter) runs ahead of the learner.
+        (and with it the rate limiter) runs ahead of the learner. A response may carry
+        several of them stacked (`batches_per_message`), each admitted by the rate limiter
+        on its own and counted as one sample of `batch_size` items.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')

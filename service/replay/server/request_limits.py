@@ -85,3 +85,14 @@ def check_sample(
             f"{room // table.sampled_bytes(1, k)}"
         )
     return table
+
+
+def batches_per_message(
+    table: Table, request: replay_pb2.SampleRequest, *, max_message_bytes: int
+) -> int:
+    """How many batches one response to a (checked) SampleRequest may stack: what it asks
+    for (`batches_per_message`, 0 meaning 1), within the credits limit and the message
+    limit (`check_sample` has made sure one batch fits)."""
+    room = max_message_bytes - RESPONSE_OVERHEAD_BYTES
+    fit = room // table.sampled_bytes(request.batch_size, max(request.sequence_length, 1))
+    return max(1, min(request.batches_per_message, MAX_SAMPLE_CREDITS, fit))

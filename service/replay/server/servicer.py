@@ -28,7 +28,12 @@ from service.replay.codec import (
 )
 from service.replay.server.durability import StorageError
 from service.replay.server.prom import ReplayMetrics
-from service.replay.server.request_limits import check_insert, check_sample, check_table_name
+from service.replay.server.request_limits import (
+    batches_per_message,
+    check_insert,
+    check_sample,
+    check_table_name,
+)
 from service.replay.server.signature import SignatureError
 from service.replay.server.store import CallEnded, ReplayCore, StagedInsert, UnknownTable
 from service.replay.server.table import LockBusy, RateLimitTimeout, Table
@@ -253,21 +258,24 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
     def _sample_once(
         table: Table,
         request: replay_pb2.SampleRequest,
+        count: int,
         call: CallState,
         waited: float,
         *,
         blocking: bool = True,
-    ) -> Optional[bytes]:
-        """One attempt: an encoded batch, or None while the limiter says wait."""
+    ) -> Optional[tuple[bytes, int]]:
+        """One attempt: up to `count` batches the limiter admits now, encoded stacked, and
+        how many; None while it admits none."""
         if not call.alive():
             raise CallEnded("the call was cancelled or passed its deadline")
-        batch = table.try_sample(
+        sampled = table.try_sample_batches(
             request.batch_size,
+            count,
             sequence_length=max(request.sequence_length, 1),
             blocked_s=waited,
             blocking=blocking,
         )
-        return None if batch is None else encode_batch(batch)
+        return None if sampled is None else (encode_batch(sampled[0]), sampled[1])
 
     async def Sample(  # noqa: N802
         self,
@@ -279,22 +287,29 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
             async for request in request_iterator:  # each request grants num_batches credits
                 table = check_sample(self.core, request, max_message_bytes=self.max_message_bytes)
                 k = max(request.sequence_length, 1)
-                inline = table.sampled_bytes(request.batch_size, k) <= INLINE_BYTES
-                for _ in range(max(request.num_batches, 1)):
+                batch_bytes = table.sampled_bytes(request.batch_size, k)
+                most = batches_per_message(table, request, max_message_bytes=self.max_message_bytes)
+                credits = max(request.num_batches, 1)
+                while credits:
                     start = time.perf_counter()
                     deadline = call.deadline_with(request.timeout_s)
-                    payload = await self._until(
+                    count = min(credits, most)
+                    payload, sent = await self._until(
                         (table.name,),
-                        functools.partial(self._sample_once, table, request, call),
+                        functools.partial(self._sample_once, table, request, count, call),
                         deadline,
-                        inline=inline,
+                        inline=batch_bytes * count <= INLINE_BYTES,
                         table=table,
                         what="sample",
                     )
+                    credits -= sent
                     self.metrics.bytes_out.inc(len(payload))
                     self.metrics.rpc_latency.labels("Sample").observe(time.perf_counter() - start)
                     yield replay_pb2.SampleResponse(
-                        batch=payload, table_inserts=table.stats.inserts, table_size=table.size
+                        batch=payload,
+                        table_inserts=table.stats.inserts,
+                        table_size=table.size,
+                        num_batches=sent,
                     )
         except asyncio.CancelledError:
             call.end()

@@ -14,7 +14,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from service.replay.codec import Batch
+from service.replay.codec import Batch, stack_batches
 from service.replay.server.episodes import EpisodeLinks
 from service.replay.server.prepared_insert import PreparedInsert, prepare_insert
 from service.replay.server.rate_limiters import MinSize, RateLimiter, SampleToInsertRatio
@@ -41,6 +41,34 @@ class TableStats:
     samples: int = 0
     insert_blocked_s: float = 0.0
     sample_blocked_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Field:
+    """Where one column lies in a stored item's record (bytes `offset` to `offset + nbytes`)."""
+
+    offset: int
+    nbytes: int
+    dtype: np.dtype[Any]
+    shape: tuple[int, ...]
+
+    def of(self, records: np.ndarray) -> np.ndarray:
+        """This column of `records` (uint8, one row per item): a strided view."""
+        if self.nbytes == 0:
+            return np.zeros((len(records), *self.shape), self.dtype)
+        window = records[:, self.offset : self.offset + self.nbytes]
+        return window.view(self.dtype).reshape(len(records), *self.shape)
+
+
+def record_layout(signature: Signature) -> tuple[dict[str, Field], int]:
+    """Each column's place in an item's record, and the record's length: widest elements
+    first and records padded to 8 bytes, so every field sits on its own alignment."""
+    fields, offset = {}, 0
+    by_width = sorted(signature.columns.items(), key=lambda c: -np.dtype(c[1].dtype).itemsize)
+    for name, spec in by_width:
+        fields[name] = Field(offset, spec.item_bytes, np.dtype(spec.dtype), spec.shape)
+        offset += spec.item_bytes
+    return {name: fields[name] for name in signature.columns}, -(-offset // 8) * 8
 
 
 class Table:
@@ -75,10 +103,12 @@ class Table:
             self.slots = FreeListSlots(max_size, evict_newest=remover == "lifo")
         if isinstance(self.sampler, Prioritized):
             self.sampler.bind(max_size)
-        self._columns = {
-            column: np.zeros((max_size, *spec.shape), dtype=spec.dtype)
-            for column, spec in signature.columns.items()
-        }
+        # Item-major storage: an item's columns lie side by side in one record, so a sample
+        # reads each drawn item from one place in memory, not one place per column (with
+        # random rows, the memory accesses are what a sample costs). Columns are views.
+        self._fields, record_bytes = record_layout(signature)
+        self._records = np.zeros((max_size, record_bytes), dtype=np.uint8)
+        self._columns = {c: field.of(self._records) for c, field in self._fields.items()}
         self._times_sampled = np.zeros(max_size if max_times_sampled else 0, dtype=np.int32)
         self._links = EpisodeLinks(self.slots, max_size, enabled=max_sequence_length > 1)
         self._ends = [c for c in ("terminated", "truncated") if c in signature.columns]
@@ -86,6 +116,12 @@ class Table:
         self._cond = threading.Condition()
         self._watchers: list[Callable[[], None]] = []
         self._sample_log: Optional[Callable[[str, int], None]] = None
+        self._item_bytes = signature.item_bytes  # asked on every sample request
+        # Batches drawn together equal batches drawn in a row: each draw is independent of
+        # the last (not fifo/lifo), and sampling removes no item.
+        self._draws_independent = (
+            isinstance(self.sampler, (Uniform, Prioritized)) and not max_times_sampled
+        )
 
     def _check_configuration(self) -> None:
         where = f"table '{self.name}'"
@@ -124,7 +160,7 @@ class Table:
 
     @property
     def bytes_in_memory(self) -> int:
-        arrays = [*self._columns.values(), self._times_sampled, self._links.next_key]
+        arrays: list[np.ndarray] = [self._records, self._times_sampled, self._links.next_key]
         if isinstance(self.slots, FreeListSlots):
             arrays.append(self.slots.keys)
         return sum(a.nbytes for a in arrays)
@@ -250,7 +286,7 @@ class Table:
     def sampled_bytes(self, batch_size: int, sequence_length: int = 1) -> int:
         """Bytes of the columns a sample of `batch_size` items returns: data and `_key` per
         step, `_probability` and `_weight` per item (the encoded payload adds a little)."""
-        per_item = sequence_length * (self.signature.item_bytes + 8) + 8 + 8
+        per_item = sequence_length * (self._item_bytes + 8) + 8 + 8
         return batch_size * per_item
 
     def check_sample(self, batch_size: int, sequence_length: int) -> None:
@@ -276,21 +312,27 @@ class Table:
     def _take(
         self, drawn: tuple[np.ndarray, np.ndarray], batch_size: int, k: int
     ) -> tuple[Batch, int]:
-        """Gathers drawn windows and counts them as sampled; the caller holds `lock`.
-        Returns the columns and the table size to weigh them by."""
+        """Gathers drawn windows and counts them as sampled; the caller holds `lock` and
+        reports the change (`_changed`). Returns the columns and the table size to weigh
+        them by."""
         window_rows, _ = drawn
         out = self._gather(window_rows, k)
         if self._sample_log is not None:
             self._sample_log(self.name, batch_size)
         self._count_samples(window_rows[:, 0])
         self.stats.samples += batch_size
-        self._changed()
         return out, max(self.size, 1)
 
-    def _weigh(self, out: Batch, probabilities: np.ndarray, size: int) -> Batch:
-        """Adds `_weight` and `_probability` (outside the lock)."""
+    def _weigh(self, out: Batch, probabilities: np.ndarray, size: int, batch_size: int) -> Batch:
+        """Adds `_weight` and `_probability` (outside the lock) to `out`, which stacks
+        batches of `batch_size` items: importance weights are normalised per batch."""
         if isinstance(self.sampler, Prioritized):
-            out["_weight"] = self.sampler.importance_weights(probabilities, size)
+            out["_weight"] = np.concatenate(
+                [
+                    self.sampler.importance_weights(probabilities[i : i + batch_size], size)
+                    for i in range(0, len(probabilities), batch_size)
+                ]
+            )
         else:
             out["_weight"] = np.ones(len(probabilities), dtype=np.float32)
         out["_probability"] = probabilities
@@ -311,18 +353,89 @@ class Table:
         Raises:
             LockBusy: `blocking` is False and the table lock is held.
         """
+        sampled = self.try_sample_batches(
+            batch_size, 1, sequence_length=sequence_length, blocked_s=blocked_s, blocking=blocking
+        )
+        return None if sampled is None else sampled[0]
+
+    def try_sample_batches(
+        self,
+        batch_size: int,
+        count: int,
+        *,
+        sequence_length: int = 1,
+        blocked_s: float = 0.0,
+        blocking: bool = True,
+    ) -> Optional[tuple[Batch, int]]:
+        """Up to `count` batches under one hold of the lock, as `count` calls of
+        `try_sample` in a row would draw them: the rate limiter admits (and counts) each
+        batch on its own, and the first batch it refuses ends them. Returns the batches
+        stacked (batch i in rows [i * batch_size, (i + 1) * batch_size)) and how many;
+        None while the limiter admits none. Never waits on the limiter.
+
+        Raises:
+            LockBusy: `blocking` is False and the table lock is held.
+        """
         self.check_sample(batch_size, sequence_length)
         if not self._cond.acquire(blocking=blocking):
             raise LockBusy(f"table '{self.name}'")
         try:
-            drawn = self._try_draw(batch_size, sequence_length)
+            if sequence_length == 1 and self._draws_independent:
+                drawn = self._draw_admitted(batch_size, count)
+            else:
+                drawn = self._draw_one_by_one(batch_size, count, sequence_length)
             if drawn is None:
                 return None
             self.stats.sample_blocked_s += blocked_s
-            out, size = self._take(drawn, batch_size, sequence_length)
+            size = max(self.size, 1)
+            self._changed()  # once: waiting inserts re-check the limiter once
         finally:
             self._cond.release()
-        return self._weigh(out, drawn[1], size)
+        out, probabilities, n = drawn
+        return self._weigh(out, probabilities, size, batch_size), n
+
+    def _draw_admitted(
+        self, batch_size: int, count: int
+    ) -> Optional[tuple[Batch, np.ndarray, int]]:
+        """The batches the limiter admits, drawn and gathered at once: with independent
+        draws and no item removed by sampling, n batches drawn together are n batches
+        drawn in a row. Each is admitted and counted on its own; the caller holds `lock`."""
+        s, n = self.stats, 0
+        while (
+            n < count
+            and self.size
+            and self.rate_limiter.sample_allowed(
+                size=self.size, inserts=s.inserts, samples=s.samples + n * batch_size
+            )
+        ):
+            n += 1
+        if n == 0:
+            return None
+        rows, probabilities = self.sampler.sample(self.slots, self._rng, n * batch_size)
+        out = self._gather(rows[:, None], 1)
+        for _ in range(n):
+            if self._sample_log is not None:
+                self._sample_log(self.name, batch_size)
+            s.samples += batch_size
+        return out, probabilities, n
+
+    def _draw_one_by_one(
+        self, batch_size: int, count: int, k: int
+    ) -> Optional[tuple[Batch, np.ndarray, int]]:
+        """Up to `count` batches, each drawn after the one before was counted (a fifo or
+        lifo sampler, items used up by `max_times_sampled`, windows); the caller holds
+        `lock`."""
+        taken: list[tuple[Batch, np.ndarray]] = []
+        while len(taken) < count:
+            drawn = self._try_draw(batch_size, k)
+            if drawn is None:
+                break
+            out, _ = self._take(drawn, batch_size, k)
+            taken.append((out, drawn[1]))
+        if not taken:
+            return None
+        out = stack_batches([out for out, _ in taken])
+        return out, np.concatenate([p for _, p in taken]), len(taken)
 
     def sample(
         self, batch_size: int, *, sequence_length: int = 1, timeout: Optional[float] = None
@@ -345,11 +458,13 @@ class Table:
         with self._cond:
             self.stats.sample_blocked_s += self._wait(admitted, timeout, "sample")
             out, size = self._take(drawn[0], batch_size, k)
-        return self._weigh(out, drawn[0][1], size)
+            self._changed()
+        return self._weigh(out, drawn[0][1], size, batch_size)
 
     def _gather(self, window_rows: np.ndarray, k: int) -> Batch:
         flat = window_rows.reshape(-1) if k > 1 else window_rows[:, 0]
-        out = {c: a[flat] for c, a in self._columns.items()}
+        records = np.take(self._records, flat, axis=0)  # one gather of whole items
+        out = {c: np.ascontiguousarray(field.of(records)) for c, field in self._fields.items()}
         keys = self.slots.keys_of(flat).astype(np.uint64)
         if k > 1:
             out = {c: a.reshape(len(window_rows), k, *a.shape[1:]) for c, a in out.items()}
