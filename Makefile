@@ -14,17 +14,18 @@ demo: setup
 # way a user installs theirs.
 TEST_PACKAGES := $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example-cartpole
 # The suite mostly waits (Ray and servers starting, real-time clocks), so it runs on more
-# xdist workers than cores; tests that measure real-time pacing run after it, alone.
+# xdist workers than cores, a file per worker (a module's shared server or cluster stays on
+# one); tests that measure real-time pacing, or reuse a port across a restart, run after it.
 TEST_WORKERS ?= 4
 
 # Every test: the parallel part, then the real-time part.
 test: setup $(TEST_PACKAGES)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not realtime and not long"
-	$(BIN)/python -m pytest -q -m "realtime and not long"
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial and not long"
+	$(BIN)/python -m pytest -q -m "serial and not long"
 
 # The inner loop: no Ray, no server processes (starting either fails the test here).
 test-fast: setup $(TEST_PACKAGES)
-	GRAFT_TEST_FAST=1 $(BIN)/python -m pytest -q -n 2 -m "not service and not slow and not realtime and not long"
+	GRAFT_TEST_FAST=1 $(BIN)/python -m pytest -q -n 2 -m "not service and not slow and not serial and not long"
 
 # Checks too long for `make test` (a C++ build of compiled kernels); CI runs them too.
 test-long: setup $(TEST_PACKAGES)

@@ -66,17 +66,11 @@ QUICK = os.environ.get("GRAFT_TEST_FAST") == "1"
 """Set by ``make test-fast``: the quick subset, where Ray and subprocesses are refused."""
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Marks ``service`` tests, and keeps the tests of a module that shares a costly
-    module-scoped fixture (a world server, a cluster) on one xdist worker."""
+    """Marks the tests that use a fixture starting Ray or a server process ``service``."""
     for item in items:
         if SERVICE_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.service)
-        info = getattr(item, "_fixtureinfo", None)
-        scopes = {d.scope for ds in info.name2fixturedefs.values() for d in ds} if info else ()
-        if "module" in scopes or "class" in scopes:
-            item.add_marker(pytest.mark.xdist_group(item.module.__name__))
 
 
 class NotInTheFastSubset(RuntimeError):

@@ -130,6 +130,7 @@ def test_actor_adopts_broadcast_weights_and_records_their_log_prob(
     ray.kill(broadcaster)
 
 
+@pytest.mark.serial  # a port reused across a restart, or pacing
 def test_actor_reconnects_after_world_server_restart(ray_local, replay) -> None:
     pool = ServerPool(1, base_port=0, seed=5, ms_per_tick=20)
     (port,) = pool.start()
@@ -263,7 +264,7 @@ def pooled_mission(*, max_episode_steps: int) -> gym.Env:
 
 
 @pytest.mark.slow
-@pytest.mark.realtime
+@pytest.mark.serial
 def test_asynchronous_clients_skip_no_ticks_where_lock_step_ones_wait_for_each_other() -> None:
     """Four real-time clients (real Malmo timing: 20 ticks/s, 60 frames/s, a mission loads
     for a second) with short episodes. In lock-step each step waits for every client's

@@ -8,6 +8,7 @@ Malmo clients started with ``launchClient.sh -port P -env``.
 from __future__ import annotations
 
 import os
+import random
 import socket
 import subprocess
 import sys
@@ -31,9 +32,11 @@ def port_is_free(host: str, port: int) -> bool:
     return True
 
 
-def free_port_block(n: int, host: str = "127.0.0.1", start: int = 20000) -> int:
-    """The first port ``p >= start`` such that ``p .. p+n-1`` are all free."""
-    p = start
+def free_port_block(n: int, host: str = "127.0.0.1", start: Optional[int] = None) -> int:
+    """The first port ``p >= start`` such that ``p .. p+n-1`` are all free. Without
+    `start`, the search begins at a random port in 20000-39999, so that pools started at
+    the same moment by different processes seldom reach for the same block."""
+    p = random.randrange(20000, 40000) if start is None else start
     while p + n < 65535:
         bad = next((q for q in range(p, p + n) if not port_is_free(host, q)), None)
         if bad is None:

@@ -14,7 +14,7 @@ from service.replay.client import DeadlineExceeded, ReplayClient
 from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
-pytestmark = pytest.mark.service  # real server processes, or Ray
+pytestmark = [pytest.mark.service, pytest.mark.serial]  # servers restarted on their port
 
 TABLE = [{"name": "log", "max_size": 1_000_000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]
 

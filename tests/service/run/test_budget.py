@@ -131,6 +131,7 @@ def finish_times(runs: list[Any], timeout_s: float) -> list[float]:
     return [done[i] for i in range(len(runs))]
 
 
+@pytest.mark.serial  # a port reused across a restart, or pacing
 def test_a_fast_actor_does_most_steps_and_both_act_until_the_end(ray_local, replay) -> None:
     # Steps of 5 ms and 40 ms: a slow chunk of 4 takes 0.16 s. With fixed shares (400
     # each) the fast actor would be done some 13 s before the slow one.

@@ -100,9 +100,11 @@ def test_a_stop_signal_checkpoints_summarises_and_leaves_no_process(
     started: set[int] = set()
     try:
         metrics, deadline = run_dir / "metrics.csv", time.monotonic() + STARTUP_LIMIT_S
-        while not (metrics.exists() and len(metrics.read_text().splitlines()) > 1):
+        # Stopped once the learner has updated (past learning_starts=100 env steps), however
+        # slowly a loaded machine gets there.
+        while not (metrics.exists() and "losses/" in metrics.read_text()):
             assert process.poll() is None, process.communicate()
-            assert time.monotonic() < deadline, "no metrics row: the run did not start"
+            assert time.monotonic() < deadline, "no learner update: the run did not start"
             time.sleep(0.5)
         started = _descendants(process.pid)
         replay = {p for p in started if "service.run.cli.replay serve" in _cmdline(p)}

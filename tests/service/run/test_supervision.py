@@ -34,6 +34,7 @@ def test_remaining_segments(done, left) -> None:
 
 
 @pytest.mark.service
+@pytest.mark.serial  # a port reused across a restart, or pacing
 def test_a_killed_replay_server_restarts_on_its_port_with_its_data(tmp_path) -> None:
     tables = [{"name": "transitions", "max_size": 1000, "signature": PENDULUM_SIGNATURE}]
     replay = SupervisedReplay(

@@ -69,6 +69,7 @@ def test_sample_mission_parses_and_runs(pool: ServerPool) -> None:
     c.close()
 
 
+@pytest.mark.serial  # a port reused across a restart, or pacing
 def test_reset_reconnects_after_the_server_restarts() -> None:
     s = WorldServer(port=0, ms_per_tick=10, timing=FAST)
     port = s.start()
