@@ -17,7 +17,8 @@ from typing import Any
 from chaos_ledger import Ledger, audit, free_port, progress, run_writers, server, table
 from procfs import rss_mib
 
-from service.replay.client import ReplayClient, ReplayError
+from service.replay.client import ReplayClient
+from service.replay.errors import ReplayError
 
 # ------------------------------------------------------------------- 1. SIGKILL
 

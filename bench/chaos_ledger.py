@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from service.replay.client import ReplayClient, ReplayError
+from service.replay.client import ReplayClient
+from service.replay.errors import ReplayError
 from service.run.replay_host.process import ReplayProcess
 
 SIGNATURE = {"x": {"dtype": "int64", "shape": []}}

@@ -29,44 +29,12 @@ from service.replay.codec import (
     encode_batch,
     split_batch,
 )
-
-
-class ReplayError(RuntimeError):
-    """Base of the typed errors the client raises; `code` is the gRPC status."""
-
-    code = grpc.StatusCode.UNKNOWN
-
-
-class InvalidArgument(ReplayError):
-    code = grpc.StatusCode.INVALID_ARGUMENT
-
-
-class TableNotFound(ReplayError):
-    code = grpc.StatusCode.NOT_FOUND
-
-
-class DeadlineExceeded(ReplayError):
-    code = grpc.StatusCode.DEADLINE_EXCEEDED
-
-
-class Unauthenticated(ReplayError):
-    code = grpc.StatusCode.UNAUTHENTICATED
-
-
-class ResourceExhausted(ReplayError):
-    code = grpc.StatusCode.RESOURCE_EXHAUSTED
-
-
-class Unavailable(ReplayError):
-    code = grpc.StatusCode.UNAVAILABLE
-
-
-_ERRORS = {cls.code: cls for cls in ReplayError.__subclasses__()}
-
-
-def _typed(error: grpc.RpcError) -> ReplayError:
-    cls = _ERRORS.get(error.code(), ReplayError)
-    return cls(f"{error.code().name}: {error.details()}")
+from service.replay.errors import (
+    DeadlineExceeded,
+    ReplayError,
+    Unavailable,
+    typed,
+)
 
 
 @dataclass(frozen=True)
@@ -178,7 +146,7 @@ class ReplayClient:
                 return response.items_inserted
             except grpc.RpcError as error:
                 if error.code() != grpc.StatusCode.UNAVAILABLE or attempt == self.max_retries:
-                    raise _typed(error) from None
+                    raise typed(error) from None
                 time.sleep(min(0.05 * 2**attempt, 2.0))
         raise AssertionError("unreachable")
 
@@ -213,7 +181,7 @@ class ReplayClient:
                 sampled: replay_pb2.SampleResponse = response
                 return sampled
         except grpc.RpcError as error:
-            raise _typed(error) from None
+            raise typed(error) from None
         raise ReplayError("server closed the sample stream without a batch")
 
     def sample_stream(
@@ -252,7 +220,7 @@ class ReplayClient:
             )
             return response.updated
         except grpc.RpcError as error:
-            raise _typed(error) from None
+            raise typed(error) from None
 
     def checkpoint(self) -> str:
         """Asks the server to write a checkpoint now; returns its path."""
@@ -262,13 +230,13 @@ class ReplayClient:
             )
             return response.path
         except grpc.RpcError as error:
-            raise _typed(error) from None
+            raise typed(error) from None
 
     def info(self) -> list[TableStatus]:
         try:
             response = self.stub.Info(replay_pb2.InfoRequest(), metadata=self._metadata)
         except grpc.RpcError as error:
-            raise _typed(error) from None
+            raise typed(error) from None
         return [
             TableStatus(
                 name=t.name,
@@ -305,7 +273,7 @@ class ReplayClient:
                 raise Unavailable(
                     f"replay server at {self.address} did not answer in {timeout}s"
                 ) from None
-            raise _typed(error) from None
+            raise typed(error) from None
 
 
 def _rebuild_client(
@@ -431,7 +399,7 @@ class SampleStream:
                     error.code() != grpc.StatusCode.UNAVAILABLE
                     or attempt >= self._client.max_retries
                 ):
-                    self._put(_typed(error))
+                    self._put(typed(error))
                     break
                 time.sleep(min(0.05 * 2**attempt, 2.0))
                 attempt += 1

@@ -10,7 +10,8 @@ import time
 import pytest
 
 from actors.writer import BackgroundWriter
-from service.replay.client import ReplayClient, TableNotFound
+from service.replay.client import ReplayClient
+from service.replay.errors import TableNotFound
 from service.run.replay_host.process import ReplayProcess
 from tests.conftest import PENDULUM_SIGNATURE, pendulum_batch
 

@@ -1,4 +1,4 @@
-"""A replay table: preallocated columnar storage with a sampler, a remover and a rate limiter.
+"""A replay table: preallocated item records with a sampler, a remover and a rate limiter.
 
 Items are keyed by insertion number. Actors write trajectories; a sample of k-step
 windows follows each episode's links (service/replay/server/episodes.py).
@@ -17,12 +17,12 @@ import numpy as np
 from service.replay.codec import Batch, stack_batches
 from service.replay.server.episodes import EpisodeLinks
 from service.replay.server.prepared_insert import PreparedInsert, prepare_insert
-from service.replay.server.rate_limiters import MinSize, RateLimiter, SampleToInsertRatio
-from service.replay.server.samplers import Fifo, Lifo, Prioritized, Sampler, Uniform
+from service.replay.server.rate_limiters import MinSize, RateLimiter
+from service.replay.server.records import record_layout
+from service.replay.server.samplers import Prioritized, Sampler, Uniform
 from service.replay.server.signature import Signature
 from service.replay.server.slots import FreeListSlots, RingSlots
-
-REMOVERS = ("fifo", "lifo")
+from service.replay.server.table_checks import check_configuration
 
 
 class RateLimitTimeout(TimeoutError):
@@ -41,34 +41,6 @@ class TableStats:
     samples: int = 0
     insert_blocked_s: float = 0.0
     sample_blocked_s: float = 0.0
-
-
-@dataclass(frozen=True)
-class Field:
-    """Where one column lies in a stored item's record (bytes `offset` to `offset + nbytes`)."""
-
-    offset: int
-    nbytes: int
-    dtype: np.dtype[Any]
-    shape: tuple[int, ...]
-
-    def of(self, records: np.ndarray) -> np.ndarray:
-        """This column of `records` (uint8, one row per item): a strided view."""
-        if self.nbytes == 0:
-            return np.zeros((len(records), *self.shape), self.dtype)
-        window = records[:, self.offset : self.offset + self.nbytes]
-        return window.view(self.dtype).reshape(len(records), *self.shape)
-
-
-def record_layout(signature: Signature) -> tuple[dict[str, Field], int]:
-    """Each column's place in an item's record, and the record's length: widest elements
-    first and records padded to 8 bytes, so every field sits on its own alignment."""
-    fields, offset = {}, 0
-    by_width = sorted(signature.columns.items(), key=lambda c: -np.dtype(c[1].dtype).itemsize)
-    for name, spec in by_width:
-        fields[name] = Field(offset, spec.item_bytes, np.dtype(spec.dtype), spec.shape)
-        offset += spec.item_bytes
-    return {name: fields[name] for name in signature.columns}, -(-offset // 8) * 8
 
 
 class Table:
@@ -95,7 +67,15 @@ class Table:
         self.rate_limiter = rate_limiter or MinSize(1)
         self.max_times_sampled = max_times_sampled
         self.max_sequence_length = max_sequence_length
-        self._check_configuration()
+        check_configuration(
+            f"table '{name}'",
+            max_size=max_size,
+            sampler=self.sampler,
+            remover=remover,
+            rate_limiter=self.rate_limiter,
+            max_times_sampled=max_times_sampled,
+            max_sequence_length=max_sequence_length,
+        )
         self.stats = TableStats()
         if remover == "fifo" and max_times_sampled == 0:
             self.slots: RingSlots | FreeListSlots = RingSlots(max_size)
@@ -122,37 +102,6 @@ class Table:
         self._draws_independent = (
             isinstance(self.sampler, (Uniform, Prioritized)) and not max_times_sampled
         )
-
-    def _check_configuration(self) -> None:
-        where = f"table '{self.name}'"
-        if self.max_size < 1:
-            raise ValueError(f"{where}: max_size must be >= 1, got {self.max_size}")
-        if self.remover not in REMOVERS:
-            raise ValueError(f"{where}: remover {self.remover!r} is not one of {REMOVERS}")
-        if self.max_times_sampled < 0:
-            raise ValueError(f"{where}: max_times_sampled must be >= 0 (0 = unlimited)")
-        if not 1 <= self.max_sequence_length <= self.max_size:
-            raise ValueError(f"{where}: max_sequence_length must lie in [1, max_size]")
-        if self.rate_limiter.min_size > self.max_size:
-            raise ValueError(
-                f"{where}: rate limiter min_size {self.rate_limiter.min_size} exceeds "
-                f"max_size {self.max_size}, so sampling could never start"
-            )
-        if self.max_sequence_length > 1 and isinstance(self.sampler, (Fifo, Lifo)):
-            raise ValueError(
-                f"{where}: a {self.sampler.name} sampler always picks the same items, so it "
-                "cannot redraw a window that is still incomplete; use uniform or prioritized"
-            )
-        if (
-            self.max_times_sampled
-            and isinstance(self.rate_limiter, SampleToInsertRatio)
-            and self.rate_limiter.samples_per_insert > self.max_times_sampled
-        ):
-            raise ValueError(
-                f"{where}: samples_per_insert {self.rate_limiter.samples_per_insert} exceeds "
-                f"max_times_sampled {self.max_times_sampled}: items would be used up faster "
-                "than the ratio lets inserts replace them, and sampling would deadlock"
-            )
 
     @property
     def size(self) -> int:

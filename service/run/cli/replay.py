@@ -167,7 +167,8 @@ def _serve(args: argparse.Namespace) -> None:
 
 
 def _info(args: argparse.Namespace) -> None:
-    from service.replay.client import ReplayClient, ReplayError
+    from service.replay.client import ReplayClient
+    from service.replay.errors import ReplayError
 
     client = ReplayClient(args.address, token=_token(args, "info"), max_retries=0)
     try:

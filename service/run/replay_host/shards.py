@@ -19,7 +19,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-from service.replay.client import ReplayClient, ReplayError
+from service.replay.client import ReplayClient
+from service.replay.errors import ReplayError
 from service.replay.sharding import ShardedReplayClient
 from service.run.replay_host.supervised import SupervisedReplay
 

@@ -63,6 +63,22 @@ def served(*flags: str, instances: int = 1) -> Iterator[tuple[subprocess.Popen[b
                 proc.wait()
 
 
+def received_until_closed(s: socket.socket, timeout: float) -> bytes:
+    """Everything the server sent on ``s`` before it closed it (a reset counts as closed).
+
+    Raises:
+        TimeoutError: the connection stayed open for `timeout` seconds of silence.
+    """
+    s.settimeout(timeout)
+    data = b""
+    try:
+        while chunk := s.recv(4096):
+            data += chunk
+    except ConnectionResetError:
+        pass
+    return data
+
+
 def connect(port: int, timeout: float = 10.0) -> socket.socket:
     """A MalmoEnv connection (hello sent) to a server on loopback."""
     s = socket.create_connection(("127.0.0.1", port), timeout=timeout)

@@ -10,7 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from service.replay.client import DeadlineExceeded, ReplayClient
+from service.replay.client import ReplayClient
+from service.replay.errors import DeadlineExceeded
 from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 

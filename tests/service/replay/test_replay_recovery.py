@@ -20,8 +20,9 @@ import numpy as np
 import pytest
 
 from service.replay._proto import replay_pb2
-from service.replay.client import ReplayClient, ReplayError
+from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
+from service.replay.errors import ReplayError
 from service.replay.server import durability
 from service.run.replay_host.process import EXIT_FOLDER_UNUSABLE, ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch

@@ -13,7 +13,8 @@ import urllib.request
 
 import pytest
 
-from service.replay.client import ReplayClient, Unauthenticated, Unavailable
+from service.replay.client import ReplayClient
+from service.replay.errors import Unauthenticated, Unavailable
 from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch, self_signed_cert
 

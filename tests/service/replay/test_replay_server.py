@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from service.replay._proto import replay_pb2
-from service.replay.client import InvalidArgument, ReplayClient, TableNotFound
+from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
+from service.replay.errors import InvalidArgument, TableNotFound
 from service.replay.server.grpc_server import InsecureBindError, ServerOptions, build_server
 from service.replay.server.store import ReplayCore
 from service.replay.server.table_config import make_table
@@ -129,7 +130,7 @@ def test_token_is_required_when_configured():
     running = build_server(core, ServerOptions(token="s3cret"))
     server, port = running.server, running.port
     try:
-        from service.replay.client import Unauthenticated
+        from service.replay.errors import Unauthenticated
 
         with pytest.raises(Unauthenticated):
             ReplayClient(f"127.0.0.1:{port}", max_retries=0).info()

@@ -8,7 +8,7 @@ import threading
 import numpy as np
 import pytest
 
-from service.replay.client import DeadlineExceeded
+from service.replay.errors import DeadlineExceeded
 from service.replay.sharding import ShardedReplayClient
 from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.replay.client import DeadlineExceeded
+from service.replay.errors import DeadlineExceeded
 from service.replay.sharding import ShardedReplayClient
 from service.run.config import load_preset
 from service.run.orchestration.launcher import train

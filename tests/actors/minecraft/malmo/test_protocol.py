@@ -12,7 +12,7 @@ import pytest
 
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.sim.server import WorldServer
-from tests.actors.minecraft.conftest import flat_mission, init_reply
+from tests.actors.minecraft.conftest import flat_mission, init_reply, received_until_closed
 
 FRAME = 16 * 12 * 3  # flat_mission(video=True)
 
@@ -42,13 +42,8 @@ def _peek_until_frame(s: socket.socket) -> bytes:
 
 def _closed(s: socket.socket) -> bool:
     """The server closed the connection, after at most one ``error: ...`` message."""
-    s.settimeout(5)
-    data = b""
     try:
-        while chunk := s.recv(4096):
-            data += chunk
-    except ConnectionResetError:
-        pass
+        data = received_until_closed(s, 5)
     except TimeoutError:
         return False
     return data == b"" or (data[4:].startswith(b"error: ") and P.frame(data[4:]) == data)

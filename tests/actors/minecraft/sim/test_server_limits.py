@@ -20,6 +20,7 @@ from tests.actors.minecraft.conftest import (
     connect,
     flat_mission,
     mission_init,
+    received_until_closed,
     served,
     status,
 )
@@ -46,13 +47,7 @@ def _wait_for(what: str, ready: Callable[[], bool], timeout_s: float = 60.0) -> 
 
 def _reply_then_closed(s: socket.socket) -> str:
     """Everything the server sent before closing ``s``, as framed text."""
-    s.settimeout(30)
-    data = b""
-    try:
-        while chunk := s.recv(4096):
-            data += chunk
-    except ConnectionResetError:
-        pass
+    data = received_until_closed(s, 30)
     assert data, "closed without a reply"
     assert P.frame(data[4:]) == data, "more than one message before closing"
     return data[4:].decode()

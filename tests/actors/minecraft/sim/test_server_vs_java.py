@@ -9,19 +9,12 @@ import time
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.malmo.mission_xml import mission_xml
 from actors.minecraft.sim.server import WorldServer
-from tests.actors.minecraft.conftest import FLAT, connect, flat_mission
+from tests.actors.minecraft.conftest import FLAT, connect, flat_mission, received_until_closed
 
 
 def _reply_then_closed(s: socket.socket) -> bytes:
     """Everything the server sent before it closed ``s``."""
-    s.settimeout(10)
-    data = b""
-    try:
-        while chunk := s.recv(4096):
-            data += chunk
-    except ConnectionResetError:
-        pass
-    return data
+    return received_until_closed(s, 10)
 
 
 def _running(s: socket.socket) -> None:
