@@ -111,13 +111,16 @@ def main() -> None:
 def print_refusals(r: dict[str, Any]) -> None:
     """Part 6's table: the server's RSS over each kind of refused request."""
     print()
-    print(f"| refused request, {r['n']:,} each | status | RSS before MiB | after MiB | ratio |")
-    print("|---|---|---|---|---|")
+    print(
+        f"| refused request, {r['n']:,} each | status | RSS before MiB | peak MiB | after MiB "
+        "| ratio after/before |"
+    )
+    print("|---|---|---|---|---|---|")
     for kind in r["kinds"]:
         before, after = kind["rss"]
         print(
-            f"| {kind['kind']} | {', '.join(kind['codes'])} | {before:.0f} | {after:.0f} "
-            f"| {after / before:.3f} |"
+            f"| {kind['kind']} | {', '.join(kind['codes'])} | {before:.0f} | {kind['peak']:.0f} "
+            f"| {after:.0f} | {after / before:.3f} |"
         )
     ratio = r["end"] / r["warm"]
     print(

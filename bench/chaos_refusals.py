@@ -1,10 +1,13 @@
 """The chaos benchmark's refusals: 10,000 refused requests of each kind a replay server
-refuses, most carrying a 1 MiB field, against one server process; its RSS before and after.
+refuses, most carrying a 1 MiB field, against one server process; its RSS before, at its
+peak while they arrive, and after, once the server has handed freed memory back (it does
+so every `TRIM_EVERY_S`).
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -12,6 +15,7 @@ import grpc
 from procfs import rss_mib  # bench/, beside this script
 
 from service.replay._proto import replay_pb2, replay_pb2_grpc
+from service.replay.server.allocator import TRIM_EVERY_S
 from service.run.replay_host.process import ReplayProcess
 
 MIB = "n" * 2**20
@@ -62,6 +66,30 @@ def _send(address: str, refuse: Refusal, n: int, *, threads: int = 4) -> set[str
     return codes
 
 
+def _settled_rss_mib(pid: int) -> float:
+    """RSS once the server has had the time to hand back what the last requests freed."""
+    time.sleep(1.5 * TRIM_EVERY_S)
+    return rss_mib(pid)
+
+
+def _send_watching(address: str, refuse: Refusal, n: int, pid: int) -> tuple[set[str], float]:
+    """`_send`, and the highest RSS read (every 20 ms) while the requests arrive."""
+    peak = [rss_mib(pid)]
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.wait(0.02):
+            peak[0] = max(peak[0], rss_mib(pid))
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    try:
+        return _send(address, refuse, n), peak[0]
+    finally:
+        done.set()
+        watcher.join()
+
+
 def refused_requests(n: int, *, warm_up: int = 200) -> dict[str, Any]:
     """`n` refused requests of each kind in REFUSALS, after `warm_up` of each (the
     allocator's arenas and gRPC's buffers reach their working size); RSS per kind."""
@@ -71,10 +99,13 @@ def refused_requests(n: int, *, warm_up: int = 200) -> dict[str, Any]:
         started = rss_mib(pid)
         for refuse in REFUSALS.values():
             _send(server.address, refuse, warm_up)
-        warm = rss_mib(pid)
+        warm = _settled_rss_mib(pid)
         kinds = []
         for name, refuse in REFUSALS.items():
             before = rss_mib(pid)
-            codes = _send(server.address, refuse, n)
-            kinds.append({"kind": name, "codes": sorted(codes), "rss": (before, rss_mib(pid))})
+            codes, peak = _send_watching(server.address, refuse, n, pid)
+            after = _settled_rss_mib(pid)
+            kinds.append(
+                {"kind": name, "codes": sorted(codes), "rss": (before, after), "peak": peak}
+            )
         return {"n": n, "started": started, "warm": warm, "end": rss_mib(pid), "kinds": kinds}
