@@ -4,8 +4,9 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 TORCH  := 2.13.0
+comma  := ,
 
-.PHONY: demo test test-fast test-long test-lowest test-wheel dist setup lint proto proto-check bench clean
+.PHONY: demo test test-fast test-long test-lowest test-wheel dist image setup lint proto proto-check bench clean
 
 demo: setup
 	$(BIN)/graft train --preset pendulum-td3
@@ -64,6 +65,24 @@ test-lowest:
 dist: setup
 	$(BIN)/python -m build
 
+# The image of deploy/Dockerfile. BASE: an official Python image, or the local one
+# deploy/make-base.sh makes where no registry answers. CA: the bundle pip trusts while
+# building (a BuildKit secret, never in a layer); empty for the base's own.
+IMAGE  ?= graft:latest
+BASE   ?= python:3.11-slim
+CA     ?= $(wildcard /etc/ssl/certs/ca-certificates.crt)
+DOCKER ?= docker
+image:
+	@$(DOCKER) image inspect $(BASE) >/dev/null 2>&1 || $(DOCKER) pull -q $(BASE) >/dev/null 2>&1 \
+		|| { echo "make image: BASE=$(BASE) is neither a local image nor pullable (deploy/make-base.sh makes one)" >&2; exit 2; }
+	@[ -z "$(CA)" ] || [ -s "$(CA)" ] || { echo "make image: CA=$(CA): no such file" >&2; exit 2; }
+	@# The CPU torch wheel pip finds here (its config's find-links), for a build that cannot
+	@# reach download.pytorch.org; the build bind-mounts deploy/wheels/ and never copies it.
+	@mkdir -p deploy/wheels
+	-@$(PYTHON) -m pip download -q --no-deps -d deploy/wheels "torch==$(TORCH)+cpu" 2>/dev/null
+	DOCKER_BUILDKIT=1 $(DOCKER) build -f deploy/Dockerfile -t $(IMAGE) --build-arg BASE=$(BASE) \
+		--build-arg TORCH=$(TORCH) $(if $(CA),--secret id=ca$(comma)src=$(CA)) .
+
 setup: $(VENV)/.installed
 
 # Never pull multi-GB CUDA wheels onto a machine without a GPU.
@@ -103,4 +122,4 @@ bench: setup
 	$(BIN)/python bench/pendulum.py
 
 clean:
-	rm -rf $(VENV) $(LOWEST) dist runs .pytest_cache
+	rm -rf $(VENV) $(LOWEST) dist deploy/wheels runs .pytest_cache
