@@ -4,8 +4,9 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 TORCH  := 2.13.0
+comma  := ,
 
-.PHONY: demo test test-fast test-long setup lint proto proto-check bench clean
+.PHONY: demo test test-fast test-long test-lowest test-wheel dist image setup lint proto proto-check bench clean
 
 demo: setup
 	$(BIN)/graft train --preset pendulum-td3
@@ -20,8 +21,8 @@ TEST_WORKERS ?= 4
 
 # Every test: the parallel part, then the real-time part.
 test: setup $(TEST_PACKAGES)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial and not long"
-	$(BIN)/python -m pytest -q -m "serial and not long"
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial and not long and not wheel"
+	$(BIN)/python -m pytest -q -m "serial and not long and not wheel"
 
 # The inner loop: no Ray, no server processes (starting either fails the test here).
 test-fast: setup $(TEST_PACKAGES)
@@ -39,17 +40,65 @@ $(VENV)/.example-%: examples/%/pyproject.toml $(VENV)/.installed
 	$(BIN)/pip install --no-deps -e examples/$*
 	touch $@
 
+# The wheel as a user gets it: built, installed into a fresh venv, `graft presets` and a
+# 1,500-step pendulum-td3 (minutes: tests/deploy/test_wheel.py).
+test-wheel: setup
+	$(BIN)/python -m pytest -q tests/deploy/test_wheel.py
+
+# The lowest versions pyproject.toml allows: each dependency pinned to its floor, then a
+# 1,500-step pendulum-td3 (Ray, the replay server over gRPC, TensorBoard) and the quick
+# subset of the replay and learner tests. torch stays at $(TORCH): the CPU build of its
+# floor is not on PyPI.
+LOWEST ?= .venv-lowest
+test-lowest:
+	rm -rf $(LOWEST)
+	$(PYTHON) -m venv $(LOWEST)
+	$(call install_torch,$(LOWEST)/bin)
+	$(PYTHON) .ci/lowest_constraints.py --hold torch > $(LOWEST)/constraints.txt
+	$(LOWEST)/bin/pip install --only-binary :all: -c $(LOWEST)/constraints.txt \
+		. pytest pytest-timeout pytest-xdist hypothesis
+	cd $(LOWEST) && env -u PYTHONPATH -u RAY_ADDRESS bin/graft train --preset pendulum-td3 \
+		--env-steps 1500 --actors 1 --address local --run-dir run --no-progress
+	env -u PYTHONPATH $(LOWEST)/bin/python -m pytest -q -n 2 \
+		-m "not service and not slow and not serial and not long" tests/service/replay tests/learner
+
+# An sdist and a wheel in dist/.
+dist: setup
+	$(BIN)/python -m build
+
+# The image of deploy/Dockerfile. BASE: an official Python image, or the local one
+# deploy/make-base.sh makes where no registry answers. CA: the bundle pip trusts while
+# building (a BuildKit secret, never in a layer); empty for the base's own.
+IMAGE  ?= graft:latest
+BASE   ?= python:3.11-slim
+CA     ?= $(wildcard /etc/ssl/certs/ca-certificates.crt)
+DOCKER ?= docker
+image:
+	@$(DOCKER) image inspect $(BASE) >/dev/null 2>&1 || $(DOCKER) pull -q $(BASE) >/dev/null 2>&1 \
+		|| { echo "make image: BASE=$(BASE) is neither a local image nor pullable (deploy/make-base.sh makes one)" >&2; exit 2; }
+	@[ -z "$(CA)" ] || [ -s "$(CA)" ] || { echo "make image: CA=$(CA): no such file" >&2; exit 2; }
+	@# The CPU torch wheel pip finds here (its config's find-links), for a build that cannot
+	@# reach download.pytorch.org; the build bind-mounts deploy/wheels/ and never copies it.
+	@mkdir -p deploy/wheels
+	-@$(PYTHON) -m pip download -q --no-deps -d deploy/wheels "torch==$(TORCH)+cpu" 2>/dev/null
+	DOCKER_BUILDKIT=1 $(DOCKER) build -f deploy/Dockerfile -t $(IMAGE) --build-arg BASE=$(BASE) \
+		--build-arg TORCH=$(TORCH) $(if $(CA),--secret id=ca$(comma)src=$(CA)) .
+
 setup: $(VENV)/.installed
+
+# Never pull multi-GB CUDA wheels onto a machine without a GPU.
+define install_torch
+	@if command -v nvidia-smi >/dev/null 2>&1; then \
+		$(1)/pip install "torch==$(TORCH)"; \
+	else \
+		$(1)/pip install "torch==$(TORCH)+cpu" 2>/dev/null || \
+		$(1)/pip install --index-url https://download.pytorch.org/whl/cpu "torch==$(TORCH)+cpu"; \
+	fi
+endef
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	@# Never pull multi-GB CUDA wheels onto a machine without a GPU.
-	@if command -v nvidia-smi >/dev/null 2>&1; then \
-		$(BIN)/pip install "torch==$(TORCH)"; \
-	else \
-		$(BIN)/pip install "torch==$(TORCH)+cpu" 2>/dev/null || \
-		$(BIN)/pip install --index-url https://download.pytorch.org/whl/cpu "torch==$(TORCH)+cpu"; \
-	fi
+	$(call install_torch,$(BIN))
 	$(BIN)/pip install -e ".[dev]"
 	touch $@
 
@@ -59,10 +108,12 @@ lint: setup
 	$(BIN)/mypy service actors learner graft
 	$(BIN)/lint-imports
 
-# Generated gRPC code is checked in; CI regenerates it and fails on drift.
+# Generated gRPC code is checked in; CI regenerates it and fails on drift. A copy of the proto
+# sits beside it, at the path its descriptors name, so that the wheel carries it.
 proto: setup
 	$(BIN)/python -m grpc_tools.protoc -Iservice/replay/_proto=protos/graft/replay/v1 \
 		--python_out=. --grpc_python_out=. --pyi_out=. protos/graft/replay/v1/replay.proto
+	cp protos/graft/replay/v1/replay.proto service/replay/_proto/replay.proto
 
 proto-check: proto
 	git diff --exit-code -- service/replay/_proto
@@ -72,4 +123,4 @@ bench: setup
 	$(BIN)/python bench/pendulum.py
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) $(LOWEST) dist deploy/wheels runs .pytest_cache

@@ -8,6 +8,7 @@
 A thin facade over ``service.run.api``, which the ``graft`` command line calls too.
 """
 
+from service import __version__
 from service.run.api import Evaluation, Policy, Run, evaluate, load_policy, train
 from service.run.config import TrainConfig, load_preset
 
@@ -16,6 +17,7 @@ __all__ = [
     "Policy",
     "Run",
     "TrainConfig",
+    "__version__",
     "evaluate",
     "load_policy",
     "load_preset",

@@ -1,2 +1,7 @@
 """The service around actors and learner: the replay server and its client (``replay``), the weight
-broadcast (``weights``), metrics, and the run orchestration on top of everything (``run``)."""
+broadcast (``weights``), metrics, and the run orchestration on top of everything (``run``).
+
+``__version__`` is graft's one version number: the package metadata (pyproject.toml reads it
+here), ``graft --version`` and ``graft.__version__`` all give it."""
+
+__version__ = "0.1.0"

@@ -9,6 +9,7 @@ import argparse
 import sys
 from typing import NoReturn, Optional
 
+from service import __version__
 from service.run.cli.evaluate import add_eval_command
 from service.run.cli.flags import UsageError
 from service.run.cli.replay import add_replay_commands
@@ -29,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="graft", description="Improve hard-coded policies with distributed off-policy RL."
     )
+    parser.add_argument("--version", action="version", version=f"graft {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
     add_train_commands(commands)
     add_eval_command(commands)
