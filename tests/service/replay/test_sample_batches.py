@@ -158,6 +158,7 @@ def _requests(*requests: replay_pb2.SampleRequest):
     yield from requests
 
 
+@pytest.mark.service
 def test_a_response_stacks_up_to_batches_per_message_within_the_credits(client):
     client.insert("plain", scalar_batch(range(100)))
     before = _samples(client, "plain")
@@ -174,6 +175,7 @@ def test_a_response_stacks_up_to_batches_per_message_within_the_credits(client):
     assert _samples(client, "plain") - before == 10 * B
 
 
+@pytest.mark.service
 def test_a_client_that_does_not_ask_gets_one_batch_per_response(client):
     client.insert("plain", scalar_batch(range(100, 110)))
     call = client.stub.Sample(_requests(replay_pb2.SampleRequest(table="plain", batch_size=B,
@@ -184,6 +186,7 @@ def test_a_client_that_does_not_ask_gets_one_batch_per_response(client):
     assert [len(decode_batch(r.batch)["x"]) for r in responses] == [B, B]
 
 
+@pytest.mark.service
 def test_a_response_carries_what_the_limiter_admits_now_and_the_rest_follows(client):
     client.insert("ratio", scalar_batch(range(20)))  # admits 7 batches of 8, as one by one
     request = replay_pb2.SampleRequest(table="ratio", batch_size=B, num_batches=10,
@@ -199,6 +202,7 @@ def test_a_response_carries_what_the_limiter_admits_now_and_the_rest_follows(cli
     assert _samples(client, "ratio") == 9 * B
 
 
+@pytest.mark.service
 def test_a_prefetching_stream_yields_single_batches_and_keeps_its_window(client):
     client.insert("plain", scalar_batch(range(110, 210)))  # x = key throughout
     before = _samples(client, "plain")

@@ -26,6 +26,7 @@ def pool() -> Iterator[ServerPool]:
 MISSION = mission_xml(width=32, height=24, ms_per_tick=10, seed=5)
 
 
+@pytest.mark.service
 def test_unchanged_malmoenv_client(pool: ServerPool) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -45,6 +46,7 @@ def test_unchanged_malmoenv_client(pool: ServerPool) -> None:
     env.close()
 
 
+@pytest.mark.service
 def test_graft_client_same_test(pool: ServerPool) -> None:
     c = MalmoClient("127.0.0.1", pool.ports[0])
     c.init(MISSION)
@@ -60,6 +62,7 @@ def test_graft_client_same_test(pool: ServerPool) -> None:
     c.close()
 
 
+@pytest.mark.service
 def test_sample_mission_parses_and_runs(pool: ServerPool) -> None:
     assert SAMPLE_PATH.read_text() == obtain_diamond()  # the file is the builder's output
     c = MalmoClient("127.0.0.1", pool.ports[0], synchronous=True)
