@@ -44,6 +44,9 @@ import pytest
 
 from service.replay.server import durability
 
+# Ray nodes in namespaces, with real-time waits: alone, after the parallel part.
+pytestmark = pytest.mark.serial
+
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 README = ROOT / "deploy" / "README.md"

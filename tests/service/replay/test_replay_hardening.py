@@ -378,6 +378,7 @@ def rss_mib(pid: int) -> float:
 
 
 @pytest.mark.service
+@pytest.mark.serial  # RSS read while other workers load the machine
 def test_refused_megabyte_requests_leave_the_server_memory_flat():
     """Within a second of the last refused request the server's RSS is back within 5 % of
     where it started. Aborted calls once kept their requests in reference cycles (200

@@ -155,6 +155,7 @@ def test_a_fast_actor_does_most_steps_and_both_act_until_the_end(ray_local, repl
         ray.kill(broadcaster)
 
 
+@pytest.mark.serial  # how far an actor gets before its kill
 def test_a_killed_actors_remaining_work_is_done_by_the_rest(ray_local, replay) -> None:
     actors, broadcaster = fleet(replay, 600, [0.01, 0.01])
     try:

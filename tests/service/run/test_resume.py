@@ -233,6 +233,7 @@ def _files(folder: Path) -> dict[str, bytes]:
 
 
 @pytest.mark.slow
+@pytest.mark.serial  # failed under parallel load; passes alone
 def test_a_folder_of_another_table_or_unrestorable_is_moved_aside_and_the_run_refills(
     ray_local, tmp_path, capsys
 ):
