@@ -1,7 +1,7 @@
 """The chaos benchmark's refusals: 10,000 refused requests of each kind a replay server
 refuses, most carrying a 1 MiB field, against one server process; its RSS before, at its
 peak while they arrive, and after, once the server has handed freed memory back (it does
-so every `TRIM_EVERY_S`).
+so every `TRIM_EVERY_S` after refused calls, `QUIET_PASSES` times after the last).
 """
 
 from __future__ import annotations
@@ -15,10 +15,12 @@ import grpc
 from procfs import rss_mib  # bench/, beside this script
 
 from service.replay._proto import replay_pb2, replay_pb2_grpc
-from service.replay.server.allocator import TRIM_EVERY_S
+from service.replay.server.allocator import QUIET_PASSES, TRIM_EVERY_S
 from service.run.replay_host.process import ReplayProcess
 
 MIB = "n" * 2**20
+FLAT = 1.10
+"""The bound: RSS after a kind's requests at most this times RSS before them."""
 SIGNATURE = {"x": {"dtype": "int64", "shape": []}}
 
 Refusal = Callable[[replay_pb2_grpc.ReplayServiceStub], Any]
@@ -67,8 +69,8 @@ def _send(address: str, refuse: Refusal, n: int, *, threads: int = 4) -> set[str
 
 
 def _settled_rss_mib(pid: int) -> float:
-    """RSS once the server has had the time to hand back what the last requests freed."""
-    time.sleep(1.5 * TRIM_EVERY_S)
+    """RSS once the server has made its passes after the last refused request."""
+    time.sleep((QUIET_PASSES + 0.5) * TRIM_EVERY_S)
     return rss_mib(pid)
 
 
