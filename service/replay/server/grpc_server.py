@@ -229,8 +229,8 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
         )
     if (o.tls_cert is None) != (o.tls_key is None):
         raise ValueError("TLS needs both a certificate and a key")
-    metrics = ReplayMetrics(core)
     freed = FreedMemory()
+    metrics = ReplayMetrics(core, freed)
     loop = _EventLoopThread()
     pool = HotThreadPool(o.max_workers, thread_name_prefix="replay")
     try:
