@@ -70,8 +70,8 @@ class _DurabilityCollector(Collector):
             ("graft_replay_unlogged_samples", "Items sampled while the write-ahead log could "
              "not record it (a restart before the next checkpoint would not count them)",
              d.unlogged_samples),
-            ("graft_replay_damaged_log_records", "Log records skipped at start-up because "
-             "their checksum failed", d.damaged_log_records),
+            ("graft_replay_damaged_log_records", "Log records skipped at start-up: their "
+             "checksum failed, or their fields or batch did not decode", d.damaged_log_records),
             ("graft_replay_damaged_checkpoints", "Checkpoints found unreadable at start-up",
              d.damaged_checkpoints),
         ):  # fmt: skip

@@ -383,8 +383,9 @@ def test_refused_megabyte_requests_leave_the_server_memory_flat():
     """Within a second of the last refused request the server's RSS is back within 5 % of
     where it started. Aborted calls once kept their requests in reference cycles (200
     refused 1 MiB table names and writer ids took it from about 90 MiB to over 400 MiB);
-    without its once-a-second garbage collection and `malloc_trim`, RSS stayed 10 to 70 MiB
-    up (cyclic garbage, and free pages kept in glibc's arenas) for as long as it ran."""
+    without the garbage collection and `malloc_trim` it makes each second after refused
+    calls, RSS stayed 10 to 70 MiB up (cyclic garbage, and free pages kept in glibc's
+    arenas) for as long as it ran."""
     big = "n" * 2**20
     refused = {
         "table name": lambda s: s.Insert(iter([replay_pb2.InsertRequest(table=big)])),
