@@ -122,10 +122,13 @@ class Server:
         config.write_text(json.dumps({"tables": [table]}))
         command = [sys.executable, __file__, "--serve", policy, str(self.passes_file), "serve"]
         command += ["--config", str(config), "--port", "0", "--ready-file", str(ready)]
-        self.process = subprocess.Popen(command, stdout=subprocess.DEVNULL)
+        log = folder / f"{slug}.log"
+        with open(log, "wb") as out:
+            self.process = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
         while not ready.exists():
             if self.process.poll() is not None:
-                raise RuntimeError(f"the '{policy}' server exited during start-up")
+                tail = log.read_text(errors="replace").strip().splitlines()[-1:]
+                raise RuntimeError(f"the '{policy}' server exited during start-up: {tail}")
             time.sleep(0.05)
         self.address: str = json.loads(ready.read_text())["address"]
 

@@ -30,9 +30,10 @@ log = logging.getLogger(__name__)
 
 TRIM_EVERY_S = 1.0
 """How often the server returns its freed memory to the OS, while calls are refused."""
-QUIET_PASSES = 2
-"""Passes made after the last refused or aborted call (a call's memory may be freed after
-the pass that follows it: gRPC tears a connection down after its calls)."""
+QUIET_PASSES = 5
+"""Passes made after the last refused or aborted call: what one pass collects, gRPC frees
+a moment later (a call's buffers, a closed connection's), for the next pass to hand back;
+on a loaded machine that moment stretches to seconds."""
 
 
 def _malloc_trim() -> Optional[Callable[[int], int]]:
