@@ -1,24 +1,29 @@
 """The chaos benchmark's refusals: 10,000 refused requests of each kind a replay server
 refuses, most carrying a 1 MiB field, against one server process; its RSS before, at its
-peak while they arrive, and after, once the server has handed freed memory back (it does
-so every `TRIM_EVERY_S`).
+peak while they arrive, and after, once the server has handed freed memory back: after
+`QUIET_PASSES` of its memory passes (every `TRIM_EVERY_S` after refused calls), counted
+by its metrics, have ended since the last request was answered.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+import urllib.request
 from collections.abc import Callable
 from typing import Any
 
 import grpc
-from procfs import rss_mib  # bench/, beside this script
+from chaos_ledger import free_port  # bench/, beside this script
+from procfs import rss_mib
 
 from service.replay._proto import replay_pb2, replay_pb2_grpc
-from service.replay.server.allocator import TRIM_EVERY_S
+from service.replay.server.allocator import QUIET_PASSES, TRIM_EVERY_S
 from service.run.replay_host.process import ReplayProcess
 
 MIB = "n" * 2**20
+FLAT = 1.10
+"""The bound: RSS after a kind's requests at most this times RSS before them."""
 SIGNATURE = {"x": {"dtype": "int64", "shape": []}}
 
 Refusal = Callable[[replay_pb2_grpc.ReplayServiceStub], Any]
@@ -66,9 +71,25 @@ def _send(address: str, refuse: Refusal, n: int, *, threads: int = 4) -> set[str
     return codes
 
 
-def _settled_rss_mib(pid: int) -> float:
-    """RSS once the server has had the time to hand back what the last requests freed."""
-    time.sleep(1.5 * TRIM_EVERY_S)
+def _memory_passes(metrics_port: int) -> int:
+    """The server's memory passes so far (`graft_replay_memory_passes_total`)."""
+    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=10) as r:
+        for line in r.read().decode().splitlines():
+            if line.startswith("graft_replay_memory_passes_total "):
+                return int(float(line.split()[1]))
+    raise RuntimeError("the server's metrics have no graft_replay_memory_passes_total")
+
+
+def _settled_rss_mib(pid: int, metrics_port: int) -> float:
+    """RSS once the server has made `QUIET_PASSES` memory passes since this call: what the
+    last requests freed is back with the OS, however loaded the machine (a pass frees what
+    the one before collected: gRPC frees a collected call's buffers a moment later)."""
+    done = _memory_passes(metrics_port) + QUIET_PASSES
+    deadline = time.monotonic() + 60 * TRIM_EVERY_S
+    while _memory_passes(metrics_port) < done:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the server made no {QUIET_PASSES} memory passes in 60 periods")
+        time.sleep(0.1 * TRIM_EVERY_S)
     return rss_mib(pid)
 
 
@@ -94,17 +115,18 @@ def refused_requests(n: int, *, warm_up: int = 200) -> dict[str, Any]:
     """`n` refused requests of each kind in REFUSALS, after `warm_up` of each (the
     allocator's arenas and gRPC's buffers reach their working size); RSS per kind."""
     tables = [{"name": "t", "max_size": 1000, "signature": SIGNATURE}]
-    with ReplayProcess(tables) as server:
+    port = free_port()
+    with ReplayProcess(tables, extra_args=["--metrics-port", str(port)]) as server:
         pid = server.process.pid
         started = rss_mib(pid)
         for refuse in REFUSALS.values():
             _send(server.address, refuse, warm_up)
-        warm = _settled_rss_mib(pid)
+        warm = _settled_rss_mib(pid, port)
         kinds = []
         for name, refuse in REFUSALS.items():
             before = rss_mib(pid)
             codes, peak = _send_watching(server.address, refuse, n, pid)
-            after = _settled_rss_mib(pid)
+            after = _settled_rss_mib(pid, port)
             kinds.append(
                 {"kind": name, "codes": sorted(codes), "rss": (before, after), "peak": peak}
             )

@@ -24,6 +24,7 @@ from grpc_health.v1 import health_pb2, health_pb2_grpc
 
 from service.replay._proto import replay_pb2_grpc
 from service.replay.codec import DEFAULT_MAX_BYTES
+from service.replay.server.allocator import FreedMemory
 from service.replay.server.prom import ReplayMetrics
 from service.replay.server.servicer import ReplayServicer
 from service.replay.server.store import ReplayCore
@@ -135,6 +136,8 @@ class RunningServer:
     port: int
     health: HealthHandle
     metrics: ReplayMetrics
+    freed_memory: FreedMemory
+    """Hands back what refused and aborted calls freed, once its `run` is started."""
 
 
 def _cannot_bind(host: str, port: int) -> Optional[PortUnavailable]:
@@ -162,6 +165,7 @@ async def _start(
     o: ServerOptions,
     loop: asyncio.AbstractEventLoop,
     pool: futures.Executor,
+    freed: FreedMemory,
 ) -> tuple[grpc.aio.Server, ReplayServicer, aio_health.HealthServicer, int]:
     server = grpc.aio.server(
         interceptors=[TokenInterceptor(o.token)] if o.token else [],
@@ -176,7 +180,12 @@ async def _start(
         ],
     )
     servicer = ReplayServicer(
-        core, metrics, loop=loop, pool=pool, max_message_bytes=o.max_message_bytes
+        core,
+        metrics,
+        loop=loop,
+        pool=pool,
+        max_message_bytes=o.max_message_bytes,
+        ended_badly=freed.call_ended_badly,
     )
     replay_pb2_grpc.add_ReplayServiceServicer_to_server(servicer, server)
     health_servicer = aio_health.HealthServicer()
@@ -220,12 +229,13 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
         )
     if (o.tls_cert is None) != (o.tls_key is None):
         raise ValueError("TLS needs both a certificate and a key")
-    metrics = ReplayMetrics(core)
+    freed = FreedMemory()
+    metrics = ReplayMetrics(core, freed)
     loop = _EventLoopThread()
     pool = HotThreadPool(o.max_workers, thread_name_prefix="replay")
     try:
         server, servicer, health_servicer, port = loop.run(
-            _start(core, metrics, o, loop.loop, pool)
+            _start(core, metrics, o, loop.loop, pool, freed)
         )
     except BaseException:
         pool.shutdown()
@@ -236,6 +246,7 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
         port,
         HealthHandle(health_servicer, loop),
         metrics,
+        freed,
     )
 
 

@@ -10,6 +10,7 @@ from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, star
 from prometheus_client.core import CounterMetricFamily, Metric
 from prometheus_client.registry import Collector
 
+from service.replay.server.allocator import FreedMemory
 from service.replay.server.store import ReplayCore
 from service.replay.server.table import Table
 
@@ -17,7 +18,7 @@ from service.replay.server.table import Table
 class ReplayMetrics:
     """RPC latency, bytes in/out, and per-table figures read live from the core."""
 
-    def __init__(self, core: ReplayCore) -> None:
+    def __init__(self, core: ReplayCore, freed: FreedMemory) -> None:
         self.registry = CollectorRegistry()
         r = self.registry
         self.rpc_latency = Histogram(
@@ -44,6 +45,7 @@ class ReplayMetrics:
             for table in core.tables.values():
                 gauge.labels(table.name).set_function(functools.partial(read, table))
         r.register(_DurabilityCollector(core))
+        r.register(_FreedMemoryCollector(freed))
 
     def serve(self, port: int, host: str = "127.0.0.1") -> int:
         """Starts the /metrics HTTP endpoint; returns the bound port."""
@@ -68,9 +70,23 @@ class _DurabilityCollector(Collector):
             ("graft_replay_unlogged_samples", "Items sampled while the write-ahead log could "
              "not record it (a restart before the next checkpoint would not count them)",
              d.unlogged_samples),
-            ("graft_replay_damaged_log_records", "Log records skipped at start-up because "
-             "their checksum failed", d.damaged_log_records),
+            ("graft_replay_damaged_log_records", "Log records skipped at start-up: their "
+             "checksum failed, or their fields or batch did not decode", d.damaged_log_records),
             ("graft_replay_damaged_checkpoints", "Checkpoints found unreadable at start-up",
              d.damaged_checkpoints),
         ):  # fmt: skip
             yield CounterMetricFamily(name, help_text, value=value)
+
+
+class _FreedMemoryCollector(Collector):
+    """The passes that handed what refused and aborted calls freed back to the OS."""
+
+    def __init__(self, freed: FreedMemory) -> None:
+        self._freed = freed
+
+    def collect(self) -> Iterator[Metric]:
+        yield CounterMetricFamily(
+            "graft_replay_memory_passes",
+            "Garbage collections and malloc_trims made after refused or aborted calls",
+            value=self._freed.passes,
+        )

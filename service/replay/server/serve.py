@@ -11,7 +11,6 @@ import threading
 from contextlib import suppress
 from typing import Optional
 
-from service.replay.server.allocator import return_freed_memory
 from service.replay.server.durability import StorageError
 from service.replay.server.grpc_server import ServerOptions, build_server, host_port
 from service.replay.server.store import ReplayCore
@@ -63,9 +62,9 @@ def serve_forever(
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
-    # Requests of megabytes, refused ones included, would otherwise leave RSS tens of MiB up
-    # (cyclic garbage, and free pages glibc's malloc keeps).
-    threading.Thread(target=return_freed_memory, args=(stop,), daemon=True).start()
+    # Refused megabyte requests would otherwise leave RSS tens of MiB up (cyclic garbage,
+    # and free pages glibc's malloc keeps).
+    threading.Thread(target=running.freed_memory.run, args=(stop,), daemon=True).start()
     if parent_pid is not None:
         threading.Thread(target=_stop_when_orphaned, args=(parent_pid, stop), daemon=True).start()
     while not stop.wait(checkpoint_every_s or None):

@@ -76,8 +76,11 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         loop: asyncio.AbstractEventLoop,
         pool: futures.Executor,
         max_message_bytes: int = DEFAULT_MAX_BYTES,
+        ended_badly: Callable[[], None] = lambda: None,
     ) -> None:
+        """`ended_badly` is called (on the event loop) for each call refused or aborted."""
         self.core = core
+        self._ended_badly = ended_badly
         self.metrics = metrics
         self.max_message_bytes = max_message_bytes
         self._loop = loop
@@ -99,6 +102,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         state keeps, whose traceback holds the handler's frame and so the request, in a
         reference cycle only the cyclic garbage collector frees. Refused megabyte requests
         then pile up faster than it runs, and the freed memory stays fragmented."""
+        self._ended_badly()  # what the call leaves is handed back (allocator.FreedMemory)
         for kinds, code in _STATUS_OF:
             if isinstance(error, kinds):
                 self.metrics.errors.labels(code.name).inc()
@@ -238,6 +242,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                 dropped += resent
         except asyncio.CancelledError:
             call.end()
+            self._ended_badly()
             raise
         except Exception as error:
             self._refuse(context, error)
@@ -313,6 +318,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                     )
         except asyncio.CancelledError:
             call.end()
+            self._ended_badly()
             raise
         except Exception as error:
             self._refuse(context, error)
