@@ -110,6 +110,8 @@ class EnvSpec:
             raise ValueError(
                 f"env_kwargs {sorted(kwargs)} rejected by {self.env_id}: {error}"
             ) from error
+        except (gym.error.DependencyNotInstalled, ImportError) as error:
+            raise ValueError(missing_dependency(self.env_id, error)) from None
         except gym.error.Error as error:
             raise ValueError(
                 f"env_id={self.env_id!r} is not a gymnasium id nor an import string "
@@ -123,6 +125,33 @@ class EnvSpec:
             env = wrapper(env)
             _check_env(env, f"obs_wrapper={self.obs_wrapper!r}")
         return env
+
+
+def missing_dependency(env_id: str, error: BaseException) -> str:
+    """One line for an environment that is registered but needs a package that is not
+    installed: which one to install (gymnasium's extra for its own environments, e.g.
+    ``pip install "gymnasium[box2d]"`` for LunarLander-v3), then what the import said."""
+    said = " ".join(str(error).split()) or type(error).__name__
+    extra = _gymnasium_extra(env_id)
+    if extra is None:
+        return f"env_id={env_id!r} needs a package that is not installed: {said}"
+    return (
+        f"env_id={env_id!r} needs a dependency that is not installed: pip install "
+        f'"gymnasium[{extra}]" ({said})'
+    )
+
+
+def _gymnasium_extra(env_id: str) -> Optional[str]:
+    """The gymnasium extra that installs what a gymnasium environment needs (``box2d``,
+    ``mujoco``, ...), from the folder of its entry point; None for other environments."""
+    try:
+        entry = gym.spec(env_id).entry_point
+    except gym.error.Error:
+        return None
+    parts = entry.split(":")[0].split(".") if isinstance(entry, str) else []
+    if len(parts) < 3 or parts[:2] != ["gymnasium", "envs"]:
+        return None
+    return parts[2].replace("_", "-")
 
 
 def _check_env(env: Any, source: str) -> None:
