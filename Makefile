@@ -13,7 +13,8 @@ demo: setup
 
 # The user-task fixture and each example project are packages of their own, installed the
 # way a user installs theirs.
-TEST_PACKAGES := $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example-cartpole
+TEST_PACKAGES := $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example-cartpole \
+	$(VENV)/.example-lunarlander
 # The suite mostly waits (Ray and servers starting, real-time clocks), so it runs on more
 # xdist workers than cores, a file per worker (a module's shared server or cluster stays on
 # one); tests that measure real-time pacing, or reuse a port across a restart, run after it.

@@ -27,6 +27,7 @@ EXAMPLES = REPO / "examples"
 DISTRIBUTIONS = {
     "mountaincar": "graft-example-mountaincar 0.1.0",
     "cartpole": "graft-example-cartpole 0.1.0",
+    "lunarlander": "graft-example-lunarlander 0.1.0",
 }
 TINY = {
     "env_steps": 300,
@@ -158,3 +159,28 @@ def test_the_cartpole_tree_writes_discrete_actions_and_balances_for_a_while() ->
     random = graft.evaluate(graft.load_policy("random", preset=preset), episodes=5, seed=0)
     assert returns.min() > 100 > random.returns.max()  # well past random, short of 500
     assert returns.max() < 500
+
+
+LANDER = EXAMPLES / "lunarlander/presets/backbone.yaml"
+# [x, y, vx, vy, angle, angular velocity, left leg, right leg] -> [main, lateral], by rule.
+LANDER_RULES = {
+    "coasting, upright and slow": ([0, 1, 0, -0.1, 0, 0, 0, 0], [-1.0, 0.0]),
+    "both legs down: engines off": ([0, 0, 0, -0.5, 0, 0, 1, 1], [-1.0, 0.0]),
+    "sinking fast: brake": ([0, 1, 0, -1.0, 0, 0, 0, 0], [1.0, 0.0]),
+    "tilted counter-clockwise: turn back": ([0, 1, 0, 0, 0.5, 0, 0, 0], [-1.0, 1.0]),
+    "tilted clockwise: turn back": ([0, 1, 0, 0, -0.5, 0, 0, 0], [-1.0, -1.0]),
+    "tipping beats sinking": ([0, 1, 0, -1.0, 0.5, 0, 0, 0], [-1.0, 1.0]),
+}
+
+
+@pytest.mark.parametrize("obs, action", LANDER_RULES.values(), ids=LANDER_RULES.keys())
+def test_the_lander_tree_answers_each_situation_by_its_rule(obs, action) -> None:
+    tree = graft.load_policy("hardcoded", preset=LANDER)
+    np.testing.assert_array_equal(tree(np.array(obs, np.float32)), action)
+
+
+def test_the_lander_tree_is_mediocre_as_its_readme_says() -> None:
+    """Far above random and short of LunarLander's 200: it lands about half the time."""
+    result = graft.evaluate(graft.load_policy("hardcoded", preset=LANDER), episodes=50, seed=0)
+    assert 100.0 <= result.mean <= 180.0, result.mean
+    assert 0.3 <= np.mean(result.metrics["landed"]) <= 0.8
