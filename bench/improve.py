@@ -14,9 +14,9 @@ episodes) with its 95 % bootstrap interval over seeds (`service.run.experiments.
 the worst in-run evaluation relative to the tree on the same episodes, env steps and wall
 time; prints a table, writes OUT/improve.json and OUT/improve.png.
 
-    python bench/improve.py --task lunarlander --seeds 5 [--env-steps N] [--set k=v ...]
-    python bench/improve.py --suite --seeds 5
-    python bench/improve.py --task pendulum --quick     # a smoke run: 1 seed, tiny budget
+    python -m bench.improve --task lunarlander --seeds 5 [--env-steps N] [--set k=v ...]
+    python -m bench.improve --suite --seeds 5
+    python -m bench.improve --task pendulum --quick     # a smoke run: 1 seed, tiny budget
 
 The examples must be installed (``pip install -e examples/mountaincar examples/cartpole
 examples/lunarlander``). A seed whose run finished is read back, not re-run.

@@ -21,6 +21,7 @@ import yaml
 
 import graft
 from service.run.cli import main
+from service.run.config import load_preset
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
@@ -46,7 +47,11 @@ SECTIONS = {
     # 250: the learner logs every 250th update's losses, the margin loss among them.
     "dqn": {"batch_size": 32, "burn_in_updates": 250, "epsilon_decay_env_steps": 200},
 }
-BY_CLI = ["mountaincar/presets/backbone.yaml", "cartpole/presets/ddqn-demos.yaml"]
+BY_CLI = [
+    "mountaincar/presets/backbone.yaml",
+    "cartpole/presets/ddqn-demos.yaml",
+    "lunarlander/presets/recipe.yaml",
+]
 """Trained by `graft train` in a fresh process; every other preset through `graft.train`."""
 PRESETS = sorted(str(p.relative_to(EXAMPLES)) for p in EXAMPLES.glob("*/presets/*.yaml"))
 
@@ -55,8 +60,12 @@ def _tiny(preset: str) -> dict:
     """Overrides for the sections the preset sets (a section it does not set keeps its
     defaults, and some methods refuse fields they do not use)."""
     data = yaml.safe_load((EXAMPLES / preset).read_text())
-    sections = {name: dict(fields) for name, fields in SECTIONS.items() if name in data}
-    if data["algorithm"] != "pretrain_td3":
+    algorithm = data.get("algorithm") or load_preset(EXAMPLES / preset).algorithm
+    # A preset without an algorithm trains with graft's default recipe, which sets the
+    # section of its method.
+    used = set(data) | ({"dqn"} if algorithm == "ddqn" else {"td3"})
+    sections = {name: dict(fields) for name, fields in SECTIONS.items() if name in used}
+    if algorithm != "pretrain_td3":
         sections.pop("pretrain", None)
     return {**TINY, **sections}
 
@@ -132,6 +141,10 @@ def test_graft_train_and_eval_of_an_example_in_fresh_processes(
     )  # fmt: skip
     assert train.returncode == 0, train.stderr[-3000:]
     _check_run(run_dir, preset)
+    if preset.endswith("recipe.yaml"):  # no algorithm named: said in one line
+        assert "no algorithm: graft's default recipe for continuous actions" in train.stderr
+        recorded = yaml.safe_load((run_dir / "config.yaml").read_text())
+        assert (recorded["recipe"], recorded["algorithm"]) == ("continuous", "backbone_td3")
     if preset.endswith("ddqn-demos.yaml"):
         # The burn-in trained on the tree's demonstrations, with the margin loss towards it.
         with (run_dir / "metrics.csv").open() as f:
