@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import subprocess
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -139,15 +140,19 @@ def run_task(
     rows: list[SeedRow] = []
     for seed in seeds:
         start = time.perf_counter()
-        result = run_seed(
-            str(preset),
-            seed,
-            out / task / f"s{seed}",
-            overrides=overrides,
-            env_steps=env_steps,
-            episodes=EPISODES,
-            eval_seed=final_seed(seed),
-        )
+        try:
+            result = run_seed(
+                str(preset),
+                seed,
+                out / task / f"s{seed}",
+                overrides=overrides,
+                env_steps=env_steps,
+                episodes=EPISODES,
+                eval_seed=final_seed(seed),
+            )
+        except subprocess.CalledProcessError:  # reported and left out; the others go on
+            print(f"{task} seed {seed}: FAILED, see {out / task / f's{seed}.log'}", flush=True)
+            continue
         eval_episodes = int(settings.get("eval_episodes", config.eval_episodes))
         steps, evaluations = read_metric(result.run_dir / "metrics.csv", "eval/return_mean")
         summary = json.loads((result.run_dir / "summary.json").read_text())
@@ -169,6 +174,8 @@ def run_task(
             f"{row.wall_s:.0f} s ({time.perf_counter() - start:.0f} s with scoring)",
             flush=True,
         )
+    if not rows:
+        raise SystemExit(f"{task}: every seed failed (logs in {out / task})")
     return summarise(task, rows, budget=budget, algorithm=config.algorithm), rows
 
 
