@@ -143,7 +143,9 @@ class Follower:
         return os.getpid()
 
     def holds(self) -> int:
-        return min(self.held)
+        """The oldest version any of its actors holds (-1 before `follow` has started them:
+        the two calls run on separate threads, so this one may come first)."""
+        return min(self.held, default=-1)
 
     def follow(self, subscribers: list[Any], step_s: float) -> list[dict[str, Any]]:
         self.held = [-1] * len(subscribers)

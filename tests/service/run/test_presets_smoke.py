@@ -19,7 +19,9 @@ TINY = {
     "eval_episodes": 1,
     "publish_every": 20,
     "checkpoint_every": 10_000,
-    "num_actors": 2,
+    # One actor process with two environments: every preset's path through the service
+    # at the least CPU (several actors: test_end_to_end, test_supervision, test_budget).
+    "num_actors": 1,
     "envs_per_actor": 2,
     "steps_per_insert": 4,
     "slack_env_steps": 16,

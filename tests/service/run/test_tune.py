@@ -112,6 +112,7 @@ def _point(costs: Costs, **overrides):
         ),
     ],
 )
+@pytest.mark.serial  # it measures waits in real time: a starved replay server reads as one
 def test_tune_names_the_bottleneck(ray_local, case, overrides, costs, expected):
     row = run_point(_point(costs, **overrides), warmup_s=2.0, measure_s=4.0, address="local")
     detail = {k: row[k] for k in ("learner_wait", "actor_insert_wait", "publish_fraction")}
