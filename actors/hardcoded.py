@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import copy
 import inspect
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from types import FrameType, TracebackType
 from typing import Any, Optional
 
 import numpy as np
@@ -309,5 +310,46 @@ def required_policy(
             "hardcoded_policy: package.module:factory (a py_trees tree or a callable)"
         )
     policy = ImportedPolicy(spec, observation_space, action_space, import_path=import_path)
-    policy.build()
+    check_acts(policy.build(), observation_space, name=spec)
     return policy
+
+
+def check_acts(policy: HardCodedPolicy, observation_space: spaces.Space, *, name: str) -> None:
+    """Calls ``policy`` once on an observation sampled from a seeded copy of the task's
+    observation space, so that a policy written for another task fails here, before any
+    actor starts, rather than in every actor.
+
+    Raises:
+        ValueError: One line: for a tree, the leaf that raised (its name and class), the
+            error and the observation's shape; graft's own refusals (no action written,
+            an action of the wrong shape) as they are.
+    """
+    space = copy.deepcopy(observation_space)
+    space.seed(0)
+    obs = np.asarray(space.sample())
+    try:
+        policy(obs)
+    except Exception as error:  # noqa: BLE001 - the user's code: say where, in one line
+        frames = list(_frames(error.__traceback__))
+        if frames and frames[-1].f_code.co_filename == __file__:
+            raise  # graft's adapter refused what the policy returned: already one line
+        said = " ".join(str(error).split())
+        leaf = next(
+            (
+                f"leaf {who.name!r} ({type(who).__name__}) "
+                for who in (f.f_locals.get("self") for f in reversed(frames))
+                if isinstance(who, py_trees.behaviour.Behaviour)
+            ),
+            "",
+        )
+        raise ValueError(
+            f"hardcoded_policy={name!r} fails on the task's observations: {leaf}raised "
+            f"{type(error).__name__}: {said} on an observation of shape {obs.shape}"
+        ) from None
+
+
+def _frames(tb: Optional[TracebackType]) -> Iterator[FrameType]:
+    """The frames of a traceback, outermost first."""
+    while tb is not None:
+        yield tb.tb_frame
+        tb = tb.tb_next

@@ -110,6 +110,8 @@ class EnvSpec:
             raise ValueError(
                 f"env_kwargs {sorted(kwargs)} rejected by {self.env_id}: {error}"
             ) from error
+        except (gym.error.DependencyNotInstalled, ImportError) as error:
+            raise ValueError(missing_dependency(self.env_id, error)) from None
         except gym.error.Error as error:
             raise ValueError(
                 f"env_id={self.env_id!r} is not a gymnasium id nor an import string "
@@ -123,6 +125,52 @@ class EnvSpec:
             env = wrapper(env)
             _check_env(env, f"obs_wrapper={self.obs_wrapper!r}")
         return env
+
+
+EXTRAS = {
+    "box2d": "box2d",
+    "mujoco": "mujoco",
+    "classic_control": "classic-control",
+    "toy_text": "toy-text",
+}
+"""gymnasium's environment folders (gymnasium.envs.<folder>) and the extras that install
+what they need."""
+
+
+def missing_dependency(env_id: str, error: BaseException) -> str:
+    """One line for an environment that needs a package that is not installed: which one
+    to install (gymnasium's extra for its own environments, e.g. ``pip install
+    "gymnasium[box2d]"`` for LunarLander-v3, also when a factory of the user's makes it),
+    then what the import said."""
+    said = " ".join(str(error).split()) or type(error).__name__
+    extra = _gymnasium_extra(env_id, error)
+    if extra is None:
+        return f"env_id={env_id!r} needs a package that is not installed: {said}"
+    return (
+        f"env_id={env_id!r} needs a dependency that is not installed: pip install "
+        f'"gymnasium[{extra}]" ({said})'
+    )
+
+
+def _gymnasium_extra(env_id: str, error: BaseException) -> Optional[str]:
+    """The gymnasium extra (``box2d``, ``mujoco``, ...) that installs what failed to import:
+    the folder of the gymnasium environment module that raised, or of ``env_id``'s entry
+    point; None for environments outside gymnasium."""
+    modules = []
+    tb = error.__traceback__
+    while tb is not None:
+        modules.append(str(tb.tb_frame.f_globals.get("__name__", "")))
+        tb = tb.tb_next
+    try:
+        entry = gym.spec(env_id).entry_point
+        modules.append(entry.split(":")[0] if isinstance(entry, str) else "")
+    except (gym.error.Error, ImportError):
+        pass
+    for module in reversed(modules):
+        parts = module.split(".")
+        if len(parts) >= 3 and parts[:2] == ["gymnasium", "envs"] and parts[2] in EXTRAS:
+            return EXTRAS[parts[2]]
+    return None
 
 
 def _check_env(env: Any, source: str) -> None:

@@ -34,6 +34,7 @@ USER_PACKAGES = {
     "usertask": USERTASK,
     "mountaincar_example": TESTS.parent / "examples" / "mountaincar",
     "cartpole_example": TESTS.parent / "examples" / "cartpole",
+    "lunarlander_example": TESTS.parent / "examples" / "lunarlander",
 }
 """Packages of graft's users (module: project folder), each its own distribution."""
 

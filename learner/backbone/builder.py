@@ -82,6 +82,7 @@ class BackboneBuilder:
                 seed=t.seed,
                 device=device,
                 compile=compile,
+                correction_penalty=self.config.correction_penalty,
             )
         else:
             learner = TD3Learner(

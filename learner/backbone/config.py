@@ -21,6 +21,12 @@ class BackboneConfig:
     input, as residual policy learning does. The paper's π(s) sees s only; with a bang-bang
     μ the correction it needs is discontinuous in s (μ flips with sign θ̇) but not in μ(s)."""
 
+    correction_penalty: float = 0.0
+    """β, conservative updates near the backbone: the actor minimises
+    −Q(s, π(s)) / mean|Q| + β · mean((π(s) / L)²), so a correction grows only where the
+    critic's gain outweighs it (TD3+BC's normalisation, Fujimoto & Gu 2021, with the
+    backbone as the behaviour). 0: TD3's actor loss. Needs observe_backbone."""
+
     def __post_init__(self) -> None:
         if not self.correction_limit > 0.0:
             raise ValueError(
@@ -29,6 +35,13 @@ class BackboneConfig:
             )
         if not self.prefill_noise > 0.0:
             raise ValueError(f"prefill_noise={self.prefill_noise} must be > 0 (log_prob needs it)")
+        if not self.correction_penalty >= 0.0:
+            raise ValueError(f"correction_penalty={self.correction_penalty} must be >= 0")
+        if self.correction_penalty > 0.0 and not self.observe_backbone:
+            raise ValueError(
+                f"correction_penalty={self.correction_penalty} needs observe_backbone=True "
+                "(the residual learner); set backbone.observe_backbone: true"
+            )
         if self.observe_backbone and self.teacher:
             raise ValueError(
                 "observe_backbone=True with a teacher is not supported: the teacher's critic "

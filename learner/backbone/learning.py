@@ -12,6 +12,7 @@ import copy
 
 import numpy as np
 import torch
+from torch import nn
 
 from actors.behaviours.backbone import backbone_input
 from learner.device import CPU, CompileMode, compile_networks
@@ -44,6 +45,34 @@ def teacher_target(
     return reward + gamma * not_done * (teacher_next_value + next_correction_value)
 
 
+def conservative_actor_loss(
+    critic: TwinCritic,
+    actor: nn.Module,
+    obs: torch.Tensor,
+    *,
+    bound: torch.Tensor,
+    penalty: float,
+) -> torch.Tensor:
+    """The actor's loss kept near the backbone: −Q1(s, c) / mean|Q1| + β · mean((c / L)²),
+    c = π(s). Normalising Q by its mean magnitude (no gradient through it) makes β mean
+    the same on every task, whatever the scale of its returns (TD3+BC, Fujimoto & Gu 2021).
+
+    Args:
+        critic: The online twin critic; only its first head is used.
+        actor: The correction π.
+        obs: s (with μ(s) appended), [B, obs_dim].
+        bound: L per action dimension, [act_dim].
+        penalty: β >= 0.
+
+    Returns:
+        The scalar loss.
+    """
+    correction = actor(obs)
+    q = critic.q1(obs, correction)
+    scale = q.abs().mean().detach().clamp_min(1e-6)
+    return -q.mean() / scale + penalty * ((correction / bound) ** 2).mean()
+
+
 class ObservingBackboneLearner(TD3Learner):
     """TD3 on the correction whose actor and critics see [s, μ(s) / scale] (residual RL).
 
@@ -61,8 +90,10 @@ class ObservingBackboneLearner(TD3Learner):
         seed: int,
         device: torch.device = CPU,
         compile: CompileMode = "off",
+        correction_penalty: float = 0.0,
     ) -> None:
-        """`bound` is L per action dimension; `scale` the half-width of the action box."""
+        """`bound` is L per action dimension; `scale` the half-width of the action box;
+        `correction_penalty` β of `conservative_actor_loss` (0: TD3's actor loss)."""
         act_dim = bound.shape[0]
         super().__init__(
             obs_dim + act_dim,
@@ -75,6 +106,15 @@ class ObservingBackboneLearner(TD3Learner):
             compile=compile,
         )
         self._scale = torch.as_tensor(scale, dtype=torch.float32, device=self.device)
+        self._bound = torch.as_tensor(bound, dtype=torch.float32, device=self.device)
+        self._penalty = correction_penalty
+
+    def _actor_loss(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        if self._penalty == 0.0:
+            return super()._actor_loss(obs, batch)
+        return conservative_actor_loss(
+            self.critic, self.actor, obs, bound=self._bound, penalty=self._penalty
+        )
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         for name in ("backbone_action", "next_backbone_action"):

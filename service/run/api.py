@@ -190,7 +190,7 @@ def load_policy(source: Union[str, Path, Run], *, preset: Optional[PresetSource]
 def _task_policy(kind: str, config: TrainConfig) -> Policy:
     """The task's hard-coded policy or a uniform random one, as a `Policy`."""
     from actors.evaluator import random_policy_for
-    from actors.hardcoded import make_hardcoded_policy
+    from actors.hardcoded import check_acts, make_hardcoded_policy
 
     env = config.make_env()
     obs_space, action_space = env.observation_space, env.action_space
@@ -208,6 +208,7 @@ def _task_policy(kind: str, config: TrainConfig) -> Policy:
         act = make_hardcoded_policy(
             config.hardcoded_policy, obs_space, action_space, import_path=config.import_path
         )
+        check_acts(act, obs_space, name=config.hardcoded_policy)
     shape = tuple(obs_space.shape or ())
     return Policy(act, env=spec, observation_shape=shape, name=kind)
 

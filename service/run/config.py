@@ -20,6 +20,7 @@ from learner.options.config import OptionsConfig
 from learner.pretrain.config import PretrainConfig
 from learner.td3.config import TD3Config
 from service.run.placement import ActorPlacement, LearnerPlacement, ReplaySettings
+from service.run.recipe import with_default_recipe
 from service.run.validation import ConfigError, coerce, unknown_fields, yaml_error
 
 ALGORITHMS = ("td3", "ddqn", "backbone_td3", "pretrain_td3", "options")
@@ -61,6 +62,9 @@ class TrainConfig:
     strings are resolved (default: the preset file's folder and the working directory)."""
     algorithm: str = "td3"
     """Learning algorithm: td3, ddqn, backbone_td3, pretrain_td3 or options."""
+    recipe: Optional[str] = None
+    """The default recipe (continuous or discrete) under this config, given because its
+    preset names a hardcoded_policy and no algorithm (service/run/recipe.py); else None."""
     env_steps: int = 20_000
     """Budget of environment steps (transitions) over all actors."""
     learning_starts: int = 1_000
@@ -144,6 +148,8 @@ class TrainConfig:
                 raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
         if self.actor_nice is not None and not -20 <= self.actor_nice <= 19:
             raise ValueError(f"actor_nice={self.actor_nice} must be within -20..19 (Linux)")
+        if self.recipe not in (None, "continuous", "discrete"):
+            raise ValueError(f"recipe={self.recipe!r} must be continuous, discrete or null")
         if self.algorithm not in ALGORITHMS:
             raise ValueError(f"algorithm={self.algorithm!r} is unknown; choose from {ALGORITHMS}")
         online = self.online_env_steps
@@ -369,6 +375,7 @@ def load_preset(name_or_path: str | Path, **overrides: Any) -> TrainConfig:
     search = [str((base / p).resolve()) for p in listed]
     defaults = [str(folder)] if folder is not None else []
     data["import_path"] = _unique(search + defaults + [str(Path.cwd())])
+    data = with_default_recipe(data, overrides, name=str(name_or_path))
     return config_from_data(data, **overrides)
 
 

@@ -17,6 +17,7 @@ from actors.hardcoded import (
     CallablePolicy,
     ImportedPolicy,
     TreePolicy,
+    check_acts,
     make_hardcoded_policy,
     probe_batched,
     required_policy,
@@ -260,3 +261,37 @@ def test_imported_policy_finds_its_module_on_the_import_path(tmp_path) -> None:
 def test_method_without_a_hardcoded_policy_says_what_to_set() -> None:
     with pytest.raises(ValueError, match="options improves a hard-coded policy.*hardcoded_policy:"):
         required_policy(None, OBS, BOX, method="options")
+
+
+EIGHT = spaces.Box(-1.0, 1.0, (8,), np.float32)
+"""An observation space a two-feature tree was not written for."""
+
+
+def test_tree_that_fails_on_the_tasks_observations_names_the_leaf_and_the_shape() -> None:
+    tree = py_trees.composites.Sequence("Root", memory=False, children=[Difference()])
+    policy = TreePolicy(tree, EIGHT, BOX, name="mine:tree")
+    with pytest.raises(ValueError) as error:
+        check_acts(policy, EIGHT, name="mine:tree")
+    assert str(error.value) == (
+        "hardcoded_policy='mine:tree' fails on the task's observations: leaf 'Difference' "
+        "(Difference) raised ValueError: too many values to unpack (expected 2) on an "
+        "observation of shape (8,)"
+    )
+
+
+def test_callable_that_fails_on_the_tasks_observations_names_the_shape() -> None:
+    policy = CallablePolicy(lambda obs: obs["x"], EIGHT, BOX, batched=False, name="mine:f")
+    with pytest.raises(ValueError, match=r"^hardcoded_policy='mine:f' fails on the task's "
+                       r"observations: raised IndexError: .* of shape \(8,\)$"):  # fmt: skip
+        check_acts(policy, EIGHT, name="mine:f")
+
+
+def test_graft_refusals_pass_through_the_observation_check_as_they_are() -> None:
+    with pytest.raises(RuntimeError, match=r"^mine:tree: the tick ended FAILURE on 'Silent'"):
+        check_acts(TreePolicy(Silent("Silent"), OBS, BOX, name="mine:tree"), OBS, name="x")
+    check_acts(TreePolicy(Difference(), OBS, BOX), OBS, name="x")  # a tree that fits
+
+
+def test_required_policy_is_tried_on_the_tasks_observations(user_module) -> None:
+    with pytest.raises(ValueError, match=r"leaf 'Move' \(Move\) raised ValueError: .* \(8,\)$"):
+        required_policy("my_factories:tree", EIGHT, BOX, method="backbone_td3")

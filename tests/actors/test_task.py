@@ -131,3 +131,34 @@ def test_bad_env_is_one_line_naming_it(folder, spec: EnvSpec, message: str) -> N
     with pytest.raises(ValueError, match=message) as error:
         spec.make()
     assert "\n" not in str(error.value)
+
+
+@pytest.fixture
+def without_box2d(monkeypatch) -> None:
+    """Box2D hidden from this process (``import Box2D`` raises), installed or not."""
+    loaded = ("gymnasium.envs.box2d",)
+    for name in [m for m in sys.modules if m.split(".")[0] == "Box2D" or m.startswith(loaded)]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "Box2D", None)
+
+
+@pytest.mark.parametrize("env_id", ["LunarLander-v3", "lunarlander_example.envs:lunar_lander"])
+def test_a_missing_gymnasium_extra_is_named_also_behind_a_factory(without_box2d, env_id) -> None:
+    with pytest.raises(ValueError) as error:
+        EnvSpec(env_id, {"continuous": True}).make()
+    assert str(error.value).startswith(
+        f"env_id={env_id!r} needs a dependency that is not installed: "
+        'pip install "gymnasium[box2d]"'
+    )
+    assert "\n" not in str(error.value)
+
+
+def test_a_factory_whose_import_fails_names_the_missing_package(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(sys, "path", list(sys.path))  # the import path goes with the test
+    (tmp_path / "needs_more.py").write_text("def make():\n    import not_installed_pkg\n")
+    with pytest.raises(ValueError) as error:
+        EnvSpec("needs_more:make", import_path=(str(tmp_path),)).make()
+    assert str(error.value) == (
+        "env_id='needs_more:make' needs a package that is not installed: No module named "
+        "'not_installed_pkg'"
+    )

@@ -21,12 +21,14 @@ import yaml
 
 import graft
 from service.run.cli import main
+from service.run.config import load_preset
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
 DISTRIBUTIONS = {
     "mountaincar": "graft-example-mountaincar 0.1.0",
     "cartpole": "graft-example-cartpole 0.1.0",
+    "lunarlander": "graft-example-lunarlander 0.1.0",
 }
 TINY = {
     "env_steps": 300,
@@ -45,7 +47,11 @@ SECTIONS = {
     # 250: the learner logs every 250th update's losses, the margin loss among them.
     "dqn": {"batch_size": 32, "burn_in_updates": 250, "epsilon_decay_env_steps": 200},
 }
-BY_CLI = ["mountaincar/presets/backbone.yaml", "cartpole/presets/ddqn-demos.yaml"]
+BY_CLI = [
+    "mountaincar/presets/backbone.yaml",
+    "cartpole/presets/ddqn-demos.yaml",
+    "lunarlander/presets/recipe.yaml",
+]
 """Trained by `graft train` in a fresh process; every other preset through `graft.train`."""
 PRESETS = sorted(str(p.relative_to(EXAMPLES)) for p in EXAMPLES.glob("*/presets/*.yaml"))
 
@@ -54,8 +60,12 @@ def _tiny(preset: str) -> dict:
     """Overrides for the sections the preset sets (a section it does not set keeps its
     defaults, and some methods refuse fields they do not use)."""
     data = yaml.safe_load((EXAMPLES / preset).read_text())
-    sections = {name: dict(fields) for name, fields in SECTIONS.items() if name in data}
-    if data["algorithm"] != "pretrain_td3":
+    algorithm = data.get("algorithm") or load_preset(EXAMPLES / preset).algorithm
+    # A preset without an algorithm trains with graft's default recipe, which sets the
+    # section of its method.
+    used = set(data) | ({"dqn"} if algorithm == "ddqn" else {"td3"})
+    sections = {name: dict(fields) for name, fields in SECTIONS.items() if name in used}
+    if algorithm != "pretrain_td3":
         sections.pop("pretrain", None)
     return {**TINY, **sections}
 
@@ -131,6 +141,10 @@ def test_graft_train_and_eval_of_an_example_in_fresh_processes(
     )  # fmt: skip
     assert train.returncode == 0, train.stderr[-3000:]
     _check_run(run_dir, preset)
+    if preset.endswith("recipe.yaml"):  # no algorithm named: said in one line
+        assert "no algorithm: graft's default recipe for continuous actions" in train.stderr
+        recorded = yaml.safe_load((run_dir / "config.yaml").read_text())
+        assert (recorded["recipe"], recorded["algorithm"]) == ("continuous", "backbone_td3")
     if preset.endswith("ddqn-demos.yaml"):
         # The burn-in trained on the tree's demonstrations, with the margin loss towards it.
         with (run_dir / "metrics.csv").open() as f:
@@ -158,3 +172,28 @@ def test_the_cartpole_tree_writes_discrete_actions_and_balances_for_a_while() ->
     random = graft.evaluate(graft.load_policy("random", preset=preset), episodes=5, seed=0)
     assert returns.min() > 100 > random.returns.max()  # well past random, short of 500
     assert returns.max() < 500
+
+
+LANDER = EXAMPLES / "lunarlander/presets/backbone.yaml"
+# [x, y, vx, vy, angle, angular velocity, left leg, right leg] -> [main, lateral], by rule.
+LANDER_RULES = {
+    "coasting, upright and slow": ([0, 1, 0, -0.1, 0, 0, 0, 0], [-1.0, 0.0]),
+    "both legs down: engines off": ([0, 0, 0, -0.5, 0, 0, 1, 1], [-1.0, 0.0]),
+    "sinking fast: brake": ([0, 1, 0, -1.0, 0, 0, 0, 0], [1.0, 0.0]),
+    "tilted counter-clockwise: turn back": ([0, 1, 0, 0, 0.5, 0, 0, 0], [-1.0, 1.0]),
+    "tilted clockwise: turn back": ([0, 1, 0, 0, -0.5, 0, 0, 0], [-1.0, -1.0]),
+    "tipping beats sinking": ([0, 1, 0, -1.0, 0.5, 0, 0, 0], [-1.0, 1.0]),
+}
+
+
+@pytest.mark.parametrize("obs, action", LANDER_RULES.values(), ids=LANDER_RULES.keys())
+def test_the_lander_tree_answers_each_situation_by_its_rule(obs, action) -> None:
+    tree = graft.load_policy("hardcoded", preset=LANDER)
+    np.testing.assert_array_equal(tree(np.array(obs, np.float32)), action)
+
+
+def test_the_lander_tree_is_mediocre_as_its_readme_says() -> None:
+    """Far above random and short of LunarLander's 200: it lands about half the time."""
+    result = graft.evaluate(graft.load_policy("hardcoded", preset=LANDER), episodes=50, seed=0)
+    assert 100.0 <= result.mean <= 180.0, result.mean
+    assert 0.3 <= np.mean(result.metrics["landed"]) <= 0.8

@@ -199,3 +199,73 @@ def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_ac
     learner.update(batch)
     learner.update(batch)
     assert learner.num_actor_updates == 1
+
+
+# --- conservative updates near the backbone -------------------------------------------
+
+
+class _FixedCorrection(nn.Module):
+    """π(s) = the given corrections, whatever s (a parameter, so it has a gradient)."""
+
+    def __init__(self, corrections: list[list[float]]) -> None:
+        super().__init__()
+        self.c = nn.Parameter(torch.tensor(corrections))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.c
+
+
+class _LinearQ(nn.Module):
+    """Q1(s, c) = w · c + b per row (only its first head is used)."""
+
+    def __init__(self, w: float, b: float) -> None:
+        super().__init__()
+        self.w, self.b = w, b
+
+    def q1(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.w * action.sum(-1) + self.b
+
+
+# Hand-computed: c = [[0.5], [-1.0]], L = 2.
+# Q = 4c + 10 = [12, 6]: mean 9, mean|Q| 9 -> -1; penalty mean((c/L)²) = (0.0625 + 0.25)/2.
+CONSERVATIVE_CASES = [
+    (4.0, 10.0, 0.0, -1.0),
+    (4.0, 10.0, 2.0, -1.0 + 2.0 * 0.15625),
+    # Q = -4c - 10 = [-12, -6]: mean -9, mean|Q| 9 -> +1.
+    (-4.0, -10.0, 1.0, 1.0 + 0.15625),
+]
+
+
+@pytest.mark.parametrize("w, b, penalty, expected", CONSERVATIVE_CASES)
+def test_conservative_actor_loss_matches_hand_computed_values(w, b, penalty, expected):
+    from learner.backbone.learning import conservative_actor_loss
+
+    loss = conservative_actor_loss(
+        _LinearQ(w, b),
+        _FixedCorrection([[0.5], [-1.0]]),
+        torch.zeros(2, 3),
+        bound=torch.tensor([2.0]),
+        penalty=penalty,
+    )
+    assert loss.item() == pytest.approx(expected, rel=1e-6)
+
+
+def test_the_penalty_pulls_a_correction_the_critic_does_not_value_back_to_zero():
+    from learner.backbone.learning import conservative_actor_loss
+
+    actor = _FixedCorrection([[0.5], [-1.0]])
+    flat = _LinearQ(0.0, 10.0)  # the critic sees no gain in any correction
+    conservative_actor_loss(
+        flat, actor, torch.zeros(2, 3), bound=torch.tensor([2.0]), penalty=1.0
+    ).backward()
+    # d/dc of mean over 2 rows of (c/2)² = 2c / (4 · 2) = c / 4: descent moves c towards 0.
+    np.testing.assert_allclose(actor.c.grad.numpy(), [[0.125], [-0.25]], rtol=1e-6)
+
+
+def test_correction_penalty_needs_the_residual_learner():
+    from learner.backbone.config import BackboneConfig
+
+    with pytest.raises(ValueError, match="correction_penalty=0.5 needs observe_backbone"):
+        BackboneConfig(correction_penalty=0.5)
+    with pytest.raises(ValueError, match="correction_penalty=-1.0 must be >= 0"):
+        BackboneConfig(correction_penalty=-1.0, observe_backbone=True)

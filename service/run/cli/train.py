@@ -92,6 +92,7 @@ def _preset_table(descriptions: dict[str, str]) -> str:
 def _train(args: argparse.Namespace) -> None:
     from learner.checkpoint import latest_checkpoint
     from service.run.api import train
+    from service.run.recipe import recipe_line
     from service.run.validation import ConfigError
 
     at_least("train", "--actors", args.actors, 1)
@@ -101,6 +102,9 @@ def _train(args: argparse.Namespace) -> None:
         config = _train_config(args)
     except ConfigError as error:
         raise UsageError("train", str(error)) from None
+    line = recipe_line(config.preset, config.recipe)
+    if line is not None and not args.resume:
+        print(f"graft train: {line}", file=sys.stderr)
     address = ray_address("train", args.address)
     terminated = _stop_on_sigterm()
     try:

@@ -308,3 +308,43 @@ def test_cuda_without_cuda_is_refused_before_ray_starts(capsys) -> None:
     line = _refused([*TRAIN, "--set", "learner.device=cuda"], capsys)
     assert line.startswith("graft train: learner.device=cuda: this process sees 0 CUDA device(s)")
     assert not Path("runs").exists()
+
+
+def test_gymnasium_id_whose_extra_is_missing_says_what_to_install(
+    monkeypatch, tmp_path, capsys
+) -> None:
+    """LunarLander-v3 where Box2D does not import (hidden from this process here, whether
+    installed or not): the one line says which gymnasium extra installs it."""
+    import sys
+
+    loaded = ("Box2D", "gymnasium.envs.box2d")
+    for name in [m for m in sys.modules if m.split(".")[0] == "Box2D" or m.startswith(loaded)]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "Box2D", None)  # `import Box2D` raises ImportError
+    preset = tmp_path / "lander.yaml"
+    preset.write_text("env_id: LunarLander-v3\nalgorithm: td3\n")
+    line = _refused(["train", "--preset", str(preset)], capsys)
+    assert line.startswith(
+        "graft train: preset lander: env_id='LunarLander-v3' needs a dependency that is not "
+        'installed: pip install "gymnasium[box2d]" ('
+    ), line
+    assert "is not a gymnasium id" not in line
+
+
+def test_tree_written_for_another_task_names_its_leaf_and_the_observation_shape(
+    tmp_path, capsys
+) -> None:
+    preset = tmp_path / "swing.yaml"
+    preset.write_text(
+        "env_id: Pendulum-v1\nhardcoded_policy: mountaincar_example.trees:energy_pumping\n"
+        "algorithm: backbone_td3\n"
+    )
+    message = (
+        "hardcoded_policy='mountaincar_example.trees:energy_pumping' fails on the task's "
+        "observations: leaf 'Moving left?' (MovingLeft) raised ValueError: too many values to "
+        "unpack (expected 2) on an observation of shape (3,)"
+    )
+    assert _refused(["train", "--preset", str(preset)], capsys) == f"graft train: {message}"
+    assert not Path("runs").exists()
+    refused = ["eval", "--policy", "hardcoded", "--preset", str(preset)]
+    assert _refused(refused, capsys) == f"graft eval: {message}"

@@ -1,0 +1,316 @@
+"""Benchmark: does graft improve a user's hard-coded policy, and never make it worse?
+
+Each task is a user's own preset (an environment, a tree, a budget, and no algorithm, so
+it trains with graft's default recipe). Per task and seed, exactly the documented
+commands, each in its own process (`bench/seeds.py`):
+
+    graft train --preset TASK.yaml --seed S --run-dir OUT/TASK/sS
+    graft eval --policy OUT/TASK/sS --episodes 50 --seed 100000+1000·S
+
+and the tree alone on the same 50 episodes (reset seeds no run used: actors and in-run
+evaluations reset from small seeds and 10,000 + S). Per task it reports the tree's score,
+each seed's final score, the mean improvement over the tree (final minus tree on the same
+episodes) with its 95 % bootstrap interval over seeds (`service.run.experiments.stats`),
+the worst in-run evaluation relative to the tree on the same episodes, env steps and wall
+time; prints a table, writes OUT/improve.json and OUT/improve.png.
+
+    python -m bench.improve --task lunarlander --seeds 5 [--env-steps N] [--set k=v ...]
+    python -m bench.improve --suite --seeds 5
+    python -m bench.improve --task pendulum --quick     # a smoke run: 1 seed, tiny budget
+
+The examples must be installed (``pip install -e examples/mountaincar examples/cartpole
+examples/lunarlander``). A seed whose run finished is read back, not re-run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+import graft
+from bench.seeds import run_seed
+from service.metrics import read_metric
+from service.run.config import load_preset
+from service.run.experiments.plots import curves
+from service.run.experiments.stats import MIN_SEEDS, summarize
+
+REPO = Path(__file__).resolve().parents[1]
+TASKS = {
+    "pendulum": REPO / "bench" / "tasks" / "pendulum.yaml",
+    "mountaincar": REPO / "examples" / "mountaincar" / "presets" / "recipe.yaml",
+    "cartpole": REPO / "examples" / "cartpole" / "presets" / "recipe.yaml",
+    "lunarlander": REPO / "examples" / "lunarlander" / "presets" / "recipe.yaml",
+}
+"""Task name -> a user's preset: environment, hard-coded policy, budget, no algorithm."""
+EPISODES = 50
+"""Final evaluation episodes per seed (the tree's score uses the same ones)."""
+BURN_IN_FRACTION = 0.1
+"""In-run evaluations before this fraction of the budget are not held to the tree."""
+WORST_DROP = 0.1
+"""Target: no in-run evaluation (after the first tenth) below the tree by more than this
+fraction of the tree's |score|."""
+QUICK = {
+    "learning_starts": 200,
+    "eval_every": 300,
+    "eval_episodes": 2,
+    "td3.batch_size": 32,
+    "td3.burn_in_updates": 20,
+    "td3.frozen_actor_updates": 20,
+    "dqn.batch_size": 32,
+    "dqn.burn_in_updates": 20,
+}
+"""--quick: a smoke run of the whole pipeline in a minute or two (not a result)."""
+
+
+def final_seed(seed: int) -> int:
+    """First reset seed of training seed `seed`'s final episodes."""
+    return 100_000 + 1_000 * seed
+
+
+def in_run_seed(seed: int) -> int:
+    """First reset seed of a run's in-run evaluations (the evaluator's, in the launcher)."""
+    return 10_000 + seed
+
+
+@dataclass(frozen=True)
+class SeedRow:
+    """One seed of one task."""
+
+    seed: int
+    tree: float
+    """The tree's mean return on this seed's final episodes."""
+    final: float
+    """The trained policy's mean return on the same episodes."""
+    tree_in_run: float
+    """The tree's mean return on the run's in-run evaluation episodes."""
+    steps: list[int]
+    evaluations: list[float]
+    """The run's in-run evaluations (mean returns) and their env steps."""
+    env_steps: int
+    wall_s: float
+
+    @property
+    def improvement(self) -> float:
+        return self.final - self.tree
+
+
+def worst_drop(row: SeedRow, budget: int) -> float:
+    """The worst in-run evaluation after the first tenth of the budget, minus the tree's
+    score on the same episodes, as a fraction of the tree's |score| (negative: below it);
+    NaN when no evaluation came after the first tenth."""
+    after = [
+        e for s, e in zip(row.steps, row.evaluations, strict=True) if s > BURN_IN_FRACTION * budget
+    ]
+    if not after:
+        return math.nan
+    return (min(after) - row.tree_in_run) / max(abs(row.tree_in_run), 1e-9)
+
+
+def run_task(
+    task: str,
+    *,
+    seeds: Sequence[int],
+    out: Path,
+    overrides: Sequence[str],
+    env_steps: Optional[int],
+    quick: bool = False,
+) -> tuple[dict[str, Any], list[SeedRow]]:
+    """Trains and scores every seed of one task; its summary row and per-seed rows."""
+    preset = TASKS[task]
+    config = load_preset(preset, **({"env_steps": env_steps} if env_steps else {}))
+    if quick:  # the sections the task's method reads (the others would be refused)
+        unused = "td3." if config.algorithm == "ddqn" else "dqn."
+        given = {o.split("=")[0] for o in overrides}
+        extra = [
+            f"{k}={v}" for k, v in QUICK.items() if not k.startswith(unused) and k not in given
+        ]
+        overrides = [*overrides, *extra]
+    settings = dict(o.split("=", 1) for o in overrides)
+    budget = env_steps or config.env_steps
+    tree = graft.load_policy("hardcoded", preset=preset)
+    rows: list[SeedRow] = []
+    for seed in seeds:
+        start = time.perf_counter()
+        try:
+            result = run_seed(
+                str(preset),
+                seed,
+                out / task / f"s{seed}",
+                overrides=overrides,
+                env_steps=env_steps,
+                episodes=EPISODES,
+                eval_seed=final_seed(seed),
+            )
+        except subprocess.CalledProcessError:  # reported and left out; the others go on
+            print(f"{task} seed {seed}: FAILED, see {out / task / f's{seed}.log'}", flush=True)
+            continue
+        eval_episodes = int(settings.get("eval_episodes", config.eval_episodes))
+        steps, evaluations = read_metric(result.run_dir / "metrics.csv", "eval/return_mean")
+        summary = json.loads((result.run_dir / "summary.json").read_text())
+        row = SeedRow(
+            seed=seed,
+            tree=graft.evaluate(tree, episodes=EPISODES, seed=final_seed(seed)).mean,
+            final=result.mean,
+            tree_in_run=graft.evaluate(tree, episodes=eval_episodes, seed=in_run_seed(seed)).mean,
+            steps=steps,
+            evaluations=evaluations,
+            env_steps=int(summary["env_steps"]),
+            wall_s=result.wall_s,
+        )
+        rows.append(row)
+        print(
+            f"{task} seed {seed}: tree {row.tree:.1f}, final {row.final:.1f} "
+            f"({row.improvement:+.1f}); worst in-run evaluation "
+            f"{100 * worst_drop(row, budget):+.0f} % of |tree|; {row.env_steps} env steps, "
+            f"{row.wall_s:.0f} s ({time.perf_counter() - start:.0f} s with scoring)",
+            flush=True,
+        )
+    if not rows:
+        raise SystemExit(f"{task}: every seed failed (logs in {out / task})")
+    return summarise(task, rows, budget=budget, algorithm=config.algorithm), rows
+
+
+def summarise(task: str, rows: Sequence[SeedRow], *, budget: int, algorithm: str) -> dict[str, Any]:
+    """One task's table row, and whether each target is met."""
+    gains = [r.improvement for r in rows]
+    stats = summarize(gains)
+    drops = [worst_drop(r, budget) for r in rows]
+    finite = [d for d in drops if np.isfinite(d)]
+    worst = min(finite) if finite else math.nan
+    return {
+        "task": task,
+        "algorithm": algorithm,
+        "seeds": len(rows),
+        "tree": float(np.mean([r.tree for r in rows])),
+        "finals": [round(r.final, 1) for r in rows],
+        "final_mean": float(np.mean([r.final for r in rows])),
+        "improvement": stats.mean,
+        "improvement_ci": list(stats.mean_ci),
+        "improvement_line": stats.line(),
+        "seeds_at_least_tree": int(sum(g >= 0 for g in gains)),
+        "worst_in_run": worst,
+        "env_steps": int(np.mean([r.env_steps for r in rows])),
+        "wall_s": float(np.mean([r.wall_s for r in rows])),
+        "every_seed_at_least_tree": all(g >= 0 for g in gains),
+        "ci_above_zero": len(rows) >= MIN_SEEDS and stats.mean_ci[0] > 0,
+        "never_far_below": bool(finite) and worst >= -WORST_DROP,
+    }
+
+
+def table(summaries: Sequence[dict[str, Any]]) -> str:
+    """The Markdown table the README quotes."""
+    lines = [
+        "| task | method | env steps | tree | final per seed | improvement, mean [95 % CI] "
+        "| seeds ≥ tree | worst in-run eval vs tree | wall s / run |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in summaries:
+        low, high = s["improvement_ci"]
+        ci = f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else " (no CI below 3 seeds)"
+        lines.append(
+            f"| {s['task']} | {s['algorithm']} | {s['env_steps']:,} | {s['tree']:.1f} "
+            f"| {', '.join(f'{f:.1f}' for f in s['finals'])} | {s['improvement']:+.1f}{ci} "
+            f"| {s['seeds_at_least_tree']}/{s['seeds']} | {100 * s['worst_in_run']:+.0f} % "
+            f"| {s['wall_s']:.0f} |"
+        )
+    return "\n".join(lines)
+
+
+def plot(results: dict[str, list[SeedRow]], png: Path) -> None:
+    """Per task: the in-run evaluations minus the tree's score on the same episodes, each
+    seed thin and their mean thick (`experiments.plots.curves`), the final improvements
+    as dots at the end."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(4.5 * len(results), 3.8), squeeze=False)
+    for ax, (task, rows) in zip(axes[0], results.items(), strict=True):
+        points = [
+            {"variant": task, "seed": str(r.seed), "env_steps": s, "return_mean": e - r.tree_in_run}
+            for r in rows
+            for s, e in zip(r.steps, r.evaluations, strict=True)
+        ]
+        c = curves(points, task)
+        for values in c["per_seed"]:
+            ax.plot(c["env_steps"], values, color="tab:blue", alpha=0.3, linewidth=0.8)
+        ax.plot(c["env_steps"], c["mean"], color="tab:blue", label=f"in-run, {c['seeds']} seeds")
+        end = max(r.env_steps for r in rows)
+        ax.scatter([end] * len(rows), [r.improvement for r in rows], color="tab:orange",
+                   zorder=3, label=f"final, {EPISODES} episodes")  # fmt: skip
+        ax.axhline(0.0, color="tab:green", linestyle="--", label="the tree")
+        ax.set_title(task)
+        ax.set_xlabel("environment steps")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("return minus the tree's")
+    axes[0][0].legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("--task", choices=sorted(TASKS))
+    which.add_argument("--suite", action="store_true", help="every task")
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--env-steps", type=int, help="override the task's budget")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--out", type=Path, default=Path("runs/bench-improve"))
+    parser.add_argument("--quick", action="store_true", help="1 seed, 600 env steps")
+    args = parser.parse_args(argv)
+    if args.seeds < 1:
+        parser.error(f"--seeds {args.seeds}: must be >= 1")
+    bad = [o for o in args.set if "=" not in o]
+    if bad:
+        parser.error(f"--set {bad[0]!r}: expected key=value, e.g. td3.batch_size=128")
+    if args.quick:
+        args.seeds, args.env_steps = 1, args.env_steps or 600
+    tasks = sorted(TASKS) if args.suite else [args.task]
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    summaries, results = [], {}
+    for task in tasks:
+        summary, rows = run_task(
+            task,
+            seeds=seeds,
+            out=args.out,
+            overrides=args.set,
+            env_steps=args.env_steps,
+            quick=args.quick,
+        )
+        summaries.append(summary)
+        results[task] = rows
+        print(summary["improvement_line"], flush=True)
+    print()
+    print(table(summaries))
+    args.out.mkdir(parents=True, exist_ok=True)
+    stem = "improve" if args.suite else f"improve-{args.task}"
+    (args.out / f"{stem}.json").write_text(
+        json.dumps(
+            {
+                "summaries": summaries,
+                "seeds": {t: [asdict(r) for r in rs] for t, rs in results.items()},
+            },
+            indent=1,
+        )
+    )
+    plot(results, args.out / f"{stem}.png")
+    print(f"\n{args.out / f'{stem}.json'}, {args.out / f'{stem}.png'}")
+    return summaries
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,80 @@
+"""graft's default recipe (service/run/recipe.py): a preset that names a hard-coded policy
+and no algorithm trains with it, chosen by the action space; the preset's own fields win."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from service.run.cli import main
+from service.run.config import load_preset
+from service.run.recipe import recipe_description
+
+
+def _preset(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "task.yaml"
+    path.write_text(text)
+    return path
+
+
+PENDULUM = "env_id: Pendulum-v1\nhardcoded_policy: actors.trees.pendulum:swing_up\n"
+CARTPOLE = "env_id: CartPole-v1\nhardcoded_policy: cartpole_example.trees:balance\n"
+
+
+def test_a_tree_with_continuous_actions_gets_the_residual_recipe_scaled_to_its_box(tmp_path):
+    config = load_preset(_preset(tmp_path, PENDULUM + "env_steps: 20000\n"))
+    assert (config.recipe, config.algorithm) == ("continuous", "backbone_td3")
+    assert config.backbone.observe_backbone
+    # Written in half-widths of the action box: Pendulum's torque box [-2, 2] doubles them.
+    assert config.backbone.correction_limit == 4.0 and config.backbone.prefill_noise == 0.6
+    assert config.td3.burn_in_updates > 0 and config.td3.frozen_actor_updates > 0
+    assert config.learning_starts == 2000  # a tenth of the 20,000-step budget
+
+
+def test_a_tree_with_discrete_actions_gets_double_dqn_from_its_demonstrations(tmp_path):
+    config = load_preset(_preset(tmp_path, CARTPOLE))
+    assert (config.recipe, config.algorithm, config.dqn.warmup) == ("discrete", "ddqn", "hardcoded")
+
+
+def test_the_presets_own_fields_and_overrides_win_over_the_recipe(tmp_path):
+    preset = _preset(tmp_path, PENDULUM + "td3: {batch_size: 32}\nbackbone: {prefill_noise: 0.1}\n")
+    config = load_preset(preset, **{"backbone.correction_limit": 1.5, "learning_starts": 123})
+    assert config.td3.batch_size == 32 and config.td3.hidden_sizes == (128, 128)  # both kept
+    assert config.backbone.prefill_noise == 0.1 and config.backbone.correction_limit == 1.5
+    assert config.learning_starts == 123
+
+
+@pytest.mark.parametrize(
+    "text, overrides, algorithm",
+    [
+        (PENDULUM + "algorithm: td3\n", {}, "td3"),  # the preset chose
+        (PENDULUM, {"algorithm": "pretrain_td3"}, "pretrain_td3"),  # an override chose
+        ("env_id: Pendulum-v1\n", {}, "td3"),  # no tree: TD3, the config's default
+    ],
+)
+def test_no_recipe_when_an_algorithm_is_named_or_there_is_no_tree(
+    tmp_path, text, overrides, algorithm
+):
+    config = load_preset(_preset(tmp_path, text), **overrides)
+    assert config.recipe is None and config.algorithm == algorithm
+
+
+def test_graft_train_says_which_recipe_in_one_line(tmp_path, capsys):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "other.txt").write_text("not empty")  # refused before Ray starts
+    preset = _preset(tmp_path, PENDULUM)
+    with pytest.raises(SystemExit):
+        main(["train", "--preset", str(preset), "--run-dir", str(tmp_path / "run")])
+    first = capsys.readouterr().err.splitlines()[0]
+    assert first == (
+        "graft train: preset task names a hardcoded_policy and no algorithm: graft's default "
+        f"recipe for continuous actions, {recipe_description('continuous')} "
+        "(docs/own-task.md, 'The default recipe'; set algorithm: to choose another)"
+    )
+
+
+def test_a_task_that_does_not_build_is_one_line_before_any_recipe(tmp_path):
+    preset = _preset(tmp_path, "env_id: nowhere_pkg.envs:make\nhardcoded_policy: a.b:c\n")
+    with pytest.raises(ValueError, match=r"^preset .*task.yaml: env_id='nowhere_pkg.envs:make'"):
+        load_preset(preset)
