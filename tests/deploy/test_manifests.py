@@ -58,3 +58,32 @@ def test_the_dockerfile_installs_cpu_torch_and_bakes_in_no_token() -> None:
     for line in text.splitlines():
         if line.startswith("COPY ") and not line.startswith("COPY pyproject"):
             assert (DEPLOY.parent / line.split()[1]).exists(), line
+
+
+@pytest.mark.service
+@pytest.mark.parametrize(
+    ("docker", "settings", "refusal"),
+    [
+        (
+            "false",  # a docker that has no such image and pulls nothing
+            ["BASE=graft-no-such-base:0"],
+            "make image: BASE=graft-no-such-base:0 is neither a local image nor pullable "
+            "(deploy/make-base.sh makes one)",
+        ),
+        (
+            "true",  # a docker that has every image: the CA check comes next
+            ["BASE=graft-base:bookworm", "CA=/no/such/ca.crt"],
+            "make image: CA=/no/such/ca.crt: no such file",
+        ),
+    ],
+)
+def test_make_image_refuses_a_bad_base_or_ca_in_one_line(docker, settings, refusal, tmp_path):
+    """The Makefile's own checks, before any build (docker is `false` or `true` here: the
+    checks are the Makefile's; test_containers.py builds with a real one)."""
+    result = subprocess.run(
+        ["make", "-s", "-C", str(DEPLOY.parent), "image", f"DOCKER={docker}", *settings],
+        capture_output=True, text=True, check=False, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    ours = [line for line in result.stderr.splitlines() if not line.startswith("make: ***")]
+    assert ours == [refusal]

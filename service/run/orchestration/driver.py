@@ -23,6 +23,7 @@ from typing import Any, Optional
 
 import ray
 import torch
+from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 from tqdm import tqdm
 
 from actors.env_actor import EnvActor
@@ -174,8 +175,13 @@ def train_here(
         segments = actor_segments(phases, config.num_actors)
         budget = None
         if not config.reproducible:
-            # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
-            budget = StepBudget.remote({s.table: s.steps for s in actor_segments(phases, 1)})  # type: ignore[attr-defined]
+            # On the learner's node, as the weight broadcaster: a worker node lost with
+            # its actors must not take the budget along. @ray.remote gives the class
+            # `.options` at run time; mypy sees the plain class.
+            here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), False)
+            budget = StepBudget.options(scheduling_strategy=here).remote(  # type: ignore[attr-defined]
+                {s.table: s.steps for s in actor_segments(phases, 1)}
+            )
         actors = ActorFleet(
             make_actor,
             segments if budget is None else actor_segments(phases, 1),
