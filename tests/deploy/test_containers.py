@@ -91,10 +91,10 @@ NO_TOKEN_CMD = "docker run --rm --network {network} {image} "
 """Before RAY_CLIENT_CMD: a fourth container, with the token and without."""
 README_NAMES = {
     "network": "graft-net", "subnet": "10.98.0.0/24", "token": "$HOME/graft-token",
-    "runs": "$HOME/graft-runs", "image": "graft:latest", "head": "10.98.0.1",
+    "runs": "$HOME/graft-runs", "image": "graft:latest", "head": "10.98.0.11",
 }  # fmt: skip
-README_NODES = {"graft1": "10.98.0.1", "graft2": "10.98.0.2", "graft3": "10.98.0.3"}
-README_CLIENT = ("graft4", "10.98.0.4")
+README_NODES = {"graft1": "10.98.0.11", "graft2": "10.98.0.12", "graft3": "10.98.0.13"}
+README_CLIENT = ("graft4", "10.98.0.14")
 
 
 def _docker(*args: str, timeout: float = DOCKER_LIMIT_S, check: bool = True) -> str:
@@ -114,7 +114,8 @@ class ContainerCluster:
         pid = os.getpid()
         self.label = os.environ.get("GRAFT_CONTAINER_LABEL") or f"graft.test={pid}"
         prefix = f"10.{150 + pid % 50}.{pid // 50 % 250}"
-        self.ips = {f"graft-{pid}-{i + 1}": f"{prefix}.{i + 1}" for i in range(workers + 2)}
+        # .1 is the network's gateway (the bridge on this machine)
+        self.ips = {f"graft-{pid}-{i}": f"{prefix}.{10 + i}" for i in range(1, workers + 3)}
         *nodes, self.client = self.ips
         self.head_node, *self.worker_nodes = nodes
         self.head_ip = self.ips[self.head_node]

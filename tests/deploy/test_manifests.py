@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 from pathlib import Path
 
@@ -87,3 +88,32 @@ def test_make_image_refuses_a_bad_base_or_ca_in_one_line(docker, settings, refus
     assert result.returncode == 2, result.stderr
     ours = [line for line in result.stderr.splitlines() if not line.startswith("make: ***")]
     assert ours == [refusal]
+
+
+def _joined(text: str) -> str:
+    """`text` with lines ending in a backslash joined and runs of spaces made one."""
+    return re.sub(r"[ \t]+", " ", text.replace("\\\n", " "))
+
+
+def test_the_readme_shows_the_image_commands_ci_runs():
+    """deploy/README.md's image commands are those .ci/containers.sh runs, at its names."""
+    readme = _joined((DEPLOY / "README.md").read_text())
+    ci = _joined((DEPLOY.parent / ".ci" / "containers.sh").read_text())
+    assert "BASE=${BASE:-graft-base:bookworm}" in ci
+    pairs = {
+        'deploy/make-base.sh "$BASE"': "sudo deploy/make-base.sh graft-base:bookworm",
+        'make image IMAGE="$IMAGE" BASE="$BASE"': "make image BASE=graft-base:bookworm",
+        "make test-containers IMAGE=": "make test-containers",
+    }
+    for in_ci, in_readme in pairs.items():
+        assert in_ci in ci, in_ci
+        assert in_readme in readme, in_readme
+
+
+def test_the_readme_shows_the_kuberay_commands_of_the_manifest():
+    readme = _joined((DEPLOY / "README.md").read_text())
+    header = (DEPLOY / "kuberay.yaml").read_text().split("\napiVersion:")[0]
+    commands = [_joined(line[1:].strip()) for line in header.splitlines() if line.startswith("#  ")]
+    assert len(commands) == 3
+    for command in commands:
+        assert command in readme, command

@@ -40,7 +40,7 @@ from service.run.orchestration.lockstep import ActorRing, deterministic, stalled
 from service.run.orchestration.preflight import check_cluster, check_fits_locally, check_run_dir
 from service.run.orchestration.progress import FaultLog, say_and_keep, watch
 from service.run.orchestration.provenance import config_record
-from service.run.orchestration.ray_session import connect_ray
+from service.run.orchestration.ray_session import check_head, connect_ray
 from service.run.orchestration.resume import restore, resume_with
 from service.run.orchestration.roles import (
     ACTOR_FINISH_S,
@@ -100,6 +100,7 @@ def train_here(
     if checkpoint is not None:
         refill = config.reproducible or not reusable(run_dir, tables)
         state = restore(algorithm, checkpoint, phases, config, refill=refill)
+    check_head(address)
     run_dir.mkdir(parents=True, exist_ok=True)
     hardware = {"learner_device": str(device), "learner_device_name": device_name(device)}
     (run_dir / "config.yaml").write_text(config_record(config, hardware=hardware))
