@@ -190,6 +190,10 @@ class ContainerCluster:
         rows = _docker("exec", node, "ps", "-eo", "pid=,args=").splitlines()
         return [int(row.split(None, 1)[0]) for row in rows if text in row]
 
+    def env_actors(self) -> int:
+        """How many env actors run on the workers."""
+        return sum(len(self.find(node, "ray::EnvActor")) for node in self.worker_nodes)
+
     def listening(self, node: str) -> dict[int, list[str]]:
         """The TCP addresses each process of container `node` listens on, by pid."""
         found: dict[int, list[str]] = {}
@@ -285,7 +289,8 @@ def test_a_run_completes_on_the_other_worker_when_one_is_killed(cluster):
     train = cluster.run(argv)
     metrics = cluster.runs / "killed" / "metrics.csv"
     try:
-        train.wait_for(lambda: training(metrics), "start training")
+        # Early in the run: as soon as both actors run on the workers.
+        train.wait_for(lambda: cluster.env_actors() >= 2, "place its actors")
         killed = next(iter(actors_on_workers(cluster).values()))
         _docker(*cluster.docker(KILL_CMD, name=killed)[1:])
         cluster.worker_nodes.remove(killed)
