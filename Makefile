@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 TORCH  := 2.13.0
 comma  := ,
 
-.PHONY: demo test test-fast test-long test-lowest test-wheel dist image setup lint proto proto-check bench clean
+.PHONY: demo test test-fast test-long test-lowest test-wheel test-containers dist image setup lint proto proto-check bench clean
 
 demo: setup
 	$(BIN)/graft train --preset pendulum-td3
@@ -21,7 +21,7 @@ TEST_PACKAGES := $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example
 # `serial`: they run beside the parallel part, in one process, at normal priority while
 # the parallel part is niced, so they get a core when they ask for one.
 TEST_WORKERS ?= 2
-TEST_SELECT := not long and not wheel
+TEST_SELECT := not long and not wheel and not container
 
 # Every test: the parallel part, with the real-time part beside it (its log printed after).
 test: setup $(TEST_PACKAGES)
@@ -70,6 +70,14 @@ test-lowest:
 		--env-steps 1500 --actors 1 --address local --run-dir run --no-progress
 	env -u PYTHONPATH $(LOWEST)/bin/python -m pytest -q -n 2 \
 		-m "not service and not slow and not serial and not long" tests/service/replay tests/learner
+
+# A cluster in containers of the image IMAGE (which must exist: make image): a head and two
+# workers on a bridge network, the runs of tests/deploy/test_containers.py (minutes). CI runs
+# it through .ci/containers.sh, which starts dockerd, builds the image and cleans up.
+CONTAINER_LABEL ?=
+test-containers: setup
+	GRAFT_IMAGE=$(IMAGE) DOCKER=$(DOCKER) GRAFT_CONTAINER_LABEL=$(CONTAINER_LABEL) \
+		$(BIN)/python -m pytest -q -m container tests/deploy/test_containers.py
 
 # An sdist and a wheel in dist/.
 dist: setup

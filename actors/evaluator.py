@@ -255,15 +255,20 @@ class RemoteEvaluator:
         actor = self._actor
         ref: ObjectRef[Evaluation] = actor.evaluate.remote(weights, episodes=episodes, tag=tag)
 
+        def retry(error: RayActorError) -> None:
+            try:
+                self._replace(actor, error)
+                self._submit(weights, episodes, tag, result)
+            except BaseException as failed:
+                result.set_exception(failed)
+
         def done(future: Future[Evaluation]) -> None:
             try:
                 result.set_result(future.result())
             except RayActorError as error:
-                try:
-                    self._replace(actor, error)
-                    self._submit(weights, episodes, tag, result)
-                except BaseException as failed:
-                    result.set_exception(failed)
+                # Ray calls this on a thread of its own, which must not wait on Ray (a new
+                # actor, a kill): the replacement starts from a thread of ours.
+                threading.Thread(target=retry, args=(error,), daemon=True).start()
             except BaseException as error:
                 result.set_exception(error)
 

@@ -334,8 +334,12 @@ class BroadcastPublisher:
     """The learner's `WeightPublisher`: starts a `WeightBroadcaster` and publishes to it."""
 
     def __init__(self, *, fanout: int = FANOUT) -> None:
-        # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
-        self._broadcaster: BroadcasterHandle = WeightBroadcaster.remote(fanout)  # type: ignore[attr-defined]
+        # On the learner's node: a worker node lost with its actors must not take the
+        # run's weights along. @ray.remote gives the class `.options` at run time.
+        here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=False)
+        self._broadcaster: BroadcasterHandle = WeightBroadcaster.options(  # type: ignore[attr-defined]
+            scheduling_strategy=here
+        ).remote(fanout)
 
     @property
     def broadcaster(self) -> BroadcasterHandle:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 from pathlib import Path
 
@@ -58,3 +59,61 @@ def test_the_dockerfile_installs_cpu_torch_and_bakes_in_no_token() -> None:
     for line in text.splitlines():
         if line.startswith("COPY ") and not line.startswith("COPY pyproject"):
             assert (DEPLOY.parent / line.split()[1]).exists(), line
+
+
+@pytest.mark.service
+@pytest.mark.parametrize(
+    ("docker", "settings", "refusal"),
+    [
+        (
+            "false",  # a docker that has no such image and pulls nothing
+            ["BASE=graft-no-such-base:0"],
+            "make image: BASE=graft-no-such-base:0 is neither a local image nor pullable "
+            "(deploy/make-base.sh makes one)",
+        ),
+        (
+            "true",  # a docker that has every image: the CA check comes next
+            ["BASE=graft-base:bookworm", "CA=/no/such/ca.crt"],
+            "make image: CA=/no/such/ca.crt: no such file",
+        ),
+    ],
+)
+def test_make_image_refuses_a_bad_base_or_ca_in_one_line(docker, settings, refusal, tmp_path):
+    """The Makefile's own checks, before any build (docker is `false` or `true` here: the
+    checks are the Makefile's; test_containers.py builds with a real one)."""
+    result = subprocess.run(
+        ["make", "-s", "-C", str(DEPLOY.parent), "image", f"DOCKER={docker}", *settings],
+        capture_output=True, text=True, check=False, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    ours = [line for line in result.stderr.splitlines() if not line.startswith("make: ***")]
+    assert ours == [refusal]
+
+
+def _joined(text: str) -> str:
+    """`text` with lines ending in a backslash joined and runs of spaces made one."""
+    return re.sub(r"[ \t]+", " ", text.replace("\\\n", " "))
+
+
+def test_the_readme_shows_the_image_commands_ci_runs():
+    """deploy/README.md's image commands are those .ci/containers.sh runs, at its names."""
+    readme = _joined((DEPLOY / "README.md").read_text())
+    ci = _joined((DEPLOY.parent / ".ci" / "containers.sh").read_text())
+    assert "BASE=${BASE:-graft-base:bookworm}" in ci
+    pairs = {
+        'deploy/make-base.sh "$BASE"': "sudo deploy/make-base.sh graft-base:bookworm",
+        'make image IMAGE="$IMAGE" BASE="$BASE"': "make image BASE=graft-base:bookworm",
+        "make test-containers IMAGE=": "make test-containers",
+    }
+    for in_ci, in_readme in pairs.items():
+        assert in_ci in ci, in_ci
+        assert in_readme in readme, in_readme
+
+
+def test_the_readme_shows_the_kuberay_commands_of_the_manifest():
+    readme = _joined((DEPLOY / "README.md").read_text())
+    header = (DEPLOY / "kuberay.yaml").read_text().split("\napiVersion:")[0]
+    commands = [_joined(line[1:].strip()) for line in header.splitlines() if line.startswith("#  ")]
+    assert len(commands) == 3
+    for command in commands:
+        assert command in readme, command

@@ -18,61 +18,62 @@ budgets added and the test's own namespace names and addresses:
   namespace, with a copy of the token (RAY_AUTH_TOKEN_PATH): the run goes into the
   cluster, its replay server runs on the head, its folder is where graft says.
 
-`test_the_readme_shows_the_commands_this_module_runs` keeps README and test in sync.
-Everything made carries this process's pid in its name (namespaces, bridge, Ray's temp
-folder) and is torn down even when a test fails: the processes in the namespaces (by
-pid), then the namespaces and the bridge.
+`test_the_readme_shows_the_commands_this_module_runs` keeps README and test in sync; the
+commands, the run a test watches and the placement checks are cluster_story's, shared with
+the same story in containers (test_containers.py). Everything made carries this process's
+pid in its name (namespaces, bridge, Ray's temp folder) and is torn down even when a test
+fails: the processes in the namespaces (by pid), then the namespaces, the bridge and the
+firewall rule that lets the bridge forward (where iptables is present: a running dockerd
+sets the FORWARD chain's policy to DROP).
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import re
-import shlex
 import shutil
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pytest
 
 from service.replay.server import durability
+from tests.deploy.cluster_story import (
+    CLUSTER_CMDS,
+    HEAD_CMD,
+    MINECRAFT_CMD,
+    MINECRAFT_TINY,
+    MINECRAFT_UPDATES,
+    PENDULUM_CMD,
+    PENDULUM_TINY,
+    RAY_CLIENT_CMD,
+    REPLAY_SERVER,
+    RUN_LIMIT_S,
+    WORKER_CMD,
+    Run,
+    actors_on_workers,
+    command,
+    metric,
+    one_line_refusal,
+    readme_lacks,
+    training,
+    worlds_beside_their_actors,
+)
 
 # Ray nodes in namespaces, with real-time waits: alone, after the parallel part.
 pytestmark = pytest.mark.serial
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
-README = ROOT / "deploy" / "README.md"
 WORKERS = 2
-RUN_LIMIT_S = 600.0
-"""Only a guard against a hang: how long one run may take on a loaded machine."""
 START_LIMIT_S = 900.0
 """Only a guard against a hang: how long Ray's start on three nodes may take."""
-REPLAY_SERVER = "service.run.cli.replay serve"
-"""What the replay server's command line holds."""
-
-# The commands of deploy/README.md's namespace walk-through, with {head}, {worker} and
-# {client} for the addresses. The test adds only tiny budgets (and --temp-dir / --run-dir).
-HEAD_CMD = "deploy/ray-node.sh head --ip {head} --num-cpus 0"
-WORKER_CMD = (
-    "deploy/ray-node.sh worker --head {head}:6379 --ip {worker} --num-cpus 2 "
-    "--labels graft-node=worker"
-)
-ON_WORKERS = "--set 'actors.label_selector={{graft-node: worker}}'"
-PENDULUM_CMD = f"graft train --preset pendulum-td3 --address {{head}}:6379 --actors 2 {ON_WORKERS}"
-MINECRAFT_CMD = (
-    f"graft train --preset minecraft-backbone --address {{head}}:6379 --clients 2 {ON_WORKERS}"
-)
-RAY_CLIENT_CMD = (
-    f"graft train --preset pendulum-td3 --address ray://{{head}}:10001 --actors 2 {ON_WORKERS}"
-)
 README_ADDRESSES = {"head": "10.99.0.1", "worker": "10.99.0.2", "client": "10.99.0.3"}
 
 
@@ -93,6 +94,9 @@ class NamespaceCluster:
         ]
         self.head_ns, self.client_ns = self.namespaces[0], self.namespaces[-1]
         self.worker_ns = self.namespaces[1:-1]
+        self.head_node, self.worker_nodes = self.head_ns, self.worker_ns
+        self.forward_rule: Optional[list[str]] = None
+        """The FORWARD rule this cluster added for its bridge (removed on tear-down)."""
         self.head_ip = self.addresses[0]
         self.head = f"{self.head_ip}:6379"
         self.temp_dir = f"/tmp/graft-ray-{pid}"
@@ -122,6 +126,19 @@ class NamespaceCluster:
             _ip("-n", ns, "addr", "add", f"{address}/24", "dev", "eth0")
             _ip("-n", ns, "link", "set", "eth0", "up")
             _ip("-n", ns, "link", "set", "lo", "up")
+        self._let_the_bridge_forward()
+
+    def _let_the_bridge_forward(self) -> None:
+        """Lets the bridge forward between its ports whatever the FORWARD chain's policy:
+        once br_netfilter is loaded (dockerd loads it) bridged packets pass that chain, and
+        dockerd sets its policy to DROP."""
+        iptables = shutil.which("iptables")
+        if iptables is None:
+            return
+        rule = ["FORWARD", "-i", self.bridge, "-o", self.bridge, "-j", "ACCEPT"]
+        added = subprocess.run([iptables, "-I", *rule], capture_output=True, text=True)
+        if added.returncode == 0:
+            self.forward_rule = [iptables, "-D", *rule]
 
     def env(self, token: Path) -> dict[str, str]:
         return {
@@ -146,14 +163,19 @@ class NamespaceCluster:
             ["ip", "netns", "exec", ns, *argv], env=self.env(token), **kwargs
         )
 
+    def run(self, ns: str, argv: list[str], cwd: Path, token: Optional[Path] = None) -> Run:
+        """`graft train` (`argv`) started in namespace `ns`, watched."""
+        pipes = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True}
+        return Run(lambda: self.exec(ns, argv, token=token, cwd=cwd, **pipes))
+
     def start_ray(self) -> None:
         """deploy/ray-node.sh on every node, as deploy/README.md says; then the token's
         copy for the client."""
         self.home.mkdir(parents=True)
         extra = ["--temp-dir", self.temp_dir]
-        self._start(self.head_ns, _command(HEAD_CMD, head=self.head_ip) + extra)
+        self._start(self.head_ns, command(HEAD_CMD, head=self.head_ip) + extra)
         for ns, address in zip(self.worker_ns, self.addresses[1:-1], strict=True):
-            worker = _command(WORKER_CMD, head=self.head_ip, worker=address)
+            worker = command(WORKER_CMD, head=self.head_ip, worker=address)
             self._start(ns, worker + extra)
         self.client_token.parent.mkdir(mode=0o700)
         shutil.copy2(self.token, self.client_token)
@@ -209,16 +231,13 @@ class NamespaceCluster:
         for ns in self.namespaces:
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
         subprocess.run(["ip", "link", "del", self.bridge], capture_output=True)
+        if self.forward_rule is not None:
+            subprocess.run(self.forward_rule, capture_output=True)
         shutil.rmtree(self.temp_dir, ignore_errors=True)
 
 
-def _command(template: str, **addresses: str) -> list[str]:
-    """One of the README's commands, as argv, at the given addresses."""
-    return shlex.split(template.format(**addresses))
-
-
 def _graft(template: str, cluster: NamespaceCluster, *tiny: str) -> list[str]:
-    argv = _command(template, head=cluster.head_ip)
+    argv = command(template, head=cluster.head_ip)
     return [str(BIN / "graft"), *argv[1:], "--no-progress", *tiny]
 
 
@@ -227,49 +246,6 @@ def _cmdline(pid: int) -> str:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
     except OSError:
         return ""
-
-
-def _metric(csv_path: Path, key: str) -> list[float]:
-    with csv_path.open() as f:
-        return [float(row["value"]) for row in csv.DictReader(f) if row["key"] == key]
-
-
-class Run:
-    """A `graft train` started in a namespace, its output collected when it ends."""
-
-    def __init__(
-        self, cluster: NamespaceCluster, ns: str, argv: list[str], cwd: Path, **kwargs: object
-    ) -> None:
-        self.process = cluster.exec(
-            ns, argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            **kwargs,
-        )  # fmt: skip
-        self.deadline = time.monotonic() + RUN_LIMIT_S
-        self.out, self.err = "", ""
-
-    def wait_for(self, ready: Callable[[], object], what: str) -> None:
-        """Polls `ready()` until it is true; fails if the run ends or takes too long first."""
-        while not ready():
-            assert self.process.poll() is None, self.finish()
-            assert time.monotonic() < self.deadline, f"the run did not {what}"
-            time.sleep(0.5)
-
-    def finish(self) -> tuple[str, str]:
-        """Waits for the run to end (kills it past the deadline); its stdout and stderr."""
-        try:
-            self.out, self.err = self.process.communicate(
-                timeout=max(self.deadline - time.monotonic(), 1)
-            )
-        finally:
-            if self.process.poll() is None:
-                self.process.kill()
-                self.out, self.err = self.process.communicate()
-        return self.out, self.err
-
-
-def _training(metrics: Path) -> bool:
-    """The learner trains: its first metrics rows are written."""
-    return metrics.exists() and len(metrics.read_text().splitlines()) > 4
 
 
 @pytest.fixture(scope="module")
@@ -284,20 +260,7 @@ def cluster():
 
 
 def test_the_readme_shows_the_commands_this_module_runs():
-    text = README.read_text().replace("\\\n", " ")
-    text = re.sub(r"[ \t]+", " ", re.sub(r"\.venv/bin/|\$PWD/", "", text))
-    for template in (HEAD_CMD, WORKER_CMD, PENDULUM_CMD, MINECRAFT_CMD, RAY_CLIENT_CMD):
-        command = template.format(**README_ADDRESSES)
-        assert command in text, f"deploy/README.md lacks: {command}"
-
-
-def _actors_on_workers(cluster: NamespaceCluster) -> dict[int, str]:
-    """The run's two env actors, pid -> worker namespace; none may run on the head."""
-    actors = {ns: cluster.find(ns, "ray::EnvActor") for ns in cluster.namespaces}
-    assert actors[cluster.head_ns] == [], "an actor ran on the 0-CPU head"
-    on_workers = {p: ns for ns in cluster.worker_ns for p in actors[ns]}
-    assert len(on_workers) == 2, actors
-    return on_workers
+    assert readme_lacks(c.format(**README_ADDRESSES) for c in CLUSTER_CMDS) == []
 
 
 @pytest.mark.slow
@@ -310,12 +273,12 @@ def test_a_run_on_three_nodes_survives_a_dead_actor_and_replay_server(cluster, t
         "--set", "eval_every=100000", "--set", "eval_episodes=1",
         "--set", "td3.hidden_sizes=[16, 16]", "--set", "td3.batch_size=32",
     )  # fmt: skip
-    train = Run(cluster, cluster.head_ns, argv, tmp_path)
+    train = cluster.run(cluster.head_ns, argv, tmp_path)
     metrics = run_dir / "metrics.csv"
     try:
         # Faults strike once the learner trains.
-        train.wait_for(lambda: _training(metrics), "start training")
-        on_workers = list(_actors_on_workers(cluster))
+        train.wait_for(lambda: training(metrics), "start training")
+        on_workers = list(actors_on_workers(cluster))
         os.kill(on_workers[0], signal.SIGKILL)
         time.sleep(2)
         (replay,) = cluster.find(cluster.head_ns, REPLAY_SERVER)
@@ -326,8 +289,8 @@ def test_a_run_on_three_nodes_survives_a_dead_actor_and_replay_server(cluster, t
     assert train.process.returncode == 0, err
     assert "env actor" in err and "restarted it" in err, err
     assert "replay server died" in err and "restarted from its checkpoint folder" in err, err
-    assert _metric(metrics, "faults/actor_restarts")[-1] >= 1
-    assert _metric(metrics, "faults/replay_restarts")[-1] >= 1
+    assert metric(metrics, "faults/actor_restarts")[-1] >= 1
+    assert metric(metrics, "faults/replay_restarts")[-1] >= 1
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["updates"] == env_steps - learning_starts  # the learner's whole budget
 
@@ -345,17 +308,6 @@ def test_a_run_on_three_nodes_survives_a_dead_actor_and_replay_server(cluster, t
     assert len(np.unique(rows, axis=0)) == len(rows)
 
 
-MINECRAFT_TINY = [
-    "--env-steps", "1200", "--set", "learning_starts=200", "--set", "slack_env_steps=64",
-    "--set", "steps_per_insert=16", "--set", "publish_every=20",
-    "--set", "eval_every=100000", "--set", "eval_episodes=1", "--set", "checkpoint_every=100000",
-    "--set", "td3.hidden_sizes=[32, 32]", "--set", "td3.batch_size=32",
-    "--set", "env_kwargs.ticks_per_step=2",
-]  # fmt: skip
-MINECRAFT_UPDATES = int((1200 - 200) * 0.5)
-"""The tiny run's update budget: (env_steps - learning_starts) × updates_per_env_step."""
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(START_LIMIT_S + RUN_LIMIT_S + 120)
 def test_minecraft_actors_and_their_worlds_run_on_workers_and_a_dead_one_is_replaced(
@@ -363,32 +315,22 @@ def test_minecraft_actors_and_their_worlds_run_on_workers_and_a_dead_one_is_repl
 ):
     run_dir = tmp_path / "run"
     argv = _graft(MINECRAFT_CMD, cluster, "--run-dir", str(run_dir), *MINECRAFT_TINY)
-    train = Run(cluster, cluster.head_ns, argv, tmp_path)
+    train = cluster.run(cluster.head_ns, argv, tmp_path)
     metrics = run_dir / "metrics.csv"
     try:
-        train.wait_for(lambda: _training(metrics), "start training")
-        on_workers = _actors_on_workers(cluster)
-        # Each actor serves its own simulated world on its node's loopback.
-        for pid, ns in on_workers.items():
-            listens = cluster.listening(ns).get(pid, [])
-            assert any(a.startswith("127.0.0.1:") for a in listens), (pid, ns, listens)
+        train.wait_for(lambda: training(metrics), "start training")
+        on_workers = actors_on_workers(cluster)
+        worlds_beside_their_actors(cluster, on_workers)
         os.kill(next(iter(on_workers)), signal.SIGKILL)
     finally:
         _, err = train.finish()
 
     assert train.process.returncode == 0, err
     assert "env actor" in err and "restarted it" in err, err
-    assert _metric(metrics, "faults/actor_restarts")[-1] >= 1
+    assert metric(metrics, "faults/actor_restarts")[-1] >= 1
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["updates"] == MINECRAFT_UPDATES
     assert np.isfinite(summary["final_eval_return_mean"])
-
-
-PENDULUM_TINY = [
-    "--env-steps", "1000", "--set", "learning_starts=200", "--set", "eval_every=100000",
-    "--set", "eval_episodes=1", "--set", "td3.hidden_sizes=[16, 16]",
-    "--set", "td3.batch_size=32",
-]  # fmt: skip
 
 
 @pytest.mark.slow
@@ -397,7 +339,7 @@ def test_a_ray_client_run_from_a_machine_outside_the_cluster_runs_inside_it(clus
     # No --run-dir: the run's default folder, under the home folder of the head's Ray.
     runs = cluster.home / "runs"
     argv = _graft(RAY_CLIENT_CMD, cluster, *PENDULUM_TINY)
-    train = Run(cluster, cluster.client_ns, argv, tmp_path)
+    train = cluster.run(cluster.client_ns, argv, tmp_path)
     try:
         train.wait_for(
             lambda: cluster.find(cluster.head_ns, f"{runs}/"), "start a replay server on the head"
@@ -426,11 +368,12 @@ def test_a_ray_client_run_from_a_machine_outside_the_cluster_runs_inside_it(clus
 def test_a_ray_client_without_the_token_is_refused_in_one_line(cluster, tmp_path):
     missing = tmp_path / "no-token"
     argv = _graft(RAY_CLIENT_CMD, cluster, "--run-dir", str(tmp_path / "run"))
-    train = Run(cluster, cluster.client_ns, argv, tmp_path, token=missing)
+    train = cluster.run(cluster.client_ns, argv, tmp_path, token=missing)
     _, err = train.finish()
     assert train.process.returncode == 2, err
-    (line,) = [line for line in err.splitlines() if line.startswith("graft train:")]
-    assert f"--address ray://{cluster.head_ip}:10001: Ray Client could not connect" in line
-    assert f"the cluster's token in {missing}" in line
-    assert "Traceback" not in err
+    one_line_refusal(
+        err,
+        f"--address ray://{cluster.head_ip}:10001: Ray Client could not connect",
+        f"the cluster's token in {missing}",
+    )
     assert not (tmp_path / "run").exists()

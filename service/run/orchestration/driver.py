@@ -23,6 +23,7 @@ from typing import Any, Optional
 
 import ray
 import torch
+from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 from tqdm import tqdm
 
 from actors.env_actor import EnvActor
@@ -39,7 +40,7 @@ from service.run.orchestration.lockstep import ActorRing, deterministic, stalled
 from service.run.orchestration.preflight import check_cluster, check_fits_locally, check_run_dir
 from service.run.orchestration.progress import FaultLog, say_and_keep, watch
 from service.run.orchestration.provenance import config_record
-from service.run.orchestration.ray_session import connect_ray
+from service.run.orchestration.ray_session import check_head, connect_ray
 from service.run.orchestration.resume import restore, resume_with
 from service.run.orchestration.roles import (
     ACTOR_FINISH_S,
@@ -99,6 +100,7 @@ def train_here(
     if checkpoint is not None:
         refill = config.reproducible or not reusable(run_dir, tables)
         state = restore(algorithm, checkpoint, phases, config, refill=refill)
+    check_head(address)
     run_dir.mkdir(parents=True, exist_ok=True)
     hardware = {"learner_device": str(device), "learner_device_name": device_name(device)}
     (run_dir / "config.yaml").write_text(config_record(config, hardware=hardware))
@@ -174,8 +176,13 @@ def train_here(
         segments = actor_segments(phases, config.num_actors)
         budget = None
         if not config.reproducible:
-            # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
-            budget = StepBudget.remote({s.table: s.steps for s in actor_segments(phases, 1)})  # type: ignore[attr-defined]
+            # On the learner's node, as the weight broadcaster: a worker node lost with
+            # its actors must not take the budget along. @ray.remote gives the class
+            # `.options` at run time; mypy sees the plain class.
+            here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), False)
+            budget = StepBudget.options(scheduling_strategy=here).remote(  # type: ignore[attr-defined]
+                {s.table: s.steps for s in actor_segments(phases, 1)}
+            )
         actors = ActorFleet(
             make_actor,
             segments if budget is None else actor_segments(phases, 1),

@@ -6,12 +6,18 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import socket
 import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Optional
 
 import ray
+
+from service.run.validation import ConfigError
+
+HEAD_ANSWER_S = 10.0
+"""How long a cluster's head at HOST:PORT has to accept a connection."""
 
 
 def connect_ray(address: str) -> bool:
@@ -46,6 +52,54 @@ def _keeping_sigterm() -> Iterator[None]:
             signal.signal(signal.SIGTERM, previous)
 
 
+def check_head(address: str) -> None:
+    """Refuses, in one line, a cluster join Ray would not make: a HOST:PORT where no head
+    answers (Ray retries that for ever), or token auth (RAY_AUTH_MODE=token) without a
+    token on this machine. 'local', 'auto' (Ray finds the node this machine runs, and its
+    token) and 'ray://' addresses pass (Ray Client says itself).
+
+    Raises:
+        ConfigError: e.g. ``--address 10.0.0.1:6379: no Ray head answers there
+            (connection refused) ...``.
+    """
+    if address in ("local", "auto") or address.startswith("ray://"):
+        return
+    if os.environ.get("RAY_AUTH_MODE") == "token" and not _has_token():
+        raise ConfigError(
+            f"--address {address}: token auth is on (RAY_AUTH_MODE=token) but this machine "
+            f"has no Ray token: put the cluster's token in {_token_file()} "
+            "(deploy/ray-node.sh copy-token USER@THIS_MACHINE), or name its file with "
+            "RAY_AUTH_TOKEN_PATH"
+        )
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        raise ConfigError(
+            f"--address {address}: expected HOST:PORT (the head's, e.g. 10.0.0.1:6379), "
+            "'auto', 'local' or ray://HOST:10001"
+        )
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=HEAD_ANSWER_S).close()
+    except OSError as error:
+        why = (
+            f"no answer within {HEAD_ANSWER_S:g} s"
+            if isinstance(error, TimeoutError)
+            else (error.strerror or str(error)).lower()
+        )
+        raise ConfigError(
+            f"--address {address}: no Ray head answers there ({why}); start one there "
+            "(deploy/ray-node.sh head, or `ray start --head`) or give its address"
+        ) from None
+
+
+def _token_file() -> str:
+    """Where Ray looks for this machine's token file."""
+    return os.environ.get("RAY_AUTH_TOKEN_PATH") or str(Path.home() / ".ray" / "auth_token")
+
+
+def _has_token() -> bool:
+    return bool(os.environ.get("RAY_AUTH_TOKEN")) or Path(_token_file()).is_file()
+
+
 def _use_token_auth(address: str) -> None:
     """Joins a cluster at HOST:PORT or ray://HOST:PORT with Ray's token auth when this
     machine holds a token.
@@ -57,8 +111,7 @@ def _use_token_auth(address: str) -> None:
     """
     if "RAY_AUTH_MODE" in os.environ:
         return
-    token_file = os.environ.get("RAY_AUTH_TOKEN_PATH") or str(Path.home() / ".ray" / "auth_token")
-    if os.environ.get("RAY_AUTH_TOKEN") or Path(token_file).is_file():
+    if _has_token():
         try:  # sets RAY_AUTH_MODE=token and reloads Ray's cached config, as 'auto' does
             from ray._private.authentication.authentication_token_setup import (
                 _enable_token_auth,

@@ -14,17 +14,20 @@ what its log already holds.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Optional, Protocol
 
 import ray
-from ray.exceptions import RayActorError
+from ray.exceptions import ActorDiedError, ActorUnavailableError, GetTimeoutError, RayActorError
 
 from actors.env_actor import Segment
 from service.run.orchestration.budget import BudgetClaims, BudgetHandle
 from service.run.replay_host.supervised import TooManyRestarts
 
+CONFIRM_DEATH_S = 90.0
+"""How long a replacement waits for Ray to call an unreachable actor dead (its node's)."""
 CHECK_EVERY_S = 0.5
 """How often the supervisor looks at the replay server and the actors."""
 
@@ -145,6 +148,7 @@ class ActorFleet:
                 f"(actors.max_restarts={self.max_restarts}): {_first_line(error)}"
             )
         self.restarts += 1
+        _confirm_death(slot.actor, error)
         ray.kill(slot.actor)
         if self.budget is not None:
             # Its claims past what it stored go back; the budget may know of more stored.
@@ -275,3 +279,25 @@ class Supervisor:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join()
+
+
+def _confirm_death(actor: Any, error: RayActorError) -> None:
+    """Waits, at most CONFIRM_DEATH_S, until Ray calls an unreachable actor dead.
+
+    An actor whose node vanished (its machine or container killed) is first only
+    unreachable: Ray counts the node alive until its heartbeats have been missed for a
+    while, and a replacement started before then may be placed on that node and never
+    start. Once Ray has declared the node dead, the actor's calls fail with ActorDiedError.
+    An actor that answers again was cut off for a moment; it is replaced all the same.
+    """
+    if not isinstance(error, ActorUnavailableError):
+        return
+    deadline = time.monotonic() + CONFIRM_DEATH_S
+    while time.monotonic() < deadline:
+        try:
+            ray.get(actor.report.remote(), timeout=5)
+            return
+        except ActorDiedError:
+            return
+        except (ActorUnavailableError, GetTimeoutError):
+            time.sleep(CHECK_EVERY_S)

@@ -3,6 +3,7 @@ allowed, with exit status 2, before Ray starts (these tests never start it)."""
 
 from __future__ import annotations
 
+import socket
 from pathlib import Path
 
 import pytest
@@ -246,6 +247,38 @@ def test_more_parallel_runs_than_local_ray_can_place(capsys) -> None:
         "graft experiment: parallel=9 does not fit the local Ray instance: a run of variant "
         f"'options' takes 1 CPUs (its task, actors and evaluator), 9 at a time 9, it has "
         f"{have:g}; at most {int(have)} at a time"
+    )
+
+
+def test_a_head_address_that_does_not_answer_is_refused_in_one_line(tmp_path, capsys) -> None:
+    with socket.socket() as closed:  # a port nothing listens on once it is closed
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+    run_dir = tmp_path / "run"
+    argv = [*TRAIN, "--address", f"127.0.0.1:{port}", "--run-dir", str(run_dir)]
+    assert _refused(argv, capsys) == (
+        f"graft train: --address 127.0.0.1:{port}: no Ray head answers there (connection "
+        "refused); start one there (deploy/ray-node.sh head, or `ray start --head`) or give "
+        "its address"
+    )
+    assert not run_dir.exists()
+    assert _refused([*TRAIN, "--address", "head-without-port"], capsys) == (
+        "graft train: --address head-without-port: expected HOST:PORT (the head's, e.g. "
+        "10.0.0.1:6379), 'auto', 'local' or ray://HOST:10001"
+    )
+
+
+def test_token_auth_without_a_token_is_refused_in_one_line(monkeypatch, tmp_path, capsys):
+    missing = tmp_path / "no-token"
+    monkeypatch.setenv("RAY_AUTH_MODE", "token")  # as the image sets it
+    monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(missing))
+    monkeypatch.delenv("RAY_AUTH_TOKEN", raising=False)
+    argv = [*TRAIN, "--address", "10.0.0.1:6379", "--run-dir", str(tmp_path / "run")]
+    assert _refused(argv, capsys) == (
+        "graft train: --address 10.0.0.1:6379: token auth is on (RAY_AUTH_MODE=token) but "
+        f"this machine has no Ray token: put the cluster's token in {missing} "
+        "(deploy/ray-node.sh copy-token USER@THIS_MACHINE), or name its file with "
+        "RAY_AUTH_TOKEN_PATH"
     )
 
 
