@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 from pathlib import Path
@@ -81,9 +82,11 @@ def test_the_dockerfile_installs_cpu_torch_and_bakes_in_no_token() -> None:
 def test_make_image_refuses_a_bad_base_or_ca_in_one_line(docker, settings, refusal, tmp_path):
     """The Makefile's own checks, before any build (docker is `false` or `true` here: the
     checks are the Makefile's; test_containers.py builds with a real one)."""
+    # As a user types it, also when the suite itself runs under make (`make test`).
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKELEVEL", "MAKEFLAGS", "MFLAGS")}
     result = subprocess.run(
         ["make", "-s", "-C", str(DEPLOY.parent), "image", f"DOCKER={docker}", *settings],
-        capture_output=True, text=True, check=False, timeout=60,
+        capture_output=True, text=True, check=False, timeout=60, env=env,
     )  # fmt: skip
     assert result.returncode == 2, result.stderr
     ours = [line for line in result.stderr.splitlines() if not line.startswith("make: ***")]

@@ -11,6 +11,7 @@ for its result. The run folder is written on that node.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Any, Optional
 
@@ -70,11 +71,24 @@ def train_on_cluster(
             or no or a wrong token), the learner cannot be placed, or the run refuses a
             value there.
     """
-    try:
-        connect_ray(address)
-    except (ConnectionError, AuthenticationError) as error:
-        # AuthenticationError: token auth is on (RAY_AUTH_MODE=token) but no token is here.
-        raise ConfigError(_unreachable(address, error)) from None
+    for attempt in range(2):
+        try:
+            connect_ray(address)
+            break
+        except (ConnectionError, AuthenticationError) as error:
+            # AuthenticationError: token auth is on (RAY_AUTH_MODE=token) but no token here.
+            if attempt == 0 and "Initialization failure" in str(error):
+                # The server took the connection but the session process it starts for
+                # this client did not come up in time (a loaded head): once more.
+                print(
+                    f"--address {address}: Ray Client's session did not start there; "
+                    "trying once more",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                ray.shutdown()
+                continue
+            raise ConfigError(_unreachable(address, error)) from None
     try:
         options = learner_options(config.learner)
         placed = LearnerPlacement(

@@ -241,6 +241,10 @@ def test_a_folder_of_another_table_or_unrestorable_is_moved_aside_and_the_run_re
     train(_config(env_steps=600), run_dir=run_dir, progress=False)
     capsys.readouterr()
     kept = _files(run_dir / "replay")
+    # The learner may finish (and checkpoint) before the actors inserted their last steps:
+    # a resume refills what the checkpoint had not seen, up to 600.
+    seen = load_checkpoint(latest_checkpoint(run_dir / "checkpoints"))["loop"]["env_steps"]
+    assert 600 - _config().slack_env_steps <= seen <= 600
 
     # Another table spec (replay_max_size): the folder is set aside, the run refills.
     resumed = train(
@@ -254,7 +258,7 @@ def test_a_folder_of_another_table_or_unrestorable_is_moved_aside_and_the_run_re
         "refilling a fresh table"
     ], lines
     assert resumed["replay_restored"] is None and resumed["env_steps"] == 1_000
-    assert sum(resumed["actor_env_steps"]) == 400  # the refill: nothing of the old table
+    assert sum(resumed["actor_env_steps"]) == 1_000 - seen  # the refill: nothing of the old table
     stale = _files(run_dir / "replay.stale-1")
     assert {k: v for k, v in stale.items() if k != "replay.json"} == kept  # as it was
     assert json.loads(stale["replay.json"])["tables"][0]["max_size"] == 100_000
