@@ -231,19 +231,19 @@ def aggregate(episodes: list[LeafTimes], attr: str) -> list[Row]:
         for k, n in e.stuck_ticks.items():
             stuck[name(k)] += n
     total = sum(sum(c.values()) for c in per_world) or 1
-    names = set().union(*per_world) if per_world else set()
+    names: set[str] = set().union(*per_world)
     rows = []
-    for n in names:
-        xs = [c.get(n, 0) for c in per_world]
+    for label in names:
+        xs = [c.get(label, 0) for c in per_world]
         rows.append(
             Row(
-                name=n,
+                name=label,
                 share=sum(xs) / total,
                 mean=statistics.fmean(xs),
                 median=float(statistics.median(xs)),
                 worlds=sum(1 for x in xs if x),
-                idle_entries=idle[n],
-                stuck=stuck[n],
+                idle_entries=idle[label],
+                stuck=stuck[label],
             )
         )
     return sorted(rows, key=lambda r: (-r.share, r.name))
