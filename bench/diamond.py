@@ -78,13 +78,13 @@ def time_tables(episodes: list[tuple[EpisodeResult, LeafTimes]], *, top: int = 1
             f"| {r.seed} | {t.total} | "
             + " | ".join(_pct(by.get(a, 0) / total) for a in ACTIVITIES)
             + f" | {sum(t.stuck_ticks.values())} | {sum(t.idle_entries.values())} | "
-            f"{t.given_up} | {t.last.leaf} [{t.last.subtree}] |"
+            f"{t.given_up} | {t.last.leaf} [{t.last.subtree}: {t.last.activity}] |"
         )
     times = [t for _, t in episodes]
     for attr, title, limit in (
         ("activity", "activity", None),
         ("subtree", "sub-tree (innermost need)", None),
-        ("leaf", "leaf [sub-tree]", top),
+        ("leaf", "leaf [sub-tree: activity]", top),
     ):
         rows = aggregate(times, attr)
         lines += ["", _rows_table(rows[:limit] if limit else rows, title)]

@@ -211,12 +211,15 @@ class Row:
 def aggregate(episodes: list[LeafTimes], attr: str) -> list[Row]:
     """Rows per ``attr`` ("leaf", "subtree", "activity") over worlds, largest share first.
 
-    A leaf row's name is "leaf [subtree]" so a leaf used under several needs stays
-    apart.
+    A leaf row's name is "leaf [subtree: activity]", so that a leaf used under several
+    needs, or for several purposes in one (the travel sub-tree's "Break block" when
+    reaching a target, exploring or descending), stays apart.
     """
 
     def name(k: LeafKey) -> str:
-        return f"{k.leaf} [{k.subtree}]" if attr == "leaf" else str(getattr(k, attr))
+        if attr == "leaf":
+            return f"{k.leaf} [{k.subtree}: {k.activity}]"
+        return str(getattr(k, attr))
 
     per_world: list[Counter[str]] = []
     idle: Counter[str] = Counter()

@@ -94,10 +94,10 @@ def test_aggregate_shares_and_per_world_figures() -> None:
     a, b = classify(None), START_KEY
     worlds = [LeafTimes(ticks={a: 30, b: 10}), LeafTimes(ticks={b: 60})]
     rows = {r.name: r for r in aggregate(worlds, "leaf")}
-    none_row = rows["(none) [(none)]"]
+    none_row = rows["(none) [(none): waiting]"]
     assert none_row.share == pytest.approx(0.3)
     assert (none_row.mean, none_row.median, none_row.worlds) == (15.0, 15.0, 1)
-    assert rows[f"{MISSION_START} [{MISSION_START}]"].share == pytest.approx(0.7)
+    assert rows[f"{MISSION_START} [{MISSION_START}: waiting]"].share == pytest.approx(0.7)
 
 
 @pytest.mark.service  # a real world server process
