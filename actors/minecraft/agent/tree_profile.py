@@ -142,6 +142,11 @@ class TimeProfile:
         self.idle_entries: Counter[LeafKey] = Counter()
         self.stuck_ticks: Counter[LeafKey] = Counter()
 
+    @property
+    def current(self) -> LeafKey:
+        """The leaf whose action was sent last."""
+        return self._key
+
     def observed(self, p: Percept) -> None:
         """A new observation: the ticks since the last one go to the leaf that acted."""
         dt = p.tick - self._last_tick

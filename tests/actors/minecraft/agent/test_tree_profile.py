@@ -128,3 +128,23 @@ def test_every_tick_of_a_real_episode_goes_to_a_real_leaf() -> None:
     assert set(t.by("leaf")) - {MISSION_START} <= names
     by = t.by("activity")
     assert by.get("travel", 0) > 0 and by.get("digging", 0) > 0 and by.get("crafting", 0) > 0
+
+
+@pytest.mark.service  # a real world server process
+def test_gif_records_frames_with_the_running_leaf(tmp_path) -> None:
+    from PIL import Image
+
+    from actors.minecraft.agent.tree_gif import record_gif
+
+    deco = '<DrawCuboid x1="4" y1="4" z1="0" x2="4" y2="6" z2="0" type="log"/>'
+    pool = _pool()
+    try:
+        path = tmp_path / "tree.gif"
+        mission = flat_mission(decorators=deco, grid_radius=7, ms_per_tick=50, video=True)
+        result, n = record_gif(pool.ports[0], mission, path, seed=3, max_ticks=60, every=10)
+    finally:
+        pool.stop()
+    assert n >= 5 and result.ticks > 0
+    with Image.open(path) as im:
+        assert 2 <= im.n_frames <= n  # Pillow merges identical neighbouring frames
+        assert im.size == (16 * 3, 12 * 3 + 28)
