@@ -1,4 +1,6 @@
-"""Run the obtain-diamond behaviour tree on seeded worlds and print a markdown table.
+"""Run the obtain-diamond behaviour tree on seeded worlds and print markdown tables:
+the outcome per world, then where the in-game time went (per activity, sub-tree and
+leaf, and the dithering signs), with a PNG of the time per world by activity.
 
 Each world is a real simulated world server (in the worker process, real Malmo's timing)
 driven by graft's MalmoEnv client in MineRL's synchronous mode, with the sample
@@ -6,6 +8,7 @@ obtain-diamond mission (20 in-game minutes = 24,000 ticks; the small frame, as t
 reads observations only).
 
     python bench/diamond.py [--worlds 20] [--first-seed 0] [--procs 2]
+        [--png diamond_time.png] [--max-ticks 24000]
 """
 
 from __future__ import annotations
@@ -20,6 +23,13 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from actors.minecraft.agent.diamond_tree import EpisodeResult, run_episode  # noqa: E402
+from actors.minecraft.agent.tree_profile import (  # noqa: E402
+    ACTIVITIES,
+    LeafTimes,
+    Row,
+    TimeProfile,
+    aggregate,
+)
 from actors.minecraft.malmo.client import MalmoClient  # noqa: E402
 from actors.minecraft.malmo.mission_xml import obtain_diamond  # noqa: E402
 from actors.minecraft.sim.server import WorldServer  # noqa: E402
@@ -32,17 +42,90 @@ def _mission(seed: int) -> str:
     return obtain_diamond(seed=seed, pixels=False)
 
 
-def run_world(seed: int) -> tuple[EpisodeResult, float]:
-    """One world: a server on a free port, the tree through the client."""
+def run_world(
+    seed: int, max_ticks: int = TIME_LIMIT_TICKS + 5
+) -> tuple[EpisodeResult, float, LeafTimes]:
+    """One world: a server on a free port, the tree through the client, profiled."""
     t0 = time.perf_counter()
+    profile = TimeProfile()
     with WorldServer(port=0, seed=seed) as server:
         client = MalmoClient("127.0.0.1", server.port, synchronous=True, seed=seed)
         client.init(_mission(seed))
         try:
-            result = run_episode(client, seed=seed, max_ticks=TIME_LIMIT_TICKS + 5)
+            result = run_episode(client, seed=seed, max_ticks=max_ticks, profile=profile)
         finally:
             client.close()
-    return result, time.perf_counter() - t0
+    return result, time.perf_counter() - t0, profile.summary()
+
+
+def _run_world(job: tuple[int, int]) -> tuple[EpisodeResult, float, LeafTimes]:
+    return run_world(*job)
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f}"
+
+
+def time_tables(episodes: list[tuple[EpisodeResult, LeafTimes]], *, top: int = 15) -> str:
+    """Markdown: where the time went per world, then per activity, sub-tree and leaf."""
+    lines = ["| world seed | ticks | " + " | ".join(f"{a} %" for a in ACTIVITIES)
+             + " | stuck ticks | idle re-entries | targets given up | running at the end |",
+             "|---" * (len(ACTIVITIES) + 6) + "|"]  # fmt: skip
+    for r, t in episodes:
+        by = t.by("activity")
+        total = t.total or 1
+        lines.append(
+            f"| {r.seed} | {t.total} | "
+            + " | ".join(_pct(by.get(a, 0) / total) for a in ACTIVITIES)
+            + f" | {sum(t.stuck_ticks.values())} | {sum(t.idle_entries.values())} | "
+            f"{t.given_up} | {t.last.leaf} [{t.last.subtree}: {t.last.activity}] |"
+        )
+    times = [t for _, t in episodes]
+    for attr, title, limit in (
+        ("activity", "activity", None),
+        ("subtree", "sub-tree (innermost need)", None),
+        ("leaf", "leaf [sub-tree: activity]", top),
+    ):
+        rows = aggregate(times, attr)
+        lines += ["", _rows_table(rows[:limit] if limit else rows, title)]
+        if limit and len(rows) > limit:
+            rest = sum(r.share for r in rows[limit:])
+            lines.append(f"\n({len(rows) - limit} more leaves: {_pct(rest)} % of the time)")
+    return "\n".join(lines)
+
+
+def _rows_table(rows: list[Row], title: str) -> str:
+    out = [f"| {title} | share % | mean ticks | median ticks | worlds | idle re-entries "
+           "| stuck ticks |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+    out += [
+        f"| {r.name} | {_pct(r.share)} | {r.mean:.0f} | {r.median:.0f} | {r.worlds} | "
+        f"{r.idle_entries} | {r.stuck} |"
+        for r in rows
+    ]
+    return "\n".join(out)
+
+
+def plot_time(episodes: list[tuple[EpisodeResult, LeafTimes]], path: Path) -> None:
+    """A stacked bar per world: in-game seconds by activity."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    xs = [str(r.seed) for r, _ in episodes]
+    bottom = [0.0] * len(episodes)
+    for a in ACTIVITIES:
+        ys = [t.by("activity").get(a, 0) / 20 for _, t in episodes]
+        ax.bar(xs, ys, bottom=bottom, label=a)
+        bottom = [b + y for b, y in zip(bottom, ys, strict=True)]
+    ax.set_xlabel("world seed")
+    ax.set_ylabel("in-game seconds")
+    ax.set_title("Obtain-diamond tree: where the in-game time goes")
+    ax.legend(ncol=len(ACTIVITIES), fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.15))
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def _clock(ticks: int) -> str:
@@ -56,13 +139,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--worlds", type=int, default=20, help="number of seeded worlds")
     ap.add_argument("--first-seed", type=int, default=0, help="seed of the first world")
     ap.add_argument("--procs", type=int, default=2, help="worlds run in parallel")
+    ap.add_argument("--png", type=Path, default=Path("diamond_time.png"),
+                    help="where to write the time-per-world chart")  # fmt: skip
+    ap.add_argument("--max-ticks", type=int, default=TIME_LIMIT_TICKS + 5,
+                    help="steps before giving up (the mission ends at 24,000 ticks)")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.worlds < 1 or args.procs < 1 or args.max_ticks < 1:
+        ap.error("--worlds, --procs and --max-ticks must be at least 1")
     seeds = list(range(args.first_seed, args.first_seed + args.worlds))
     t0 = time.perf_counter()
     results: list[tuple[EpisodeResult, float]] = []
+    profiles: dict[int, LeafTimes] = {}
+    jobs = [(s, args.max_ticks) for s in seeds]
     with mp.get_context("spawn").Pool(args.procs) as pool:
-        for r, secs in pool.imap_unordered(run_world, seeds, chunksize=1):
+        for r, secs, prof in pool.imap_unordered(_run_world, jobs, chunksize=1):
             results.append((r, secs))
+            profiles[r.seed] = prof
             print(f"[{len(results)}/{len(seeds)}] seed {r.seed}: {r.stage}, "
                   f"{r.ticks} ticks, {secs:.0f} s", file=sys.stderr, flush=True)  # fmt: skip
     results.sort(key=lambda rs: rs[0].seed)
@@ -83,6 +175,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{sum(r.deaths for r, _ in results)}; median time to diamond: "
           f"{_clock(int(statistics.median(r.ticks for r in got))) if got else '-'}; "
           f"wall {wall:.0f} s with {args.procs} processes")  # fmt: skip
+    episodes = [(r, profiles[r.seed]) for r, _ in results]
+    print()
+    print(time_tables(episodes))
+    plot_time(episodes, args.png)
+    print(f"\nwrote {args.png}")
     return 0
 
 

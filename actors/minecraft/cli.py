@@ -1,5 +1,6 @@
 """``graft minecraft serve`` (one world server) and ``graft minecraft view`` (PNG frames of
-a short episode). Run standalone with ``python -m actors.minecraft.cli minecraft ...``."""
+a short episode, or with ``--gif`` the obtain-diamond tree as an animated GIF). Run
+standalone with ``python -m actors.minecraft.cli minecraft ...``."""
 
 from __future__ import annotations
 
@@ -83,6 +84,8 @@ def _view(args: argparse.Namespace) -> int:
     from actors.minecraft.malmo.mission_xml import mission_xml
     from actors.minecraft.sim.server import WorldServer
 
+    if args.gif:
+        return _view_tree(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(args.seed)
@@ -107,6 +110,27 @@ def _view(args: argparse.Namespace) -> int:
         client.close()
     for p in saved:
         print(p)
+    return 0
+
+
+def _view_tree(args: argparse.Namespace) -> int:
+    from actors.minecraft.agent.tree_gif import record_gif
+    from actors.minecraft.malmo.mission_xml import obtain_diamond
+    from actors.minecraft.sim.server import WorldServer
+
+    if args.every < 1 or args.steps < 1:
+        print("graft minecraft view: --every and --steps must be at least 1", file=sys.stderr)
+        return 2
+    with WorldServer(port=0, seed=args.seed) as server:
+        result, n = record_gif(
+            server.port,
+            obtain_diamond(seed=args.seed),
+            Path(args.gif),
+            seed=args.seed,
+            max_ticks=args.steps,
+            every=args.every,
+        )
+    print(f"wrote {args.gif}: {n} frames; {result.stage} reached at tick {result.ticks}")
     return 0
 
 
@@ -197,6 +221,10 @@ def add_minecraft_commands(subparsers: argparse._SubParsersAction) -> None:
     view.add_argument("--width", type=int, default=96, help="frame width")
     view.add_argument("--height", type=int, default=64, help="frame height")
     view.add_argument("--scale", type=int, default=4, help="upscaling of saved PNGs")
+    view.add_argument(
+        "--gif", default="", help="run the obtain-diamond tree instead and write this GIF"
+    )
+    view.add_argument("--every", type=int, default=10, help="GIF: one frame every N steps")
     view.set_defaults(func=_view)
     tree = sub.add_parser("tree", help="print the obtain-diamond behaviour tree, save a PNG")
     tree.add_argument("--png", default="diamond_tree.png", help="PNG path ('' for none)")

@@ -43,6 +43,7 @@ from actors.minecraft.agent.leaves.items import Craft
 from actors.minecraft.agent.leaves.percept import Percept, parse
 from actors.minecraft.agent.leaves.survival import Eat, EscapeLiquid
 from actors.minecraft.agent.leaves.travel import travel_subtree
+from actors.minecraft.agent.tree_profile import TimeProfile
 from actors.minecraft.malmo.client import MalmoClient
 
 MINING_Y = 12  # feet height for the diamond search: sees y 5..19 in the grid, above lava
@@ -274,6 +275,7 @@ def run_episode(
     namespace: Optional[str] = None,
     goal: str = "diamond",
     stop_when: Optional[Callable[[Percept], bool]] = None,
+    profile: Optional[TimeProfile] = None,
 ) -> EpisodeResult:
     """Run the tree in the client's (already initialised) mission until it ends.
 
@@ -287,6 +289,8 @@ def run_episode(
         namespace: blackboard namespace.
         goal: see ``build_tree``.
         stop_when: end early when this returns True for a percept.
+        profile: charged each tick with the leaf that was running when the action was
+            sent (``tree.tip()`` after the tick); its ticks sum to the result's.
     """
     root, ctx = build_tree(namespace=namespace, seed=seed, goal=goal)
     tree = py_trees.trees.BehaviourTree(root)
@@ -299,6 +303,8 @@ def run_episode(
     for _ in range(max_ticks):
         ctx.percept = parse(reply.info)
         ticks = ctx.percept.tick
+        if profile is not None:
+            profile.observed(ctx.percept)
         for i, m in enumerate(MILESTONES):
             if m not in reached and ctx.percept.count(m):
                 reached[m] = ticks
@@ -312,6 +318,8 @@ def run_episode(
         ctx.commands.still()
         ctx.commands.once = []
         tree.tick()
+        if profile is not None:
+            profile.acted(tree.tip(), ctx)
         reply = client.step(ctx.commands.render())
     final = parse(reply.info) if reply.info else ctx.percept
     got = final.count("diamond") > 0 or (reply.done and best == len(MILESTONES) - 1)
@@ -321,6 +329,8 @@ def run_episode(
     for i, m in enumerate(MILESTONES):
         if i > best and final.count(m):
             best = i
+    if profile is not None:
+        profile.finish(max(ticks, final.tick))
     return EpisodeResult(
         seed=seed,
         diamond=got or best == len(MILESTONES) - 1,
