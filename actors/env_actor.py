@@ -30,7 +30,6 @@ from typing import Any, Optional
 
 import numpy as np
 import ray
-import torch
 
 from actors.stepper import VectorStepper
 from actors.task import EnvSpec
@@ -92,7 +91,6 @@ class EnvActor:
         nice: Optional[int] = None,
         async_envs: bool = False,
     ) -> None:
-        torch.set_num_threads(1)
         self.nice = nice
         # The threads started here (environment steps, the replay writer) do most of a
         # real-time actor's work: they take the acting niceness, as `run()`'s thread does

@@ -21,13 +21,12 @@ from typing import Any, Optional
 import gymnasium as gym
 import numpy as np
 import ray
-import torch
 from ray import ObjectRef
 from ray.exceptions import RayActorError
 
 from actors.policies import UniformRandomPolicy
 from actors.task import EnvSpec
-from service.core import Behaviour, EvalTag, Evaluation, Weights
+from service.core import Behaviour, EvalTag, Evaluation, WeightArrays, Weights, as_arrays
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """A batched policy: observations [B, *obs_shape] -> actions [B, *action_shape]."""
@@ -190,11 +189,10 @@ class Evaluator:
     """Runs `episodes` deterministic episodes of a behaviour's greedy policy (no exploration)."""
 
     def __init__(self, *, env: EnvSpec, behaviour: Behaviour, seed: int) -> None:
-        torch.set_num_threads(1)
         self.env, self.seed = env, seed
         self.behaviour = behaviour
 
-    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Evaluation:
+    def evaluate(self, weights: WeightArrays, *, episodes: int, tag: EvalTag) -> Evaluation:
         """Returns mean and std of the episode returns, echoing `tag` back.
 
         `stats` carries what the behaviour counted while acting greedily (e.g. how often
@@ -244,13 +242,13 @@ class RemoteEvaluator:
         return Evaluator.options(**self._options).remote(**self._args)  # type: ignore[attr-defined]
 
     def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
-        """Starts the episodes in the actor and returns at once."""
+        """Starts the episodes in the actor (sent as numpy arrays) and returns at once."""
         result: Future[Evaluation] = Future()
-        self._submit(weights, episodes, tag, result)
+        self._submit(as_arrays(weights), episodes, tag, result)
         return result
 
     def _submit(
-        self, weights: Weights, episodes: int, tag: EvalTag, result: Future[Evaluation]
+        self, weights: WeightArrays, episodes: int, tag: EvalTag, result: Future[Evaluation]
     ) -> None:
         actor = self._actor
         ref: ObjectRef[Evaluation] = actor.evaluate.remote(weights, episodes=episodes, tag=tag)

@@ -112,7 +112,7 @@ class LongPollSubscriber:
         self.fetched_at = float("nan")
         self._pending: Optional[ObjectRef[Any]] = None
 
-    def poll_payload(self, *, block_s: float = 0.0) -> Optional[Any]:
+    def poll(self, *, block_s: float = 0.0) -> Optional[Any]:
         if self._pending is None:
             self._pending = self._broadcaster.wait_newer.remote(self.version)
         ready, _ = ray.wait([self._pending], timeout=block_s)
@@ -158,10 +158,10 @@ class Follower:
         checks: list[float] = []
         while not subscriber.stopped:
             t = time.perf_counter()
-            payload = subscriber.poll_payload()  # the per-step check
+            payload = subscriber.poll()  # the per-step check
             if payload is None:
                 checks.append(time.perf_counter() - t)
-                payload = subscriber.poll_payload(block_s=step_s)  # acting
+                payload = subscriber.poll(block_s=step_s)  # acting
             if payload is not None:
                 adopted[subscriber.version] = subscriber.fetched_at  # held since
                 self.held[i] = subscriber.version

@@ -28,6 +28,8 @@ from actors.task import EnvSpec
 from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network, make_td3_learner
 from learner.td3.config import TD3Config
+from learner.td3.networks import acting_copy
+from service.core import as_arrays
 from service.replay.client import ReplayClient
 from service.run.replay_host.process import ReplayProcess
 from service.weights import WeightBroadcaster, WeightSubscriber
@@ -68,7 +70,7 @@ class FullSpeedLearner:
         self.version = 0
 
     def _publish(self) -> None:
-        ref = ray.put(self.learner.policy_state())
+        ref = ray.put(as_arrays(self.learner.policy_state()))
         ray.get(self.broadcaster.publish.remote(self.version, [ref]))
         self.version += 1
 
@@ -153,7 +155,8 @@ def rig(args: argparse.Namespace, td3: TD3Config, *, clients: int, max_size: int
     obs_space = observation_space(parse_mission(bench_mission(args.seed)))
     low, high = ACTION_SPACE.low, ACTION_SPACE.high
     network = make_actor_network(obs_space.shape[0], ACTION_SPACE.shape[0], low, high, td3)
-    behaviour = GaussianBehaviour(network, std=td3.exploration_noise, low=low, high=high)
+    acting = acting_copy(network)
+    behaviour = GaussianBehaviour(acting, std=td3.exploration_noise, low=low, high=high)
     table = {
         "name": TABLE, "max_size": max_size,
         "signature": replay_signature(obs_space, behaviour.columns()),

@@ -98,6 +98,20 @@ class InlineTrainer:
         return self.learner.num_updates
 
 
+class _LiveNetwork:
+    """Acts with the very torch network the trainer updates (no published copy)."""
+
+    def __init__(self, network: torch.nn.Module) -> None:
+        self.network = network
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.network(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+    def load(self, weights: Mapping[str, np.ndarray]) -> None:
+        raise AssertionError("the naive loop's network is trained in place, never loaded")
+
+
 class NaiveLoop:
     """One client of the naive loop: acts with the TD3 actor it trains between steps.
 
@@ -135,7 +149,7 @@ class NaiveLoop:
         low, high = ACTION_SPACE.low, ACTION_SPACE.high
         # The behaviour acts with the very network the trainer updates.
         self.behaviour = GaussianBehaviour(
-            self.trainer.learner.actor, std=td3.exploration_noise, low=low, high=high
+            _LiveNetwork(self.trainer.learner.actor), std=td3.exploration_noise, low=low, high=high
         )
         self.rng = np.random.default_rng(seed)
         self.nice = nice

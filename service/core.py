@@ -8,19 +8,32 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
-from typing import Any, Optional, Protocol, TypedDict
+from typing import TYPE_CHECKING, Any, Optional, Protocol, TypedDict
 
 import numpy as np
-import torch
+
+if TYPE_CHECKING:  # actors follow these contracts without loading torch
+    import torch
 
 Columns = dict[str, np.ndarray]
 """Replay columns of B steps, each [B, ...]; a sampled batch too."""
-TensorBatch = dict[str, torch.Tensor]
+TensorBatch = dict[str, "torch.Tensor"]
 """A sampled batch's data columns as tensors, as a learning step takes them."""
 Metrics = dict[str, float]
 """Namespaced scalars a learning step reports (`losses/critic`, ...)."""
-Weights = dict[str, torch.Tensor]
+Weights = dict[str, "torch.Tensor"]
 """The acting policy's parameters, as the learner publishes them."""
+WeightArrays = dict[str, np.ndarray]
+"""The same parameters as actors and the evaluator get them: numpy arrays of the same
+names (they act without torch: actors/policy_net.py)."""
+
+
+def as_arrays(weights: Mapping[str, Any]) -> WeightArrays:
+    """Weights (tensors on any device, or arrays) as float32 numpy arrays of their own."""
+    return {
+        k: np.array(v.detach().cpu().numpy() if hasattr(v, "detach") else v, dtype=np.float32)
+        for k, v in weights.items()
+    }
 
 
 class ColumnSpec(TypedDict):
@@ -52,7 +65,7 @@ class Behaviour(Protocol):
     def columns(self) -> dict[str, ColumnSpec]:
         """Every column `act` and `next_columns` return, as a replay signature fragment."""
 
-    def load(self, weights: Weights) -> None:
+    def load(self, weights: WeightArrays) -> None:
         """Adopts published learner weights."""
 
     def act(
@@ -109,7 +122,7 @@ class WeightSource(Protocol):
     stopped: bool
     """The learner has finished: actors stop acting."""
 
-    def poll(self, *, block_s: float = 0.0) -> Optional[Weights]:
+    def poll(self, *, block_s: float = 0.0) -> Optional[WeightArrays]:
         """Weights newer than `version` if they arrived (waiting up to `block_s`), else None."""
 
 

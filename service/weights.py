@@ -28,18 +28,18 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
-import warnings
 import weakref
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Optional
 
-import numpy as np
 import ray
 from ray import ObjectRef
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-if TYPE_CHECKING:  # torch is imported only where tensors are made: a subscriber's
-    from service.core import Weights  # process need not load it to follow the weights
+from service.core import as_arrays
+
+if TYPE_CHECKING:
+    from service.core import WeightArrays, Weights
 
 FANOUT = 64
 """Long-polls (one per process that subscribes) one broadcaster or relay answers directly;
@@ -59,7 +59,7 @@ methods at run time, so mypy cannot check calls through it: only this module mak
 typing what they return."""
 
 Payload = Mapping[str, Any]
-"""Published weights as stored: numpy arrays (from `BroadcastPublisher`) or tensors."""
+"""Published weights as stored: numpy arrays (`BroadcastPublisher` makes them)."""
 
 _Published = tuple[int, list[ObjectRef[Payload]], bool]
 """What `wait_newer` answers: (version, [weights_ref], stopped)."""
@@ -176,19 +176,6 @@ class WeightRelay(_Latest):
                 self._announce(version, weights_ref, stopped)
 
 
-def as_tensors(payload: Payload) -> Weights:
-    """Published weights as tensors; numpy arrays are wrapped without a copy."""
-    import torch
-
-    with warnings.catch_warnings():
-        # Arrays fetched from the object store are read-only: a behaviour's
-        # `load_state_dict` copies them, nothing writes into them.
-        warnings.simplefilter("ignore", UserWarning)
-        return {
-            k: torch.from_numpy(v) if isinstance(v, np.ndarray) else v for k, v in payload.items()
-        }
-
-
 class _ProcessFollower:
     """The one long-poll of a process on a broadcaster, shared by the process's subscribers.
 
@@ -299,8 +286,9 @@ class WeightSubscriber:
                 self._error = error
             self._cond.notify_all()
 
-    def poll_payload(self, *, block_s: float = 0.0) -> Optional[Payload]:
-        """Like `poll`, as published (numpy arrays): for processes without torch.
+    def poll(self, *, block_s: float = 0.0) -> Optional[WeightArrays]:
+        """The newest weights (numpy arrays, as published) if a newer version arrived
+        (waiting up to `block_s`), else None.
 
         Raises:
             RuntimeError: the broadcast was lost (its actor died) before the learner stopped.
@@ -322,12 +310,7 @@ class WeightSubscriber:
             if self.fetched <= self.version:
                 return None
             self.version, payload, self._payload = self.fetched, self._payload, None
-        return payload
-
-    def poll(self, *, block_s: float = 0.0) -> Optional[Weights]:
-        """The newest weights if a newer version arrived (waiting up to `block_s`), else None."""
-        payload = self.poll_payload(block_s=block_s)
-        return None if payload is None else as_tensors(payload)
+        return None if payload is None else dict(payload)
 
 
 class BroadcastPublisher:
@@ -351,8 +334,7 @@ class BroadcastPublisher:
         They are put into the object store once, as numpy arrays: subscribers on a node
         share one copy and read it without deserialising tensors.
         """
-        arrays = {k: v.detach().cpu().numpy() for k, v in weights.items()}
-        ray.get(self._broadcaster.publish.remote(version, [ray.put(arrays)]))
+        ray.get(self._broadcaster.publish.remote(version, [ray.put(as_arrays(weights))]))
 
     def subscriber(self) -> WeightSubscriber:
         """A `WeightSource` to hand to an actor."""

@@ -14,13 +14,12 @@ from collections.abc import Callable
 from typing import Optional
 
 import numpy as np
-import torch
-from torch import nn
 
 from actors.behaviours.gaussian import box_column
 from actors.hardcoded import HardCodedPolicy
 from actors.policies import gaussian_log_prob
-from service.core import Columns, ColumnSpec, Weights
+from actors.policy_net import ActingNet
+from service.core import Columns, ColumnSpec, WeightArrays
 
 
 def compose_action(
@@ -47,9 +46,12 @@ def compose_action(
     return np.clip(corrected, low, high).astype(np.float32)
 
 
-def backbone_input(obs: torch.Tensor, backbone: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
-    """The correction's input when it observes the backbone: [s, μ(s) / scale], [B, O + A]."""
-    return torch.cat([obs, backbone / scale], dim=-1)
+def backbone_input(obs: np.ndarray, backbone: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """The correction's input when it observes the backbone: [s, μ(s) / scale], [B, O + A]
+    (float32; `learner.backbone.networks.backbone_input` is the same on tensors)."""
+    return np.concatenate(
+        [np.asarray(obs, np.float32), np.asarray(backbone, np.float32) / scale], axis=-1
+    ).astype(np.float32)
 
 
 class BackboneBehaviour:
@@ -57,7 +59,7 @@ class BackboneBehaviour:
 
     def __init__(
         self,
-        correction: nn.Module,
+        correction: ActingNet,
         backbone: HardCodedPolicy,
         *,
         limit: float,
@@ -83,7 +85,7 @@ class BackboneBehaviour:
                 policy drops the correction and acts μ(s) alone (e.g. the tree's recovery
                 when progress stalls). Exploration ignores it.
         """
-        self.correction = correction.eval()
+        self.correction = correction
         self.observe_backbone = observe_backbone
         self._next_mu: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         """Per environment, (s', μ(s')) from `next_columns`: s' is its next step's s unless
@@ -108,8 +110,8 @@ class BackboneBehaviour:
             columns["next_backbone_action"] = box_column(shape)
         return columns
 
-    def load(self, weights: Weights) -> None:
-        self.correction.load_state_dict(weights)
+    def load(self, weights: WeightArrays) -> None:
+        self.correction.load(weights)
 
     def _mu(self, obs: np.ndarray, envs: Optional[np.ndarray] = None) -> np.ndarray:
         obs = np.asarray(obs)
@@ -129,11 +131,9 @@ class BackboneBehaviour:
         return mu
 
     def _pi(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
-        x = torch.as_tensor(obs, dtype=torch.float32)
         if self.observe_backbone:
-            x = backbone_input(x, torch.as_tensor(mu), torch.as_tensor(self.high, dtype=x.dtype))
-        with torch.no_grad():
-            return self.correction(x).numpy()
+            obs = backbone_input(obs, mu, self.high.astype(np.float32))
+        return self.correction(obs)
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
         mu = np.asarray(self.backbone(obs), dtype=np.float32)

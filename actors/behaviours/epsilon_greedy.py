@@ -10,11 +10,10 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
-import torch
-from torch import nn
 
 from actors.hardcoded import HardCodedPolicy
-from service.core import Columns, ColumnSpec, Weights
+from actors.policy_net import ActingNet
+from service.core import Columns, ColumnSpec, WeightArrays
 
 
 def linear_epsilon(step: int, *, start: float, end: float, decay_steps: int) -> float:
@@ -55,7 +54,7 @@ class EpsilonGreedyBehaviour:
 
     def __init__(
         self,
-        q_network: nn.Module,
+        q_network: ActingNet,
         *,
         epsilon_start: float,
         epsilon_end: float,
@@ -86,7 +85,7 @@ class EpsilonGreedyBehaviour:
                 "its deterministic actions alone would give other actions probability 0"
             )
         self.hardcoded, self.demo_epsilon = hardcoded, demo_epsilon
-        self.q_network = q_network.eval()
+        self.q_network = q_network
         self.start, self.end, self.decay = epsilon_start, epsilon_end, decay_env_steps
         self.num_actors = num_actors
         self.steps = 0
@@ -104,12 +103,11 @@ class EpsilonGreedyBehaviour:
             columns["backbone_action"] = {"dtype": "int64", "shape": []}
         return {**columns, "log_prob": {"dtype": "float32", "shape": []}}
 
-    def load(self, weights: Weights) -> None:
-        self.q_network.load_state_dict(weights)
+    def load(self, weights: WeightArrays) -> None:
+        self.q_network.load(weights)
 
     def _q(self, obs: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.q_network(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+        return self.q_network(obs)
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
         return self._q(obs).argmax(axis=1)

@@ -10,12 +10,11 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
-import torch
-from torch import nn
 
 from actors.hardcoded import HardCodedPolicy
 from actors.policies import GaussianExploration, UniformRandomPolicy
-from service.core import Columns, ColumnSpec, Weights
+from actors.policy_net import ActingNet
+from service.core import Columns, ColumnSpec, WeightArrays
 
 
 def box_column(shape: tuple[int, ...]) -> ColumnSpec:
@@ -28,7 +27,7 @@ class GaussianBehaviour:
 
     def __init__(
         self,
-        network: nn.Module,
+        network: ActingNet,
         *,
         std: float,
         low: np.ndarray,
@@ -55,7 +54,7 @@ class GaussianBehaviour:
                 f"warmup_std={warmup_std} must be > 0 around a hard-coded policy: its "
                 "deterministic actions have no density, so log_prob would be undefined"
             )
-        self.network = network.eval()
+        self.network = network
         self.exploration = GaussianExploration(std, low, high)
         self.uniform = UniformRandomPolicy(low, high)
         self.hardcoded = hardcoded
@@ -68,12 +67,11 @@ class GaussianBehaviour:
             cols["backbone_action"] = box_column(self.action_shape)
         return {**cols, "log_prob": {"dtype": "float32", "shape": []}}
 
-    def load(self, weights: Weights) -> None:
-        self.network.load_state_dict(weights)
+    def load(self, weights: WeightArrays) -> None:
+        self.network.load(weights)
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.network(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+        return self.network(obs)
 
     def act(
         self,

@@ -20,21 +20,20 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
-import torch
-from torch import nn
 
 from actors.behaviours.backbone import backbone_input
 from actors.behaviours.epsilon_greedy import epsilon_greedy, linear_epsilon
 from actors.behaviours.gaussian import box_column
 from actors.hardcoded import HardCodedPolicy
 from actors.policies import GaussianExploration, UniformRandomPolicy
-from service.core import Columns, ColumnSpec, Weights
+from actors.policy_net import ActingNet
+from service.core import Columns, ColumnSpec, WeightArrays
 
 HARDCODED, RL = 0, 1
 """Option indices: the column `option` and the outputs of Q_Ω."""
 
 
-def split_weights(weights: Weights) -> tuple[Weights, Weights]:
+def split_weights(weights: WeightArrays) -> tuple[WeightArrays, WeightArrays]:
     """Splits broadcast weights into (Q_Ω, RL actor) state dicts by their prefixes."""
     options = {
         k.removeprefix("options."): v for k, v in weights.items() if k.startswith("options.")
@@ -48,8 +47,8 @@ class OptionsBehaviour:
 
     def __init__(
         self,
-        option_q: nn.Module,
-        actor: nn.Module,
+        option_q: ActingNet,
+        actor: ActingNet,
         hardcoded: HardCodedPolicy,
         *,
         option_length: int,
@@ -65,10 +64,10 @@ class OptionsBehaviour:
     ) -> None:
         """`residual_limit` L makes the RL option residual (None: it acts π(s) alone);
         `switch_margin` is m of the option choice."""
-        self.option_q, self.actor = option_q.eval(), actor.eval()
+        self.option_q, self.actor = option_q, actor
         self.hardcoded = hardcoded
         self.residual_limit, self.margin = residual_limit, switch_margin
-        self._scale = torch.as_tensor(np.abs(np.asarray(high, dtype=np.float32)))
+        self._scale = np.abs(np.asarray(high, dtype=np.float32))
         if residual_limit is not None:
             bound = np.full(np.shape(low), residual_limit, dtype=np.float32)
             self.uniform_correction = UniformRandomPolicy(-bound, bound)
@@ -96,10 +95,10 @@ class OptionsBehaviour:
             columns["hardcoded_action"] = box_column(self.action_shape)
         return columns
 
-    def load(self, weights: Weights) -> None:
+    def load(self, weights: WeightArrays) -> None:
         options, actor = split_weights(weights)
-        self.option_q.load_state_dict(options)
-        self.actor.load_state_dict(actor)
+        self.option_q.load(options)
+        self.actor.load(actor)
         # An evaluation starts fresh options, chosen by the new Q_Ω.
         self._greedy_option = np.zeros(0, np.int64)
         self._greedy_clock = np.zeros(0, np.int64)
@@ -109,17 +108,9 @@ class OptionsBehaviour:
         start, end, decay = self.eps
         return linear_epsilon(self.steps * self.num_actors, start=start, end=end, decay_steps=decay)
 
-    def _net(self, net: nn.Module, obs: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
-
     def _correction(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
         """π([s, μ(s) / scale]): the residual RL option's mean correction."""
-        x = backbone_input(
-            torch.as_tensor(obs, dtype=torch.float32), torch.as_tensor(mu), self._scale
-        )
-        with torch.no_grad():
-            return self.actor(x).numpy()
+        return self.actor(backbone_input(obs, mu, self._scale))
 
     def _choose(
         self,
@@ -134,7 +125,7 @@ class OptionsBehaviour:
             option, clock = np.zeros(len(obs), np.int64), np.zeros(len(obs), np.int64)
         due = clock == 0
         if due.any():
-            q = self._net(self.option_q, obs[due])
+            q = self.option_q(obs[due])
             q[:, RL] -= self.margin  # the RL option must beat the hard-coded one by m
             if rng is None:
                 option[due] = q.argmax(axis=1)
@@ -178,7 +169,7 @@ class OptionsBehaviour:
         elif warmup:
             rl_action, rl_log_prob = self.uniform.sample(len(obs), rng)
         else:
-            rl_action, rl_log_prob = self.exploration.sample(self._net(self.actor, obs), rng)
+            rl_action, rl_log_prob = self.exploration.sample(self.actor(obs), rng)
         use_rl = option == RL
         action = np.where(use_rl[:, None], rl_action, mu).astype(np.float32)
         log_prob = np.where(use_rl, rl_log_prob, 0.0).astype(np.float32)
@@ -212,7 +203,7 @@ class OptionsBehaviour:
         if self.residual_limit is not None:
             rl_action = mu + self._correction(obs, mu)
         else:
-            rl_action = self._net(self.actor, obs)
+            rl_action = self.actor(obs)
         action = np.where(use_rl[:, None], rl_action, mu)
         self._used.append(use_rl)
         self._greedy_option, self._greedy_clock = option, (clock + 1) % self.k

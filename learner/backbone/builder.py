@@ -13,10 +13,11 @@ from actors.hardcoded import HardCodedPolicy, required_policy
 from learner.agent import Phase
 from learner.backbone.config import BackboneConfig
 from learner.backbone.learning import ObservingBackboneLearner, TeacherBackboneLearner
-from learner.backbone.networks import TeacherActor, load_teacher, zero_output_
+from learner.backbone.networks import load_teacher, zero_output_
 from learner.device import CPU, CompileMode
 from learner.td3.builder import TD3Builder, make_actor_network
 from learner.td3.learning import TD3Learner
+from learner.td3.networks import acting_copy
 
 
 class BackboneBuilder:
@@ -102,7 +103,7 @@ class BackboneBuilder:
 
     def _backbone(self) -> HardCodedPolicy:
         if self.teacher is not None:
-            return TeacherActor(self.teacher[0])
+            return acting_copy(self.teacher[0])  # μ̂ for actors, in numpy
         assert self.hardcoded is not None
         return self.hardcoded
 
@@ -111,7 +112,7 @@ class BackboneBuilder:
         in_dim = t.obs_dim + (t.act_dim if self.config.observe_backbone else 0)
         correction = make_actor_network(in_dim, t.act_dim, -self.bound, self.bound, t.config)
         return BackboneBehaviour(
-            correction,
+            acting_copy(correction),
             self._backbone(),
             limit=self.config.correction_limit,
             std=t.exploration_std,

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from actors.behaviours.backbone import backbone_input
+from learner.backbone.networks import backbone_input
 from learner.device import CPU, CompileMode, compile_networks
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner, td3_target

@@ -27,15 +27,10 @@ def zero_output_(actor: Actor) -> Actor:
     return actor
 
 
-class TeacherActor:
-    """μ̂ as a batched numpy policy (picklable, for actors): a trained TD3 actor."""
-
-    def __init__(self, actor: Actor) -> None:
-        self.actor = actor.eval().requires_grad_(False)
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.actor(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+def backbone_input(obs: torch.Tensor, backbone: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """The correction's input when it observes the backbone: [s, μ(s) / scale], [B, O + A]
+    (`actors.behaviours.backbone.backbone_input` is the same for actors, in numpy)."""
+    return torch.cat([obs, backbone / scale], dim=-1)
 
 
 def load_teacher(

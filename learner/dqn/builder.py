@@ -17,6 +17,7 @@ from learner.dqn.config import DQNConfig
 from learner.dqn.learning import DQNLearner
 from learner.dqn.networks import make_q_network
 from learner.spaces import discrete_actions, observation_dim
+from learner.td3.networks import acting_copy
 
 
 class DQNBuilder:
@@ -82,7 +83,7 @@ class DQNBuilder:
     def make_behaviour(self, *, num_actors: int) -> EpsilonGreedyBehaviour:
         c = self.config
         return EpsilonGreedyBehaviour(
-            make_q_network(self.obs_dim, self.num_actions, c.hidden_sizes),
+            acting_copy(make_q_network(self.obs_dim, self.num_actions, c.hidden_sizes)),
             epsilon_start=c.epsilon_start,
             epsilon_end=c.epsilon_end,
             decay_env_steps=c.epsilon_decay_env_steps,

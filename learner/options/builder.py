@@ -21,6 +21,7 @@ from learner.options.learning import OptionsLearner, RetraceTD3Learner
 from learner.options.networks import NUM_OPTIONS, make_option_network
 from learner.td3.builder import TD3Builder, make_actor_network
 from learner.td3.learning import TD3Learner
+from learner.td3.networks import acting_copy
 
 
 class OptionsBuilder:
@@ -105,8 +106,8 @@ class OptionsBuilder:
         t, d = self.td3, self.dqn
         rl_in, low, high = self._rl_spaces()
         return OptionsBehaviour(
-            make_option_network(t.obs_dim, d.hidden_sizes),
-            make_actor_network(rl_in, t.act_dim, low, high, t.config),
+            acting_copy(make_option_network(t.obs_dim, d.hidden_sizes)),
+            acting_copy(make_actor_network(rl_in, t.act_dim, low, high, t.config)),
             self.hardcoded,
             option_length=self.config.option_length,
             std=self.td3.exploration_std,

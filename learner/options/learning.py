@@ -23,8 +23,8 @@ from typing import Any, Optional
 
 import torch
 
-from actors.behaviours.backbone import backbone_input
 from actors.behaviours.options import RL
+from learner.backbone.networks import backbone_input
 from learner.dqn.learning import DQNLearner, double_q_target
 from learner.options.targets import importance_ratio, k_step_return, retrace_targets, retrace_traces
 from learner.td3.learning import TD3Learner

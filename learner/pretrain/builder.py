@@ -14,6 +14,7 @@ from learner.device import CPU, CompileMode
 from learner.pretrain.config import PretrainConfig
 from learner.pretrain.learning import PretrainLearner, pretrain_step
 from learner.td3.builder import TD3Builder, make_actor_network
+from learner.td3.networks import acting_copy
 
 
 class PretrainBuilder:
@@ -84,7 +85,7 @@ class PretrainBuilder:
     def make_behaviour(self, *, num_actors: int) -> GaussianBehaviour:
         t = self.td3
         return GaussianBehaviour(
-            make_actor_network(t.obs_dim, t.act_dim, t.low, t.high, t.config),
+            acting_copy(make_actor_network(t.obs_dim, t.act_dim, t.low, t.high, t.config)),
             std=t.exploration_std,
             low=self.td3.low,
             high=self.td3.high,

@@ -12,7 +12,7 @@ from learner.device import CPU, CompileMode
 from learner.spaces import box_action_dim, observation_dim
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
-from learner.td3.networks import Actor
+from learner.td3.networks import Actor, acting_copy
 
 
 def make_actor_network(
@@ -130,7 +130,9 @@ class TD3Builder:
 
     def make_behaviour(self, *, num_actors: int) -> GaussianBehaviour:
         network = make_actor_network(self.obs_dim, self.act_dim, self.low, self.high, self.config)
-        return GaussianBehaviour(network, std=self.exploration_std, low=self.low, high=self.high)
+        return GaussianBehaviour(
+            acting_copy(network), std=self.exploration_std, low=self.low, high=self.high
+        )
 
     @property
     def exploration_std(self) -> float:

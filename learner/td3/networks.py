@@ -8,6 +8,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from actors.policy_net import PolicyNet
+from service.core import as_arrays
+
 
 def mlp(in_dim: int, hidden_sizes: Sequence[int], out_dim: int) -> nn.Sequential:
     """Builds ``Linear -> ReLU -> ... -> Linear`` with the given hidden widths.
@@ -26,6 +29,11 @@ def mlp(in_dim: int, hidden_sizes: Sequence[int], out_dim: int) -> nn.Sequential
         in_dim = width
     layers.append(nn.Linear(in_dim, out_dim))
     return nn.Sequential(*layers)
+
+
+def acting_copy(network: nn.Module) -> PolicyNet:
+    """The network as actors run it: its weights in a numpy `PolicyNet` (no torch there)."""
+    return PolicyNet(as_arrays(network.state_dict()))
 
 
 class Actor(nn.Module):

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from service.core import as_arrays
 from service.run.config import TrainConfig, config_from_data, load_preset, preset_names
 
 
@@ -46,6 +47,6 @@ def load_behaviour(path: Path) -> tuple[Any, TrainConfig]:
     learner = builder.make_learner()
     learner.load_state_dict(load_checkpoint(checkpoint)["algorithm"])
     behaviour = builder.make_behaviour(num_actors=1)
-    behaviour.load(learner.policy_state())
+    behaviour.load(as_arrays(learner.policy_state()))
     torch.set_num_threads(1)  # one episode at a time; leave the other core to the env
     return behaviour, config

@@ -9,6 +9,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -32,6 +33,8 @@ from actors.task import EnvSpec
 from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network
 from learner.td3.config import TD3Config
+from learner.td3.networks import acting_copy
+from service.core import as_arrays
 from service.replay.client import ReplayClient
 from service.run.replay_host.process import ReplayProcess
 from service.weights import WeightBroadcaster, WeightSubscriber
@@ -46,7 +49,7 @@ LOW, HIGH = ACTION_SPACE.low, ACTION_SPACE.high
 def behaviour() -> GaussianBehaviour:
     torch.manual_seed(0)
     network = make_actor_network(OBS_DIM, 6, LOW, HIGH, TD3)
-    return GaussianBehaviour(network, std=TD3.exploration_noise, low=LOW, high=HIGH)
+    return GaussianBehaviour(acting_copy(network), std=TD3.exploration_noise, low=LOW, high=HIGH)
 
 
 def env_kwargs(port: int) -> dict[str, Any]:
@@ -114,12 +117,14 @@ def test_actor_adopts_broadcast_weights_and_records_their_log_prob(
     broadcaster = WeightBroadcaster.remote()
     torch.manual_seed(1)
     net = make_actor_network(OBS_DIM, 6, LOW, HIGH, TD3)
-    ray.get(broadcaster.publish.remote(0, [ray.put(net.state_dict())]))
+    ray.get(broadcaster.publish.remote(0, [ray.put(as_arrays(net.state_dict()))]))
     actor = make_actor(world.ports[0], replay, broadcaster, seed=2)
     report = ray.get(actor.run.remote([Segment("mc", steps=40)]), timeout=60)
     assert report["policy/version"] == 0 and report["policy/versions_adopted"] == 1
     batch = replay.sample("mc", 64)
     assert (batch["policy_version"] == 0).all()
+    # It acted with the weights in numpy: the actor's process never loaded torch.
+    assert not ray.get(actor.__ray_call__.remote(lambda _: "torch" in sys.modules))
     with torch.no_grad():
         mean = net(torch.tensor(batch["obs"])).numpy()
     # The recorded density is the Gaussian's at the unclipped sampled action.
@@ -227,7 +232,7 @@ def test_asynchronous_environments_step_at_the_actors_niceness(ray_local) -> Non
     nice 15) takes the actor's niceness, as the acting thread does: otherwise the
     real-time clients' socket and decoding work waits behind every other process."""
     net = make_actor_network(1, 1, np.array([-1.0]), np.array([1.0]), TD3)
-    slow = GaussianBehaviour(net, std=0.1, low=np.array([-1.0]), high=np.array([1.0]))
+    slow = GaussianBehaviour(acting_copy(net), std=0.1, low=np.array([-1.0]), high=np.array([1.0]))
     signature = replay_signature(ThreadNiceness.observation_space, slow.columns())
     with ReplayProcess([{"name": "t", "max_size": 1000, "signature": signature}]) as server:
         replay = ReplayClient(server.address)

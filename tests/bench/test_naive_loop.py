@@ -41,4 +41,4 @@ def test_naive_loop_trains_between_steps() -> None:
     assert report["policy/version"] == 50  # it acts with the network it trains
     assert report["perf/ticks_seen"] >= 40  # metered as graft's actors are
     # The behaviour's network is the trained actor itself, not a copy.
-    assert loop.behaviour.network is loop.trainer.learner.actor
+    assert loop.behaviour.network.network is loop.trainer.learner.actor

@@ -28,6 +28,24 @@ class Table(nn.Module):
         return self.rows
 
 
+class FixedRows:
+    """An acting "network" as actors hold one (numpy): returns fixed rows (one row: the
+    same for every input), keeps the last input in `seen`; `load` takes {"rows": ...}."""
+
+    def __init__(self, rows: list[list[float]]) -> None:
+        self.rows = np.asarray(rows, np.float32)
+        self.seen = np.zeros(0, np.float32)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        self.seen = np.array(x, copy=True)
+        if len(self.rows) == 1:
+            return np.broadcast_to(self.rows[0], (*x.shape[:-1], self.rows.shape[1])).copy()
+        return self.rows.copy()
+
+    def load(self, weights: dict[str, np.ndarray]) -> None:
+        self.rows = np.asarray(weights["rows"], np.float32)
+
+
 def td3_batch(n: int = 32, seed: int = 0) -> dict[str, torch.Tensor]:
     """A random TD3 batch over OBS_DIM / ACT_DIM, actions partly outside [LOW, HIGH]."""
     g = torch.Generator().manual_seed(seed)

@@ -12,9 +12,11 @@ import torch
 from torch import nn
 
 from actors.behaviours.backbone import BackboneBehaviour, compose_action
+from actors.policy_net import ActingNet
 from learner.backbone.learning import teacher_target
 from learner.backbone.networks import zero_output_
-from learner.td3.networks import Actor
+from learner.td3.networks import Actor, acting_copy
+from tests.learner.helpers import FixedRows
 
 # --- the behaviour: eq. (10) ----------------------------------------------------------
 
@@ -27,7 +29,7 @@ def test_backbone_action_composition_clips_the_correction_then_the_action():
     np.testing.assert_allclose(action, [[2.0], [-1.3], [-0.5]], rtol=1e-6)
 
 
-def _pendulum_backbone(correction: nn.Module, backbone, **kwargs) -> BackboneBehaviour:
+def _pendulum_backbone(correction: ActingNet, backbone, **kwargs) -> BackboneBehaviour:
     """A backbone behaviour over Pendulum's torque box [−2, 2], exploration σ = 0.2."""
     low, high = np.array([-2.0]), np.array([2.0])
     return BackboneBehaviour(
@@ -38,7 +40,7 @@ def _pendulum_backbone(correction: nn.Module, backbone, **kwargs) -> BackboneBeh
 def test_correction_network_starts_at_zero_so_the_agent_starts_as_the_backbone():
     correction = zero_output_(Actor(3, 1, np.array([-0.5]), np.array([0.5]), (8,)))
     backbone = lambda obs: np.full((len(obs), 1), 1.7, np.float32)  # noqa: E731
-    behaviour = _pendulum_backbone(correction, backbone, limit=0.5)
+    behaviour = _pendulum_backbone(acting_copy(correction), backbone, limit=0.5)
     obs = np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32)
     np.testing.assert_allclose(behaviour.greedy(obs), np.full((5, 1), 1.7))
     env_action, columns = behaviour.act(obs, np.random.default_rng(1), warmup=False)
@@ -49,12 +51,9 @@ def test_correction_network_starts_at_zero_so_the_agent_starts_as_the_backbone()
     assert np.abs(columns["action"]).max() > 0.0
 
 
-class _Recorder(nn.Module):
+def _Recorder() -> FixedRows:
     """A correction network that records its input and outputs zero."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        self.seen = x.clone()
-        return torch.zeros(x.shape[0], 1)
+    return FixedRows([[0.0]])
 
 
 def test_observed_backbone_is_an_input_of_the_correction_and_recorded_at_s_prime():
@@ -64,9 +63,7 @@ def test_observed_backbone_is_an_input_of_the_correction_and_recorded_at_s_prime
     obs = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, -3.0]], np.float32)
     behaviour.greedy(obs)
     # [s, μ(s) / 2]: μ = +2 and −2 -> +1 and −1.
-    torch.testing.assert_close(
-        correction.seen, torch.tensor([[1.0, 0.0, 0.5, 1.0], [0.0, 1.0, -3.0, -1.0]])
-    )
+    np.testing.assert_array_equal(correction.seen, [[1.0, 0.0, 0.5, 1.0], [0.0, 1.0, -3.0, -1.0]])
     assert "next_backbone_action" in behaviour.columns()
     next_obs = np.array([[1.0, 0.0, -0.1], [0.0, 1.0, 0.2]], np.float32)
     np.testing.assert_allclose(

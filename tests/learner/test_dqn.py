@@ -17,6 +17,8 @@ from actors.behaviours.epsilon_greedy import (
 )
 from learner.dqn.config import DQNConfig
 from learner.dqn.learning import DQNLearner, double_q_target, large_margin_loss, linear_decay
+from learner.dqn.networks import make_q_network
+from learner.td3.networks import acting_copy
 from tests.learner.helpers import Table
 
 
@@ -199,7 +201,7 @@ def test_demonstrations_act_epsilon_greedily_around_the_hard_coded_policy():
         return (obs[:, 1] > 0).astype(np.int64)
 
     behaviour = EpsilonGreedyBehaviour(
-        torch.nn.Linear(2, 3),  # Q(s, ·) over three actions, unused in warm-up
+        acting_copy(make_q_network(2, 3, ())),  # Q(s, ·) over three actions, unused in warm-up
         epsilon_start=1.0,
         epsilon_end=0.05,
         decay_env_steps=10,

@@ -19,7 +19,8 @@ from learner.options.targets import (
     retrace_targets,
     retrace_traces,
 )
-from tests.learner.helpers import Table
+from service.core import as_arrays
+from tests.learner.helpers import FixedRows, Table
 
 # --- the k-step option target, eq. (13) -----------------------------------------------
 
@@ -147,7 +148,7 @@ def test_options_retrace_uses_option_values_and_cuts_traces_at_option_boundaries
 # --- the options behaviour ------------------------------------------------------------
 
 
-def greedy_options(option_q: nn.Module, actor: nn.Module) -> OptionsBehaviour:
+def greedy_options(option_q: FixedRows, actor: FixedRows) -> OptionsBehaviour:
     """k = 3, ε = 0, μ(s) = −1 everywhere."""
     return OptionsBehaviour(
         option_q,
@@ -165,7 +166,7 @@ def greedy_options(option_q: nn.Module, actor: nn.Module) -> OptionsBehaviour:
 
 
 def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_end():
-    behaviour = greedy_options(Table([[0.0, 1.0]]), Table([[0.25]]))  # Q_Ω prefers RL
+    behaviour = greedy_options(FixedRows([[0.0, 1.0]]), FixedRows([[0.25]]))  # Q_Ω prefers RL
     rng, obs = np.random.default_rng(0), np.zeros((1, 3), np.float32)
     steps = []
     for t in range(5):
@@ -175,7 +176,7 @@ def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_e
             behaviour.end_episodes(np.array([True]))
     assert steps == [(RL, 0), (RL, 1), (RL, 2), (RL, 0), (RL, 0)]
     # The hard-coded option acts μ(s) and records no density.
-    behaviour.option_q = Table([[1.0, 0.0]])
+    behaviour.option_q = FixedRows([[1.0, 0.0]])
     behaviour.end_episodes(np.array([True]))
     action, columns = behaviour.act(obs, rng, warmup=False)
     assert columns["option"][0] == HARDCODED and columns["log_prob"][0] == 0.0
@@ -185,7 +186,7 @@ def test_options_behaviour_holds_an_option_for_k_steps_and_restarts_on_episode_e
 def test_options_behaviour_keeps_each_environments_clock_when_they_act_apart():
     """Real-time clients step at their own pace: the actor acts for varying subsets of
     its environments (`envs`), and each one's option clock is its own."""
-    behaviour = greedy_options(Table([[0.0, 1.0]]), Table([[0.25]]))
+    behaviour = greedy_options(FixedRows([[0.0, 1.0]]), FixedRows([[0.25]]))
     rng, one = np.random.default_rng(0), np.zeros((1, 3), np.float32)
     clock = {0: [], 1: []}
     for env in (0, 0, 1, 0, 1, 1, 1):
@@ -199,14 +200,10 @@ def test_options_behaviour_keeps_each_environments_clock_when_they_act_apart():
 
 
 def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
-    def options_table(q: list[float]) -> dict[str, torch.Tensor]:
-        return {"options.rows": torch.tensor([q]), "actor.rows": torch.tensor([[0.25]])}
+    def options_table(q: list[float]) -> dict[str, np.ndarray]:
+        return {"options.rows": np.array([q], np.float32), "actor.rows": np.array([[0.25]])}
 
-    class Loadable(Table):
-        def load_state_dict(self, state, strict=True):  # noqa: ANN001
-            self.rows = state["rows"]
-
-    behaviour = greedy_options(Loadable([[0.0, 1.0]]), Loadable([[0.25]]))
+    behaviour = greedy_options(FixedRows([[0.0, 1.0]]), FixedRows([[0.25]]))
     obs = np.zeros((2, 3), np.float32)
     behaviour.load(options_table([0.0, 1.0]))  # prefers RL
     np.testing.assert_allclose(behaviour.greedy(obs), [[0.25], [0.25]])
@@ -218,15 +215,7 @@ def test_options_greedy_policy_rechooses_options_with_newly_loaded_weights():
 # --- past the paper: a residual RL option and a switching margin ------------------------
 
 
-class Recorder(nn.Module):
-    """A correction network that returns 0.5 and keeps the last input it saw."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        self.seen = x
-        return torch.full((*x.shape[:-1], 1), 0.5)
-
-
-def residual_options(option_q: nn.Module, actor: nn.Module, margin: float) -> OptionsBehaviour:
+def residual_options(option_q: FixedRows, actor: FixedRows, margin: float) -> OptionsBehaviour:
     """As `greedy_options` (μ(s) = −1, box [−2, 2]), with a residual RL option, L = 4."""
     return OptionsBehaviour(
         option_q,
@@ -246,12 +235,12 @@ def residual_options(option_q: nn.Module, actor: nn.Module, margin: float) -> Op
 
 
 def test_residual_rl_option_acts_the_tree_plus_a_correction_that_sees_the_tree():
-    actor = Recorder()
-    behaviour = residual_options(Table([[0.0, 1.0]]), actor, margin=0.0)
+    actor = FixedRows([[0.5]])
+    behaviour = residual_options(FixedRows([[0.0, 1.0]]), actor, margin=0.0)
     obs = np.zeros((1, 3), np.float32)
     # Greedy: μ(s) + π([s, μ(s) / 2]) = −1 + 0.5.
     np.testing.assert_allclose(behaviour.greedy(obs), [[-0.5]])
-    torch.testing.assert_close(actor.seen, torch.tensor([[0.0, 0.0, 0.0, -0.5]]))
+    np.testing.assert_array_equal(actor.seen, [[0.0, 0.0, 0.0, -0.5]])
     action, columns = behaviour.act(obs, np.random.default_rng(0), warmup=False)
     correction = columns["action"] - columns["hardcoded_action"]
     np.testing.assert_allclose(columns["hardcoded_action"], [[-1.0]])
@@ -268,7 +257,7 @@ def test_residual_rl_option_acts_the_tree_plus_a_correction_that_sees_the_tree()
 
 @pytest.mark.parametrize("margin, option", [(0.0, RL), (0.4, RL), (0.6, HARDCODED)])
 def test_switching_margin_keeps_the_tree_unless_the_rl_option_is_clearly_better(margin, option):
-    behaviour = residual_options(Table([[0.0, 0.5]]), Recorder(), margin=margin)
+    behaviour = residual_options(FixedRows([[0.0, 0.5]]), FixedRows([[0.5]]), margin=margin)
     _, columns = behaviour.act(np.zeros((1, 3), np.float32), np.random.default_rng(0), warmup=False)
     assert columns["option"][0] == option
 
@@ -313,7 +302,7 @@ def test_residual_options_learner_starts_as_the_tree_and_learns_the_correction()
     torch.testing.assert_close(view["rl_obs"][0, :, 3], torch.tensor([1.0, -1.0, -1.0]))
     # The behaviour's RL actor has the learner's shape: it loads the broadcast weights.
     behaviour = builder.make_behaviour(num_actors=1)
-    behaviour.load(learner.policy_state())
+    behaviour.load(as_arrays(learner.policy_state()))
 
 
 def test_intra_option_learning_trains_the_rl_option_on_every_step_of_a_window():

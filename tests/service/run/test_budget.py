@@ -21,6 +21,7 @@ from actors.task import EnvSpec
 from actors.transitions import replay_signature
 from learner.td3.builder import make_actor_network
 from learner.td3.config import TD3Config
+from learner.td3.networks import acting_copy
 from service.replay.client import ReplayClient
 from service.run.orchestration.budget import Budget, BudgetClaims, StepBudget
 from service.run.orchestration.supervision import ActorFleet
@@ -88,7 +89,9 @@ def behaviour() -> GaussianBehaviour:
     network = make_actor_network(
         2, 1, np.array([-1.0]), np.array([1.0]), TD3Config(hidden_sizes=(8,))
     )
-    return CountingBehaviour(network, std=0.1, low=np.array([-1.0]), high=np.array([1.0]))
+    return CountingBehaviour(
+        acting_copy(network), std=0.1, low=np.array([-1.0]), high=np.array([1.0])
+    )
 
 
 @pytest.fixture

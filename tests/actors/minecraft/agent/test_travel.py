@@ -43,6 +43,7 @@ from actors.minecraft.agent.travel_task import (
 from actors.minecraft.blocks import ID
 from actors.minecraft.sim import worldgen
 from actors.minecraft.sim.server import WorldServer
+from tests.learner.helpers import FixedRows
 
 ROUTE = ((0, 4, 0), (0, 4, 1), (0, 4, 2), (1, 4, 2))
 
@@ -427,21 +428,16 @@ def test_occupancy_is_sampled_in_the_agent_frame() -> None:
 
 
 def test_recovery_gate_drops_the_correction_once_progress_stalls() -> None:
-    import torch
 
     from actors.behaviours.backbone import BackboneBehaviour
     from actors.minecraft.agent.travel_control import MU, OBS_DIM, STUCK
     from actors.minecraft.agent.travel_env import TravelBackbone, correction_trusted
 
-    class Push(torch.nn.Module):
-        def forward(self, x: torch.Tensor) -> torch.Tensor:
-            return torch.full((x.shape[0], 4), 0.5)
-
     obs = np.zeros((3, OBS_DIM), np.float32)
     obs[:, MU] = [0.2, 0.0, 0.0, -1.0]
     obs[:, STUCK] = [0.0, 0.45, 0.55]  # ticks without progress / K
     behaviour = BackboneBehaviour(
-        Push(),
+        FixedRows([[0.5] * 4]),  # a correction network pushing +0.5 on every axis
         TravelBackbone(),
         limit=0.5,
         std=0.1,

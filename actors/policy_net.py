@@ -1,0 +1,90 @@
+"""A published network's forward pass in numpy: actors and the evaluator act without torch.
+
+The learner's acting networks are plain MLPs (learner/td3/networks.py): `mlp` is
+``Linear -> ReLU -> ... -> Linear``, and `Actor` squashes its output into the action box
+with ``centre + half_width * tanh(·)``. Weights arrive as numpy arrays named as in the
+learner's state dict (``net.0.weight``, ``net.0.bias``, ..., ``action_low``,
+``action_high`` for an actor; ``0.weight``, ... for a Q network). `PolicyNet` computes the
+same function from them in float32, so an actor process never imports torch: it starts
+about 1.4 s of CPU sooner and holds a few hundred MB less.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Optional, Protocol
+
+import numpy as np
+
+from service.core import WeightArrays
+
+_LINEAR = re.compile(r"^(?P<prefix>.*?)(?P<index>\d+)\.(?P<part>weight|bias)$")
+_SQUASH = ("action_low", "action_high")
+
+
+class ActingNet(Protocol):
+    """What a behaviour acts with: maps inputs [B, in] to outputs [B, out] and adopts
+    published weights. A `PolicyNet` in actors; a benchmark may act with a live network."""
+
+    def __call__(self, x: np.ndarray) -> np.ndarray: ...
+
+    def load(self, weights: WeightArrays) -> None: ...
+
+
+class PolicyNet:
+    """``x -> Linear -> ReLU -> ... -> Linear [-> centre + half_width * tanh]`` in numpy."""
+
+    def __init__(self, weights: WeightArrays) -> None:
+        """Builds the network from its weights (see `load`).
+
+        Raises:
+            ValueError: If the names do not describe an MLP (see `load`).
+        """
+        self._layers: list[tuple[np.ndarray, np.ndarray]] = []
+        self._squash: Optional[tuple[np.ndarray, np.ndarray]] = None
+        self._shapes: Optional[dict[str, tuple[int, ...]]] = None
+        self.load(weights)
+
+    def load(self, weights: WeightArrays) -> None:
+        """Adopts new weights of the same names and shapes (as torch's strict
+        `load_state_dict` does).
+
+        Raises:
+            ValueError: If a name is not a linear layer's or the squash bounds, a layer
+                lacks its weight or bias, or the names or shapes differ from the first.
+        """
+        shapes = {k: tuple(np.shape(v)) for k, v in weights.items()}
+        if self._shapes is not None and shapes != self._shapes:
+            raise ValueError(
+                f"weights named/shaped {sorted(shapes.items())} do not fit this network's "
+                f"{sorted(self._shapes.items())}"
+            )
+        layers: dict[int, dict[str, np.ndarray]] = {}
+        for name, value in weights.items():
+            match = _LINEAR.match(name)
+            if match is None and name not in _SQUASH:
+                raise ValueError(f"weight {name!r} is not a linear layer's or an action bound")
+            if match is not None:
+                part = layers.setdefault(int(match["index"]), {})
+                part[match["part"]] = np.asarray(value, dtype=np.float32)
+        if any(len(part) != 2 for part in layers.values()) or not layers:
+            raise ValueError(f"every linear layer needs a weight and a bias: {sorted(shapes)}")
+        self._layers = [(layers[i]["weight"].T, layers[i]["bias"]) for i in sorted(layers)]
+        if all(k in weights for k in _SQUASH):
+            low, high = (np.asarray(weights[k], dtype=np.float32) for k in _SQUASH)
+            self._squash = ((high + low) / 2, (high - low) / 2)
+        elif any(k in weights for k in _SQUASH):
+            raise ValueError(f"an actor needs both {_SQUASH}, got {sorted(shapes)}")
+        self._shapes = shapes
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """The network's output for inputs [B, in], float32 [B, out]."""
+        h = np.asarray(x, dtype=np.float32)
+        for weight, bias in self._layers[:-1]:
+            h = np.maximum(h @ weight + bias, 0.0)
+        weight, bias = self._layers[-1]
+        h = h @ weight + bias
+        if self._squash is not None:
+            centre, half_width = self._squash
+            h = centre + half_width * np.tanh(h)
+        return h
