@@ -37,11 +37,15 @@ class Budget:
     def __init__(self, totals: Mapping[str, int]) -> None:
         self._free: dict[str, list[Range]] = {t: [(0, n)] for t, n in totals.items() if n > 0}
         self._leases: dict[str, _Lease] = {}
+        self._released: set[str] = set()
+        """Leases of dead actors: a claim they sent before dying may still arrive."""
 
     def claim(self, lease: str, table: str, want: int, stored: int) -> Range:
         """Up to `want` steps of `table` from its lowest free range: (start, count)."""
         if want < 1:
             raise ValueError(f"want={want} must be >= 1")
+        if lease in self._released:  # its actor is dead: nobody would act the steps
+            return 0, 0
         record = self._leases.setdefault(lease, _Lease())
         record.stored = max(record.stored, stored)
         free = self._free.get(table, [])
@@ -60,6 +64,7 @@ class Budget:
         """Gives back what `lease` claimed beyond what it stored (the larger of `stored`
         and what it reported); returns that stored count."""
         record = self._leases.pop(lease, _Lease())
+        self._released.add(lease)
         kept = max(record.stored, stored)
         skip = kept
         for table, start, count in record.grants:

@@ -56,6 +56,10 @@ def test_claims_hand_out_each_step_once_and_a_release_gives_back_the_unstored() 
     assert budget.left() == {"demos": 0, "online": 3}
     with pytest.raises(ValueError, match="want=0"):
         budget.claim("c.0", "online", 0, stored=0)
+    # A claim a dead actor sent (its next chunk, asked for ahead) that arrives after its
+    # release grants nothing: those steps would never be acted.
+    assert budget.claim("a.1", "online", 4, stored=5) == (0, 0)
+    assert budget.left() == {"demos": 0, "online": 3}
 
 
 def test_an_actors_claims_ask_for_the_next_chunk_while_it_acts(ray_local) -> None:
