@@ -138,9 +138,10 @@ class EnvActor:
     def run(self, segments: list[Segment], claims: Optional[StepClaims] = None) -> dict[str, Any]:
         """Steps through `segments` in order (or until the learner says stop).
 
-        Without `claims` each segment is this actor's own share. With them a segment is
-        the whole phase, whose steps all actors share: the actor claims one insert batch
-        at a time and acts exactly the steps it was given, until the phase is claimed.
+        Without `claims` each segment is this actor's own share, acted exactly. With them
+        a segment is the whole phase, whose steps all actors share: the actor claims one
+        insert batch at a time and acts exactly the steps it was given, until the phase is
+        claimed.
         """
         self._set_priority()
         self.restart_meters()
@@ -153,7 +154,7 @@ class EnvActor:
                 continue
             done = 0
             while done < segment.steps and not self.weights.stopped:
-                buffer, steps, whole = self._collect(segment, done, segment.steps)
+                buffer, steps, whole = self._collect(segment, done, segment.steps, exact=True)
                 done += steps
                 if not whole:
                     break  # stopped mid-batch: see below

@@ -175,7 +175,8 @@ def train_here(
         # the seed computes).
         segments = actor_segments(phases, config.num_actors)
         budget = None
-        if not config.reproducible:
+        if not config.reproducible and config.num_actors > 1:
+            # Shared by the actors (one alone acts its whole share: no process for it).
             # On the learner's node, as the weight broadcaster: a worker node lost with
             # its actors must not take the budget along. @ray.remote gives the class
             # `.options` at run time; mypy sees the plain class.
