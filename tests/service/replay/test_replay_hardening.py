@@ -380,8 +380,9 @@ def rss_mib(pid: int) -> float:
 @pytest.mark.service
 @pytest.mark.serial  # RSS read while other workers load the machine
 def test_refused_megabyte_requests_leave_the_server_memory_flat():
-    """Within a second of the last refused request the server's RSS is back within 5 % of
-    where it started. Aborted calls once kept their requests in reference cycles (200
+    """Within a second of the last refused request the server's RSS is back within 10 % of
+    where it started (the issue's bound; a few MiB of one arena's fragmentation, 5-7 % of
+    a 62 MiB server, come and go on a loaded machine). Aborted calls once kept their requests in reference cycles (200
     refused 1 MiB table names and writer ids took it from about 90 MiB to over 400 MiB);
     without the garbage collection and `malloc_trim` it makes each second after refused
     calls, RSS stayed 10 to 70 MiB up (cyclic garbage, and free pages kept in glibc's
@@ -426,8 +427,8 @@ def test_refused_megabyte_requests_leave_the_server_memory_flat():
         time.sleep(1.5 * TRIM_EVERY_S)  # one trim since: the level the server settles at
         before = rss_mib(server.process.pid)
         send(60)
-        after = settled_rss_mib(under=before * 1.05)
-        assert after < before * 1.05, (
+        after = settled_rss_mib(under=before * 1.10)
+        assert after < before * 1.10, (
             f"RSS {before:.0f} -> {after:.0f} MiB over 960 refused 1 MiB requests"
         )
         assert ReplayClient(server.address).insert("t", scalar_batch(range(3))) == 3
