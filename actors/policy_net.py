@@ -60,13 +60,17 @@ class PolicyNet:
                 f"{sorted(self._shapes.items())}"
             )
         layers: dict[int, dict[str, np.ndarray]] = {}
+        prefixes = set()
         for name, value in weights.items():
             match = _LINEAR.match(name)
             if match is None and name not in _SQUASH:
                 raise ValueError(f"weight {name!r} is not a linear layer's or an action bound")
             if match is not None:
+                prefixes.add(match["prefix"])
                 part = layers.setdefault(int(match["index"]), {})
                 part[match["part"]] = np.asarray(value, dtype=np.float32)
+        if len(prefixes) > 1:  # e.g. a twin critic: split it into its networks first
+            raise ValueError(f"weights of more than one network: {sorted(prefixes)}")
         if any(len(part) != 2 for part in layers.values()) or not layers:
             raise ValueError(f"every linear layer needs a weight and a bias: {sorted(shapes)}")
         self._layers = [(layers[i]["weight"].T, layers[i]["bias"]) for i in sorted(layers)]

@@ -57,6 +57,14 @@ def test_load_takes_new_weights_and_refuses_others() -> None:
         ({"0.weight": np.ones((2, 2))}, "weight and a bias"),
         ({}, "weight and a bias"),
         (
+            {
+                f"q{i}_net.0.{part}": np.ones((2, 2) if part == "weight" else 2)
+                for i in (1, 2)
+                for part in ("weight", "bias")
+            },
+            "more than one network",
+        ),  # fmt: skip
+        (
             {"0.weight": np.ones((2, 2)), "0.bias": np.ones(2), "action_low": np.zeros(2)},
             "both",
         ),

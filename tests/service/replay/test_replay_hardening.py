@@ -382,8 +382,9 @@ def rss_mib(pid: int) -> float:
 def test_refused_megabyte_requests_leave_the_server_memory_flat():
     """Within a second of the last refused request the server's RSS is back within 10 % of
     where it started (the issue's bound; a few MiB of one arena's fragmentation, 5-7 % of
-    a 62 MiB server, come and go on a loaded machine). Aborted calls once kept their requests in reference cycles (200
-    refused 1 MiB table names and writer ids took it from about 90 MiB to over 400 MiB);
+    a 62 MiB server, come and go on a loaded machine). Aborted calls once kept their
+    requests in reference cycles (200 refused 1 MiB table names and writer ids took it
+    from about 90 MiB to over 400 MiB);
     without the garbage collection and `malloc_trim` it makes each second after refused
     calls, RSS stayed 10 to 70 MiB up (cyclic garbage, and free pages kept in glibc's
     arenas) for as long as it ran."""
