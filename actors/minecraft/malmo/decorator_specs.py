@@ -172,8 +172,11 @@ def maze(e: ET.Element, at: int) -> MazeSpec:
         length=int(size.get("length", "10")),
         height=int(size.get("height", "100")),
         scale=int(size.get("scale", "1")),
-        origin=(int(size.get("xOrigin", "0")), int(size.get("yOrigin", "55")),
-                int(size.get("zOrigin", "0"))),  # fmt: skip
+        origin=(
+            int(size.get("xOrigin", "0")),
+            int(size.get("yOrigin", "55")),
+            int(size.get("zOrigin", "0")),
+        ),  # fmt: skip
         start=block("StartBlock"),
         end=block("EndBlock"),
         path=block("PathBlock"),

@@ -7,9 +7,9 @@ full; the content of the ones the simulator does not implement, such as
 
 from __future__ import annotations
 
-from actors.minecraft import names as N
 import re
 
+from actors.minecraft import names as N
 from actors.minecraft.malmo.xsd_elements import (
     ANY,
     DESC,

@@ -82,9 +82,10 @@ def footprint(mission: Mission) -> list[tuple[float, float, float]]:
     pts: list[tuple[float, float, float]] = []
     m = mission.maze
     if m is not None:
-        if max(m.width * m.scale, m.length * m.scale) > MAX_MAZE_BLOCKS or min(
-            m.width, m.length, m.scale
-        ) < 1:
+        if (
+            max(m.width * m.scale, m.length * m.scale) > MAX_MAZE_BLOCKS
+            or min(m.width, m.length, m.scale) < 1
+        ):
             raise ValueError(
                 f"<MazeDecorator> of {m.width} x {m.length} cells at scale {m.scale}: the "
                 f"simulator builds mazes of 1 to {MAX_MAZE_BLOCKS} blocks a side"

@@ -15,6 +15,7 @@ mission once the copy is complete.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Optional, Protocol
 
 from actors.minecraft import blocks as B
@@ -146,7 +147,7 @@ class Copying:
             self.owed += self.spec.completion
         self.owed += change * self.spec.scale
 
-    def pay(self, me: Payee, agents: list[Payee], names: list[str], *, end: bool) -> None:
+    def pay(self, me: Payee, agents: Sequence[Payee], names: Sequence[str], *, end: bool) -> None:
         """Hand out what is owed: each tick (``PER_BLOCK``) or at the end (``MISSION_END``)."""
         if self.spec is None or not self.owed or (self.spec.density == "MISSION_END") != end:
             return

@@ -13,6 +13,7 @@ quirk of starting over from the dividers still to try when a branch fails.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -96,7 +97,7 @@ class Discrete:
     """Malmo's ``Utils.Discrete``: a distribution over counts; ``take`` draws and uses
     up one of a count (so a specification's counts are drawn without replacement)."""
 
-    def __init__(self, rand: JavaRandom, counts: list[float]) -> None:
+    def __init__(self, rand: JavaRandom, counts: Sequence[float]) -> None:
         self.rand, self.p = rand, [float(c) for c in counts]
         self.total = sum(self.p)
         if self.total == 0:

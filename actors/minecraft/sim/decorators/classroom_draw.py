@@ -208,7 +208,11 @@ class Canvas:
     def _stairs(self, x: int, z: int, b: int, hint: bool) -> None:
         if hint:
             self._steps(x, b, z, "0 -1 -1 hint\n3 5 -1 hint")
-        self._steps(x, b, z, """
+        self._steps(
+            x,
+            b,
+            z,
+            """
             0 0 0 stairs
             0 1 1 stairs
             0 1 2 stairs_platform
@@ -230,12 +234,17 @@ class Canvas:
             3 4 1 stairs
             3 5 1 air
             3 5 0 stairs
-            1 6 1 light""")
+            1 6 1 light""",
+        )
 
     def _floor_jump(self, x: int, z: int, b: int, hint: bool) -> None:
         if hint:
             self._steps(x, b, z, "0 -1 -1 hint\n0 5 0 hint")
-        self._steps(x, b, z, """
+        self._steps(
+            x,
+            b,
+            z,
+            """
             0 0 0 platform
             0 0 1 light
             0 0 2 platform
@@ -248,6 +257,7 @@ class Canvas:
             3 3 -1 light
             2 3 0 platform
             1 5 0 air
-            1 6 1 light""")
+            1 6 1 light""",
+        )
         for i in range(3):
             self._steps(x, b, z, f"{i} 4 2 air\n{i} 5 2 air\n2 4 {2 - i} air\n2 5 {2 - i} air")

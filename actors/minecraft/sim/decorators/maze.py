@@ -109,8 +109,9 @@ class _Grid:
         x, z, w, ln = i % self.w, i // self.w, self.w, self.l
         cand = [(x > 0, i - 1), (x < w - 1, i + 1), (z > 0, i - w), (z < ln - 1, i + w)]
         if self.diagonal:
-            cand += [(x > 0 and z < ln - 1, i - 1 + w), (x > 0 and z > 0, i - 1 - w),
-                     (x < w - 1 and z < ln - 1, i + 1 + w), (x < w - 1 and z > 0, i + 1 - w)]  # fmt: skip
+            west, east, north, south = x > 0, x < w - 1, z > 0, z < ln - 1
+            cand += [(west and south, i - 1 + w), (west and north, i - 1 - w),
+                     (east and south, i + 1 + w), (east and north, i + 1 - w)]  # fmt: skip
         return [j for ok, j in cand if ok and self.alive[j]]
 
     def shortest(self, start: int, end: int) -> int:

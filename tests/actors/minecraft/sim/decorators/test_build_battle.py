@@ -15,7 +15,8 @@ _XML = """<Mission xmlns="http://ProjectMalmo.microsoft.com">
   <ServerSection><ServerHandlers>
     <FlatWorldGenerator generatorString="3;7,3*3,89;1;"/>
     <BuildBattleDecorator>
-      <PlayerStructureBounds><min x="4" y="5" z="1"/><max x="5" y="5" z="1"/></PlayerStructureBounds>
+      <PlayerStructureBounds><min x="4" y="5" z="1"/><max x="5" y="5" z="1"/>
+      </PlayerStructureBounds>
       <GoalStructureBounds><min x="0" y="5" z="0"/><max x="1" y="5" z="0"/></GoalStructureBounds>
       {marks}
     </BuildBattleDecorator>

@@ -6,6 +6,7 @@ arithmetic, worked by hand in the comments."""
 from __future__ import annotations
 
 import pytest
+
 from actors.minecraft.sim.decorators.java_random import JavaRandom
 
 
