@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from actors.minecraft.malmo import protocol as P
-from actors.minecraft.malmo.client import MalmoClient, MissionRefused, StepResult
+from actors.minecraft.malmo.client import MalmoClient, StepResult
 from actors.minecraft.sim.server import WorldServer
 
 MISSIONS = Path(__file__).with_name("missions")
