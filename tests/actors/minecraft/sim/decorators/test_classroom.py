@@ -129,3 +129,26 @@ def test_an_unparsable_seed_follows_the_world_seed() -> None:
     assert spec is not None
     assert classroom.layout(spec, world_seed=4) == classroom.layout(spec, world_seed=4)
     assert len({classroom.layout(spec, world_seed=s).goal for s in range(8)}) > 1
+
+
+_COMPLEXITY = """<Mission xmlns="http://ProjectMalmo.microsoft.com">
+  <About><Summary>c</Summary></About>
+  <ServerSection><ServerHandlers><FlatWorldGenerator generatorString="3;7,60*1,2;1;"/>
+    <ClassroomDecorator seed="{seed}" palette="random"><complexity>
+      <building>1</building><path>0.5</path><division>1</division><obstacle>1</obstacle>
+      <hint>0.5</hint></complexity></ClassroomDecorator>
+  </ServerHandlers></ServerSection>
+  <AgentSection mode="Survival"><Name>A</Name>
+    <AgentStart><Placement x="0" y="80" z="0"/></AgentStart>
+    <AgentHandlers><ObservationFromFullStats/></AgentHandlers></AgentSection>
+</Mission>"""
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_complexity_buildings_join_every_room_to_the_path(seed: int) -> None:
+    spec = parse_mission(_COMPLEXITY.format(seed=seed)).classroom
+    assert spec is not None and spec.complexity == (1.0, 0.5, 1.0, 1.0, 0.5)
+    b = classroom.layout(spec, world_seed=0)
+    assert len(b.rooms) > 1 and _joined(b) == {id(r) for r in b.rooms}
+    assert _inside(b.goal_room, *b.goal)
+    assert b.palette["goal"] in ("gold_block", "diamond_block", "redstone_block")

@@ -140,3 +140,18 @@ def test_navigation_observations_point_along_the_path() -> None:
     # The start point is under the agent (within its tolerance): the next is the end.
     assert obs["nextSubgoal"]["description"] == "MazeSubpoint_2"
     assert -1.0 <= obs["yawDelta"] <= 1.0
+
+
+def test_diagonal_mazes_and_waypoints() -> None:
+    extra = '<Waypoints quantity="3"><WaypointItem type="apple"/></Waypoints>'
+    xml = _xml(width=9, length=9, gaps="0.6", extra=extra).replace(
+        "<AllowDiagonalMovement>false", "<AllowDiagonalMovement>true"
+    )
+    mission = parse_mission(xml)
+    assert mission.maze is not None
+    m = maze.layout(mission.maze, world_seed=3)
+    steps = zip(m.path, m.path[1:], strict=False)
+    assert all(max(abs(a[0] - b[0]), abs(a[1] - b[1])) == 1 for a, b in steps)
+    assert len(m.waypoints) == 3 and m.waypoints <= m.open and m.end not in m.waypoints
+    w = World(mission, 3)
+    assert sorted(it.item for it in w.items) == ["apple"] * 3  # one on each waypoint
