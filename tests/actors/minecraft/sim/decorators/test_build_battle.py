@@ -3,8 +3,11 @@ structure as blocks are placed and broken in it, as Malmo's Java scores it."""
 
 from __future__ import annotations
 
+import pytest
+
 from actors.minecraft import blocks as B
-from actors.minecraft.malmo.mission import parse_mission
+from actors.minecraft.malmo.mission import MissionError, parse_mission
+from actors.minecraft.sim import support
 from actors.minecraft.sim.world import World
 
 # The goal: lapis at (0,5,0) and (1,5,0). The copy area (4..5, 5, 1) starts with the
@@ -105,3 +108,11 @@ def test_the_reward_is_shared_as_the_distribution_says() -> None:
     w = _world(dist='rewardDistribution="Agent0:0.5 Agent1:-0.1"')
     _step(w, "")
     assert _step(w, "use 1") == 6.0
+
+
+def test_bounds_of_different_volumes_are_refused() -> None:
+    xml = _XML.format(marks="", mode="Survival", dist="").replace(
+        '<max x="5" y="5" z="1"/>', '<max x="6" y="5" z="1"/>'
+    )
+    with pytest.raises(MissionError, match="hold 2 and 3 blocks"):
+        support.check(parse_mission(xml))

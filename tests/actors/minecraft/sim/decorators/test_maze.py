@@ -9,7 +9,8 @@ from collections import deque
 import pytest
 
 from actors.minecraft import blocks as B
-from actors.minecraft.malmo.mission import parse_mission
+from actors.minecraft.malmo.mission import MissionError, parse_mission
+from actors.minecraft.sim import support
 from actors.minecraft.sim.decorators import maze
 from actors.minecraft.sim.observe import info_json
 from actors.minecraft.sim.world import World
@@ -155,3 +156,8 @@ def test_diagonal_mazes_and_waypoints() -> None:
     assert len(m.waypoints) == 3 and m.waypoints <= m.open and m.end not in m.waypoints
     w = World(mission, 3)
     assert sorted(it.item for it in w.items) == ["apple"] * 3  # one on each waypoint
+
+
+def test_a_maze_too_large_for_a_world_is_refused() -> None:
+    with pytest.raises(MissionError, match="simulator builds mazes of 1 to 512 blocks"):
+        support.check(parse_mission(_xml(width=300, scale=2)))
