@@ -101,7 +101,7 @@ def main() -> None:
     ap.add_argument("--png", type=Path, default=None)
     a = ap.parse_args()
     names = sorted(p.name for p in SAMPLES.glob("*.xml"))
-    times = {n: [] for n in names}  # type: dict[str, list[float]]
+    times: dict[str, list[float]] = {n: [] for n in names}
     for _ in range(a.repeats):  # interleaved, so that load on the machine hits all alike
         for n in names:
             times[n].append(build(n, a.seed)[1])

@@ -8,6 +8,7 @@ full; the content of the ones the simulator does not implement, such as
 from __future__ import annotations
 
 import re
+from typing import Optional
 
 from actors.minecraft import names as N
 from actors.minecraft.malmo.xsd_elements import (
@@ -95,7 +96,7 @@ GENERATORS: dict[str, Rule] = {
 }
 
 
-def _seed(v: str) -> str | None:
+def _seed(v: str) -> Optional[str]:
     return None if re.fullmatch(r"random|[0-9]+", v.strip()) else "is not an integer or 'random'"
 
 

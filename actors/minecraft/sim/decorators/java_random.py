@@ -5,6 +5,7 @@ Java (the generators then make the same choices in the same order)."""
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 _MULT = 0x5DEECE66D
 _MASK = (1 << 48) - 1
@@ -24,13 +25,13 @@ class JavaRandom:
 
     def __init__(self, seed: int) -> None:
         self._seed = (seed ^ _MULT) & _MASK
-        self._gaussian: float | None = None
+        self._gaussian: Optional[float] = None
 
     def _next(self, bits: int) -> int:
         self._seed = (self._seed * _MULT + 0xB) & _MASK
         return _int32(self._seed >> (48 - bits))
 
-    def next_int(self, bound: int | None = None) -> int:
+    def next_int(self, bound: Optional[int] = None) -> int:
         """``nextInt()`` (any int) or ``nextInt(bound)`` (in [0, bound)).
 
         Raises:
