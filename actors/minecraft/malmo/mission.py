@@ -14,6 +14,7 @@ import zlib
 from dataclasses import dataclass, field
 from typing import Optional
 
+from actors.minecraft.malmo import decorator_specs as D
 from actors.minecraft.malmo import schema
 from actors.minecraft.malmo.agent_section import COMMAND_VERBS
 from actors.minecraft.malmo.mission_rules import Rules, finite_attr, parse_rules
@@ -98,6 +99,18 @@ class DrawOp:
 
 
 @dataclass(frozen=True)
+class Subgoal:
+    """An ObservationFromSubgoalPositionList ``Point``: passed once the agent is within
+    ``tolerance`` of it (x and z distances added)."""
+
+    x: float
+    y: float
+    z: float
+    tolerance: float = 0.5
+    description: str = ""
+
+
+@dataclass(frozen=True)
 class Mission:
     """What a Malmo mission asks for, for one agent (``role``).
 
@@ -122,6 +135,9 @@ class Mission:
         flat_generator: FlatWorldGenerator generatorString, or None.
         seed: DefaultWorldGenerator seed, or None (the server chooses).
         drawing: DrawingDecorator operations, in order.
+        maze: the MazeDecorator, or None.
+        classroom: the ClassroomDecorator, or None.
+        build_battle: the BuildBattleDecorator, or None.
         placement: AgentStart/Placement (x, y, z, yaw, pitch) or None (world spawn).
         start_inventory: (slot, item, quantity) from AgentStart/Inventory.
         full_stats: ObservationFromFullStats.
@@ -134,6 +150,7 @@ class Mission:
         distances: ObservationFromDistance markers (name, x, y, z).
         recent_commands: ObservationFromRecentCommands.
         chat: ObservationFromChat.
+        subgoals: ObservationFromSubgoalPositionList points, in order.
         handlers: command handlers in XML order (the first that takes a command runs it).
         rules: rewards and agent quits.
         colour_or_variant: some block or item names a colour or variant.
@@ -159,6 +176,9 @@ class Mission:
     flat_generator: Optional[str] = None
     seed: Optional[int] = None
     drawing: tuple[DrawOp, ...] = ()
+    maze: Optional[D.MazeSpec] = None
+    classroom: Optional[D.ClassroomSpec] = None
+    build_battle: Optional[D.BuildBattleSpec] = None
     placement: Optional[tuple[float, float, float, float, float]] = None
     start_inventory: tuple[tuple[int, str, int], ...] = ()
     full_stats: bool = False
@@ -171,6 +191,7 @@ class Mission:
     distances: tuple[tuple[str, float, float, float], ...] = ()
     recent_commands: bool = False
     chat: bool = False
+    subgoals: tuple[Subgoal, ...] = ()
     handlers: tuple[Handler, ...] = ()
     rules: Rules = field(default_factory=Rules)
     colour_or_variant: bool = False
@@ -323,6 +344,12 @@ def _server_handlers(handlers: Optional[ET.Element], kw: dict[str, object]) -> N
             kw["server_quit_description"] = h.get("description", "")
         elif t == "DrawingDecorator":
             drawing.extend(_draw_ops(h))
+        elif t == "MazeDecorator":
+            kw["maze"] = D.maze(h, len(drawing))
+        elif t == "ClassroomDecorator":
+            kw["classroom"] = D.classroom(h, len(drawing))
+        elif t == "BuildBattleDecorator":
+            kw["build_battle"] = D.build_battle(h)
     kw["drawing"] = tuple(drawing)
 
 
@@ -389,6 +416,12 @@ def _agent_handlers(ah: Optional[ET.Element], kw: dict[str, object]) -> None:
                 EntityRange(r.get("name", "entities"), _num(r, "xrange"), _num(r, "yrange"),
                             _num(r, "zrange"), max(1, int(_num(r, "update_frequency", 1))))
                 for r in _children(h, "Range")
+            )  # fmt: skip
+        elif t == "ObservationFromSubgoalPositionList":
+            kw["subgoals"] = tuple(
+                Subgoal(_num(p, "x"), _num(p, "y"), _num(p, "z"), _num(p, "tolerance", 0.5),
+                        p.get("description", ""))
+                for p in _children(h, "Point")
             )  # fmt: skip
         elif t == "ObservationFromDistance":
             kw["distances"] = tuple(

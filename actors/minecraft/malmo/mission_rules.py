@@ -97,6 +97,20 @@ class CatchRule:
 
 
 @dataclass(frozen=True)
+class StructureCopying:
+    """RewardForStructureCopying: per block event (``PER_BLOCK``) or at the end
+    (``MISSION_END``), ``scale`` per change of the copy's score, ``completion`` once when
+    the copy first matches; shared out as ``distribution`` says; with ``quit`` (the
+    AddQuitProducer's description) the mission ends when the copy is complete."""
+
+    density: str = "PER_BLOCK"
+    scale: float = 5.0
+    completion: float = 200.0
+    distribution: str = ""
+    quit: Optional[str] = None
+
+
+@dataclass(frozen=True)
 class Rules:
     """Rewards and agent quits of one AgentSection.
 
@@ -119,6 +133,7 @@ class Rules:
         quota_total: AgentQuitFromReachingCommandQuota ``total`` and its description.
         quotas: its per-verb ``Quota`` entries.
         quit_catch: AgentQuitFromCatchingMob.
+        copying: RewardForStructureCopying, or None.
     """
 
     collect: tuple[TypedReward, ...] = ()
@@ -139,6 +154,7 @@ class Rules:
     quota_total: Optional[tuple[int, str]] = None
     quotas: tuple[CommandQuota, ...] = ()
     quit_catch: tuple[CatchRule, ...] = ()
+    copying: Optional[StructureCopying] = None
 
 
 def _tag(e: ET.Element) -> str:
@@ -226,6 +242,14 @@ def parse_rules(agent_handlers: ET.Element) -> Rules:
                 PositionQuit(_f(m, "x"), _f(m, "y"), _f(m, "z"), _f(m, "tolerance", 0.5),
                              m.get("description", ""))
                 for m in kids
+            )  # fmt: skip
+        elif t == "RewardForStructureCopying":
+            k = {_tag(c): c for c in kids}
+            q = k.get("AddQuitProducer")
+            kw["copying"] = StructureCopying(
+                ((k["RewardDensity"].text or "") if "RewardDensity" in k else "").strip(),
+                _f(h, "rewardScale", 5.0), _f(h, "rewardForCompletion", 200.0),
+                h.get("rewardDistribution", ""), None if q is None else q.get("description", ""),
             )  # fmt: skip
         elif t == "AgentQuitFromTimeUp":
             kw["quit_time"] = (_f(h, "timeLimitMs"), h.get("description", ""))

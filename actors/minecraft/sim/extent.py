@@ -7,7 +7,7 @@ draws (air is only cleared, never needs room), and every position marker, plus
 origin, and as tall as its layers and drawings need, up to Minecraft's build height of
 256. A seeded default world keeps its 128×128 terrain but is moved under a placement
 that falls outside it (Malmo's ``defaultworld.xml`` starts the agent at x = -203.5,
-z = 217.5).
+z = 217.5). What a maze, classroom or build battle builds counts as placed.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 from actors.minecraft.malmo.mission import Mission
+from actors.minecraft.sim import decorators
 
 MARGIN = 32  # blocks of ground beyond the farthest thing the mission places
 MIN_HALF = 64  # flat worlds span at least -64..63 in x and z
@@ -51,6 +52,7 @@ def anchors(mission: Mission) -> list[tuple[float, float, float]]:
                 pts += [(c[0] - r, c[1] - r, c[2] - r), (c[0] + r, c[1] + r, c[2] + r)]
         else:
             pts.append((c[0], c[1], c[2]))
+    pts += decorators.footprint(mission)
     rules = mission.rules
     pts += [(m.x, m.y, m.z) for m in rules.positions]
     pts += [(m.x, m.y, m.z) for m in rules.quit_positions]

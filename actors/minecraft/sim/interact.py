@@ -63,9 +63,13 @@ def attack(world: WorldState, *, instant: bool) -> None:
         if p.attack_cooldown == 0 or instant:
             hit_mob(world, world.mobs[hit.entity])
         return
+    arena = world.build_battle
+    if arena is not None and arena.protects(hit.cell):
+        p.dig_target, p.dig_progress = None, 0.0  # the goal structure cannot be broken
+        return
     block = world.get(*hit.cell)
     held = p.inventory.held()
-    if instant:
+    if instant or p.creative:
         if B.BLOCKS[block].hardness != math.inf:
             break_block(world, hit.cell)
         return
@@ -107,6 +111,10 @@ def break_block(world: WorldState, cell: tuple[int, int, int]) -> None:
     held = p.inventory.held()
     info = B.BLOCKS[block]
     world.set(*cell, B.AIR)
+    if world.build_battle is not None:
+        world.build_battle.changed(cell, B.AIR)
+    if p.creative:
+        return  # nothing drops, tools do not wear
     p.exhaustion += EXHAUSTION["break"]
     cx, cy, cz = cell[0] + 0.5, cell[1] + 0.25, cell[2] + 0.5
     if B.can_harvest(block, held):
@@ -141,6 +149,9 @@ def use(world: WorldState, *, hold: bool) -> None:
     x, y, z = (a + n for a, n in zip(hit.cell, hit.normal, strict=True))
     if B.SOLID[world.get(x, y, z)] or world.get(x, y, z) == B.BEDROCK:
         return
+    arena = world.build_battle
+    if arena is not None and arena.protects((x, y, z)):
+        return
     for body in [p.body] + [o.body for o in world.others] + [m.body for m in world.mobs]:
         w = body.half_width
         if (x < body.x + w and x + 1 > body.x - w and z < body.z + w and z + 1 > body.z - w
@@ -149,4 +160,7 @@ def use(world: WorldState, *, hold: bool) -> None:
     # Malmo's RewardForDiscardingItem counts the held stack, whole, when a block is placed.
     world.lost(held, p.inventory.slots[p.inventory.selected].count)  # type: ignore[union-attr]
     world.set(x, y, z, B.ID[held])
-    p.inventory.remove_selected_one()
+    if arena is not None:
+        arena.changed((x, y, z), B.ID[held])
+    if not p.creative:  # a Creative player's stack is not used up
+        p.inventory.remove_selected_one()

@@ -171,6 +171,30 @@ def line_of_sight(world: World) -> dict[str, object]:
             "distance": hit.distance}  # fmt: skip
 
 
+def next_subgoal(world: World) -> dict[str, object]:
+    """ObservationFromSubgoalPositionList: the points passed so far are skipped (within a
+    point's tolerance, x and z distances added), then ``yawDelta`` (the turn towards the
+    next, in [-1, 1] of 180 degrees) and ``nextSubgoal``; nothing once all are passed."""
+    points, b = world.mission.subgoals, world.player.body
+    while world.subgoal_index < len(points):
+        p = points[world.subgoal_index]
+        if abs(p.x - b.x) + abs(p.z - b.z) >= p.tolerance:
+            break
+        world.subgoal_index += 1
+    else:
+        return {}
+    target = math.degrees(math.atan2(p.z - b.z, p.x - b.x)) - 90
+    diff = target - world.player.yaw
+    while diff < -180:
+        diff += 360
+    while diff > 180:
+        diff -= 360
+    return {
+        "yawDelta": diff / 180.0,
+        "nextSubgoal": {"XPos": p.x, "YPos": p.y, "ZPos": p.z, "description": p.description},
+    }
+
+
 def info_json(world: World) -> str:
     """All of the mission's observations as one JSON object string."""
     m = world.mission
@@ -191,6 +215,8 @@ def info_json(world: World) -> str:
     b = world.player.body
     for name, x, y, z in m.distances:
         obs["distanceFrom" + name] = math.dist((b.x, b.y, b.z), (x, y, z))
+    if m.subgoals:
+        obs.update(next_subgoal(world))
     if m.recent_commands and world.recent_commands:
         obs["CommandsSinceLastObservation"] = list(world.recent_commands)
     if m.chat and world.chat_log:

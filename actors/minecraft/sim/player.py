@@ -27,6 +27,7 @@ EXHAUSTION = {
     "regen": 6.0,
 }
 MAX_AIR = 300
+VOID = "fell out of the world"  # the one damage a Creative player takes
 
 
 INERTIA_TICKS = 6  # Malmo's ContinuousMovement ramp from one "move" speed to the next
@@ -100,6 +101,7 @@ class Player:
     use_ticks: int = 0
     use_was_down: bool = False
     death_cause: str = ""
+    creative: bool = False  # Creative mode: no damage but the void's, no hunger
 
     @property
     def eye(self) -> tuple[float, float, float]:
@@ -115,7 +117,7 @@ class Player:
 
     def hurt(self, amount: float, cause: str) -> None:
         """Take damage; dying records the cause."""
-        if not self.alive or amount <= 0:
+        if not self.alive or amount <= 0 or (self.creative and cause != VOID):
             return
         self.health -= amount
         self.damage_taken += amount
@@ -133,6 +135,8 @@ class Player:
     def vitals_tick(self, *, head_in_water: bool, in_lava: bool, in_water: bool) -> None:
         """One tick of hunger, regeneration, starvation, air, lava and fire."""
         self.time_alive += 1
+        if self.creative:
+            self.exhaustion = 0.0
         while self.exhaustion >= 4.0:
             self.exhaustion -= 4.0
             if self.saturation > 0:

@@ -23,7 +23,8 @@ from typing import Optional
 
 from actors.minecraft import blocks as B
 from actors.minecraft.malmo.mission import Mission
-from actors.minecraft.sim import extent, worldgen
+from actors.minecraft.sim import decorators, extent, worldgen
+from actors.minecraft.sim.decorators.build_battle import BuildBattle, Copying
 from actors.minecraft.sim.entities import MOBS, ItemEntity, Mob
 from actors.minecraft.sim.inventory import Stack
 from actors.minecraft.sim.physics import Body, Space
@@ -63,8 +64,13 @@ class WorldState:
         self, mission: Mission, seed: int, *, share: Optional[WorldState] = None,
         also: tuple[tuple[float, float, float], ...] = (),
     ) -> None:  # fmt: skip
-        self.mission = mission
         self.host: WorldState = self if share is None else share.host
+        if share is None:
+            self.seed = mission.seed if mission.seed is not None else seed
+        else:
+            self.seed = self.host.seed
+        # The maze and classroom, built from the world's seed: drawing, start, quits.
+        self.mission = mission = decorators.expand(mission, self.seed)
         self.tick_count = 0
         self.world_time = mission.start_time
         self.pending_reward = 0.0
@@ -78,11 +84,12 @@ class WorldState:
         self.chat_log: list[str] = []
         self.recent_commands: list[str] = []
         self.obs_cache: dict[str, object] = {}
+        self.subgoal_index = 0  # ObservationFromSubgoalPositionList's next point
         self.time_limit_ticks = (
             math.ceil(mission.time_limit_ms / 50.0) if mission.time_limit_ms is not None else None
         )
+        self.copying = Copying(mission.rules.copying, mission.agent_name)
         if share is None:
-            self.seed = mission.seed if mission.seed is not None else seed
             self.rng = random.Random(self.seed)
             terrain = _terrain(mission, self.seed, also)
             self.blocks = terrain.blocks
@@ -97,12 +104,15 @@ class WorldState:
             self._mobs: list[Mob] = []
             self._uid = 0
             self.player_uid = 0
+            spec = mission.build_battle
+            self.build_battle: Optional[BuildBattle] = BuildBattle(spec) if spec else None
             for name, x, y, z in terrain.mobs:
                 self.spawn_mob(name, x, y, z)
             spawn = terrain.spawn
         else:
             h = self.host
-            self.seed, self.blocks, self.x0, self.z0 = h.seed, h.blocks, h.x0, h.z0
+            self.blocks, self.x0, self.z0 = h.blocks, h.x0, h.z0
+            self.build_battle = h.build_battle
             self.space, self.lock, self.agents = h.space, h.lock, h.agents
             self.liquid_level, self.liquid_due = h.liquid_level, h.liquid_due
             self.player_uid = h.next_uid()
@@ -115,6 +125,7 @@ class WorldState:
             x, y, z, yaw, pitch = mission.placement
             spawn = (x, y, z)
         self.player: Player = Player(mission.agent_name, Body(*spawn), yaw=yaw, pitch=pitch)
+        self.player.creative = mission.mode == "Creative"
 
         for slot, item, qty in mission.start_inventory:
             tool = B.TOOLS.get(item)
@@ -250,6 +261,8 @@ class WorldState:
             self.end_reason = reason
             self.quit_codes = list(codes or [])
             self.pending_reward += self.rules.final_reward(self.quit_codes)
+            names = [w.player.name for w in self.agents]
+            self.copying.pay(self, self.agents, names, end=True)
 
     def collected(self, item: str, count: int) -> None:
         """Items gained (picked up, crafted or smelted), for rewards and quits."""

@@ -5,7 +5,7 @@ Every handler, decorator and draw element Malmo's schema defines is either in
 ``IMPLEMENTED`` or in ``REFUSED`` with a reason: a mission that uses a refused one is
 refused at MissionInit (reply 0, the reason naming the element), never run with the
 handler silently ignored. ``check`` also refuses what the simulator cannot build (game
-modes other than Survival, third-person video, mobs it does not have, fire and portals,
+modes other than Survival and Creative, third-person video, mobs it does not have, fire and portals,
 worlds too large) and returns warnings for what it approximates (blocks whose shape or
 mechanism is simplified, weather, mob spawning, colours and variants).
 """
@@ -15,22 +15,26 @@ from __future__ import annotations
 from actors.minecraft import approximate_blocks
 from actors.minecraft import blocks as B
 from actors.minecraft.malmo.mission import Mission, MissionError
-from actors.minecraft.sim import extent, worldgen
+from actors.minecraft.sim import decorators, extent, worldgen
+from actors.minecraft.sim.decorators.build_battle import volume
 from actors.minecraft.sim.entities import MOBS
 
 IMPLEMENTED: frozenset[str] = frozenset(
     """
-    FlatWorldGenerator DefaultWorldGenerator DrawingDecorator ServerQuitFromTimeUp
+    FlatWorldGenerator DefaultWorldGenerator DrawingDecorator MazeDecorator ClassroomDecorator
+    BuildBattleDecorator ServerQuitFromTimeUp
     ServerQuitWhenAnyAgentFinishes
     DrawObjectType DrawBlock DrawCuboid DrawSphere DrawLine DrawItem DrawEntity
     ObservationFromFullStats ObservationFromFullInventory ObservationFromGrid
     ObservationFromNearbyEntities ObservationFromRay ObservationFromHotBar
     ObservationFromDistance ObservationFromRecentCommands ObservationFromChat VideoProducer
+    ObservationFromSubgoalPositionList
     ContinuousMovementCommands AbsoluteMovementCommands DiscreteMovementCommands
     InventoryCommands ChatCommands SimpleCraftCommands MissionQuitCommands TurnBasedCommands
     RewardForTouchingBlockType RewardForSendingCommand RewardForCollectingItem
     RewardForDiscardingItem RewardForReachingPosition RewardForMissionEnd RewardForTimeTaken
     RewardForDamagingEntity RewardForSendingMatchingChatMessage RewardForCatchingMob
+    RewardForStructureCopying
     AgentQuitFromTimeUp AgentQuitFromReachingPosition AgentQuitFromTouchingBlockType
     AgentQuitFromCollectingItem AgentQuitFromReachingCommandQuota AgentQuitFromCatchingMob
     """.split()
@@ -41,16 +45,12 @@ REFUSED: dict[str, str] = {
     "FileWorldGenerator": "saved worlds cannot be loaded",
     "BiomeGenerator": "single-biome worlds are not generated",
     "AnimationDecorator": _NOT,
-    "MazeDecorator": _NOT,
-    "ClassroomDecorator": _NOT,
     "SnakeDecorator": _NOT,
     "MovingTargetDecorator": _NOT,
-    "BuildBattleDecorator": _NOT,
     "NavigationDecorator": _NOT,
     "DrawContainer": "containers and their contents are not simulated",
     "DrawSign": "signs are not simulated",
     "EnderBoxInventory": "ender chest inventories are not simulated",
-    "ObservationFromSubgoalPositionList": _NOT,
     "ObservationFromDiscreteCell": _NOT,
     "ObservationFromTurnScheduler": _NOT,
     "ObservationFromHuman": "there is no human player",
@@ -62,7 +62,6 @@ REFUSED: dict[str, str] = {
     "RewardForPossessingItem": _NOT,
     "RewardForCraftingItem": _NOT,
     "RewardForSmeltingItem": _NOT,
-    "RewardForStructureCopying": _NOT,
     "NearbyCraftCommands": _NOT + " (use SimpleCraftCommands)",
     "NearbySmeltCommands": _NOT + " (use SimpleCraftCommands)",
     "PlaceCommands": _NOT,
@@ -84,13 +83,21 @@ def check(mission: Mission) -> list[str]:
     """
     for name in sorted(mission.elements & REFUSED.keys()):
         raise MissionError(f"<{name}> is refused: {REFUSED[name]}")
-    if mission.mode != "Survival":
-        raise MissionError(f'<AgentSection mode="{mission.mode}"> is refused: only Survival')
+    if mission.mode not in ("Survival", "Creative"):
+        raise MissionError(
+            f'<AgentSection mode="{mission.mode}"> is refused: only Survival and Creative'
+        )
+    bb = mission.build_battle
+    if bb is not None and volume(bb.goal) != volume(bb.player):
+        raise MissionError(
+            "<BuildBattleDecorator> is refused: the goal and player structure bounds hold "
+            f"{volume(bb.goal)} and {volume(bb.player)} blocks (they must match)"
+        )
     if mission.viewpoint != 0:
         raise MissionError(
             f'<VideoProducer viewpoint="{mission.viewpoint}"> is refused: first person only'
         )
-    blocks = set(mission.block_types())
+    blocks = set(mission.block_types()) | decorators.block_types(mission)
     if mission.flat_generator is not None:
         try:
             blocks.update(B.NAMES[b] for b in worldgen.flat_layers(mission.flat_generator))
@@ -122,6 +129,11 @@ def _warnings(mission: Mission, blocks: set[str]) -> list[str]:
         out.append(f"Weather {mission.weather}: weather is not simulated")
     if mission.allow_spawning:
         out.append("AllowSpawning true: no mobs spawn during a mission")
+    if mission.mode == "Creative":
+        out.append(
+            "mode Creative: no damage but the void's, no hunger, blocks break at once and "
+            "drop nothing, placed blocks are not used up; flying is not simulated"
+        )
     if mission.colour_or_variant:
         out.append("colour and variant attributes are not simulated (blocks keep one look)")
     return out

@@ -22,7 +22,7 @@ from actors.minecraft import blocks as B
 from actors.minecraft.malmo.mission import Mission
 from actors.minecraft.sim import actions, drawing, interact
 from actors.minecraft.sim.physics import JUMP_SPEED, WALK_SPEED, apply_gravity
-from actors.minecraft.sim.player import EXHAUSTION
+from actors.minecraft.sim.player import EXHAUSTION, VOID
 from actors.minecraft.sim.rules import AGENT_DIED
 from actors.minecraft.sim.state import LIQUID_DELAY, WorldState
 
@@ -48,7 +48,7 @@ class World(WorldState):
     ) -> None:  # fmt: skip
         super().__init__(mission, seed, share=share, also=also)
         if share is None:
-            for op in mission.drawing:
+            for op in self.mission.drawing:
                 drawing.draw(self, op)
         b = self.player.body
         b.on_ground = self.space.box_solid(
@@ -86,12 +86,26 @@ class World(WorldState):
         )
         if self.time_limit_ticks is not None and self.tick_count >= self.time_limit_ticks:
             self.request_quit("time up", self.mission.server_quit_description)
+        self._build_battle()
         r = self.mission.rules
         self.rules.tick(self, self._touching() if r.touch or r.quit_touch else [])
         if not p.alive:
             self.request_quit("player died: " + p.death_cause, AGENT_DIED)
         if self._quits:
             self.end("; ".join(r for r, _ in self._quits), [c for _, c in self._quits if c])
+
+    def _build_battle(self) -> None:
+        # The host scores the copy for every agent; each agent collects its reward.
+        arena = self.build_battle
+        if arena is not None and self.host is self:
+            scored = arena.update(self)
+            if scored is not None:
+                for w in self.agents:
+                    w.copying.scored(*scored)
+        self.copying.pay(self, self.agents, [w.player.name for w in self.agents], end=False)
+        spec = self.mission.rules.copying
+        if spec is not None and spec.quit is not None and self.copying.complete:
+            self.request_quit("structure copied", spec.quit)
 
     @property
     def turn_speed(self) -> float:
@@ -132,7 +146,7 @@ class World(WorldState):
         if landed or (b.on_ground and b.fall_distance > 0):
             p.land()
         if b.y < -10:
-            p.hurt(1000.0, "fell out of the world")
+            p.hurt(1000.0, VOID)
 
     # --------------------------------------------------------------- entities
     def _entities(self) -> None:

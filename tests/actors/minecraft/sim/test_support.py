@@ -61,9 +61,12 @@ def test_refusals_name_the_element(kw: dict, reason: str) -> None:
 
 
 def test_game_modes_and_viewpoints_other_than_malmos_default_are_refused() -> None:
+    adventure = flat_mission().replace('mode="Survival"', 'mode="Adventure"')
+    with pytest.raises(MissionError, match='<AgentSection mode="Adventure"> is refused'):
+        support.check(parse_mission(adventure))
     creative = flat_mission().replace('mode="Survival"', 'mode="Creative"')
-    with pytest.raises(MissionError, match='<AgentSection mode="Creative"> is refused'):
-        support.check(parse_mission(creative))
+    (warning,) = support.check(parse_mission(creative))
+    assert warning.startswith("mode Creative: no damage") and "flying is not simulated" in warning
     third = flat_mission(video=True).replace('want_depth="false"', 'viewpoint="1"')
     with pytest.raises(MissionError, match='viewpoint="1"> is refused'):
         support.check(parse_mission(third))
