@@ -17,6 +17,7 @@ from learner.backbone.networks import TeacherActor, load_teacher, zero_output_
 from learner.device import CPU, CompileMode
 from learner.td3.builder import TD3Builder, make_actor_network
 from learner.td3.learning import TD3Learner
+from learner.td3.networks import TwinCritic
 
 
 class BackboneBuilder:
@@ -83,6 +84,7 @@ class BackboneBuilder:
                 device=device,
                 compile=compile,
                 correction_penalty=self.config.correction_penalty,
+                publish_critic=self.config.switch_margin is not None,
             )
         else:
             learner = TD3Learner(
@@ -110,6 +112,8 @@ class BackboneBuilder:
         t = self.td3
         in_dim = t.obs_dim + (t.act_dim if self.config.observe_backbone else 0)
         correction = make_actor_network(in_dim, t.act_dim, -self.bound, self.bound, t.config)
+        switching = self.config.switch_margin is not None
+        critic = TwinCritic(in_dim, t.act_dim, t.config.hidden_sizes) if switching else None
         return BackboneBehaviour(
             correction,
             self._backbone(),
@@ -119,4 +123,6 @@ class BackboneBuilder:
             low=t.low,
             high=t.high,
             observe_backbone=self.config.observe_backbone,
+            critic=critic,
+            switch_margin=self.config.switch_margin,
         )
