@@ -41,7 +41,7 @@ from typing import Any, Optional
 import numpy as np
 
 import graft
-from bench.improve_parts import part_scores, parts_table
+from bench.improve_parts import part_scores, parts_table, reselect
 from bench.seeds import run_seed
 from service.metrics import read_metric
 from service.run.config import load_preset
@@ -131,6 +131,7 @@ def run_task(
     env_steps: Optional[int],
     quick: bool = False,
     parts: bool = False,
+    reselected: bool = False,
 ) -> tuple[dict[str, Any], list[SeedRow]]:
     """Trains and scores every seed of one task; its summary row and per-seed rows."""
     preset = TASKS[task]
@@ -148,6 +149,11 @@ def run_task(
     rows: list[SeedRow] = []
     for seed in seeds:
         start = time.perf_counter()
+        if reselected and (out / task / f"s{seed}" / "summary.json").exists():
+            record = reselect(
+                out / task / f"s{seed}", episodes=EPISODES, eval_seed=final_seed(seed)
+            )
+            print(f"{task} seed {seed}: selection {record}", flush=True)
         try:
             result = run_seed(
                 str(preset),
@@ -283,6 +289,9 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     parser.add_argument("--out", type=Path, default=Path("runs/bench-improve"))
     parser.add_argument("--quick", action="store_true", help="1 seed, 600 env steps")
     parser.add_argument("--parts", action="store_true", help="score each acting part too")
+    parser.add_argument(
+        "--reselect", action="store_true", help="apply the current selection rule to finished runs"
+    )
     args = parser.parse_args(argv)
     if args.seeds < 1:
         parser.error(f"--seeds {args.seeds}: must be >= 1")
@@ -303,6 +312,7 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
             env_steps=args.env_steps,
             quick=args.quick,
             parts=args.parts,
+            reselected=args.reselect,
         )
         summaries.append(summary)
         results[task] = rows

@@ -254,14 +254,7 @@ class LearnerLoop:
             for w in (weights, algorithm.tree_state())
         ]
         policy, tree = (future.result() for future in scored)
-        kept = tree_wins(
-            policy_mean=policy["mean"],
-            policy_std=policy["std"],
-            tree_mean=tree["mean"],
-            tree_std=tree["std"],
-            episodes=c.episodes,
-            z=c.z,
-        )
+        kept = tree_wins(policy.get("returns", []), tree.get("returns", []), z=c.z)
         if kept:
             algorithm.keep_tree()
             self.publish()

@@ -8,7 +8,10 @@ held-out ones a benchmark tests on) and calls `keep_tree` when `tree_wins` says 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -19,8 +22,9 @@ class SelectionConfig:
     """Evaluation episodes each of the two is scored on at the end (0: no selection, the
     learned policy is kept as it is)."""
     z: float = 1.0
-    """The learned policy is kept only if its mean return beats the tree's by more than z
-    standard errors of the difference, √((σ_π² + σ_μ²) / n) (a one-sided test; 0: any gain)."""
+    """The learned policy is kept only if its mean gain over the tree, episode by episode
+    on the same starts, exceeds z standard errors of that gain (a one-sided paired test;
+    0: any gain)."""
 
     def __post_init__(self) -> None:
         if self.episodes < 0:
@@ -31,20 +35,20 @@ class SelectionConfig:
             raise ValueError(f"z={self.z} must be a finite number >= 0 (standard errors)")
 
 
-def tree_wins(
-    *,
-    policy_mean: float,
-    policy_std: float,
-    tree_mean: float,
-    tree_std: float,
-    episodes: int,
-    z: float,
-) -> bool:
-    """True unless the learned policy's mean beats the tree's by more than z standard errors.
+def tree_wins(policy_returns: Sequence[float], tree_returns: Sequence[float], *, z: float) -> bool:
+    """True unless the learned policy's gain over the tree, d_i = R_π(i) − R_μ(i) on the
+    same episode starts i, has mean(d) > z · std(d) / √n (sample std): a paired one-sided
+    test, far sharper than comparing the two means apart, since the same start makes both
+    returns high or low together. Ties keep the tree.
 
-    The two are scored on the same episodes, but the difference's error is taken as if they
-    were independent, √((σ_π² + σ_μ²) / n): an upper bound while their returns correlate
-    positively, as the same starts make them do. Ties keep the tree.
+    Raises:
+        ValueError: the two are not scored on the same ≥ 2 episodes.
     """
-    error = math.sqrt((policy_std**2 + tree_std**2) / episodes)
-    return not policy_mean - tree_mean > z * error
+    if len(policy_returns) != len(tree_returns) or len(policy_returns) < 2:
+        raise ValueError(
+            f"paired selection needs the same >= 2 episodes for both, got "
+            f"{len(policy_returns)} and {len(tree_returns)}"
+        )
+    gains = np.asarray(policy_returns, dtype=np.float64) - np.asarray(tree_returns)
+    error = float(gains.std(ddof=1)) / math.sqrt(len(gains))
+    return not float(gains.mean()) > z * error

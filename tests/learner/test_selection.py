@@ -1,5 +1,5 @@
-"""The final selection: the rule against hand-computed cases, its settings refused by
-name, and the learner loop falling back to the tree when the tree scores higher."""
+"""The final selection: the paired rule against hand-computed cases, its settings refused
+by name, and the learner loop falling back to the tree unless the policy beat it."""
 
 from __future__ import annotations
 
@@ -18,23 +18,30 @@ from tests.learner.test_loop import CountingAlgorithm, ListStream, RecordingPubl
 
 
 @pytest.mark.parametrize(
-    "policy, tree, stds, n, z, kept",
+    "policy, tree, z, kept",
     [
-        (105.0, 100.0, (0.0, 0.0), 10, 1.0, False),  # no spread: any gain keeps the policy
-        (100.0, 100.0, (0.0, 0.0), 10, 1.0, True),  # a tie keeps the tree
-        # error √((30² + 40²) / 25) = 10: a gain of 10 is not above 1 error, 10.1 is
-        (110.0, 100.0, (30.0, 40.0), 25, 1.0, True),
-        (110.1, 100.0, (30.0, 40.0), 25, 1.0, False),
-        (115.0, 100.0, (30.0, 40.0), 25, 2.0, True),  # 15 ≤ 2 · 10
-        (100.1, 100.0, (30.0, 40.0), 25, 0.0, False),  # z = 0: any gain
-        (90.0, 100.0, (0.0, 0.0), 10, 0.0, True),
+        ([105, 105], [100, 100], 1.0, False),  # the same gain on every episode
+        ([100, 100], [100, 100], 1.0, True),  # a tie keeps the tree
+        # gains 10 on every start: kept, however much the starts' returns vary
+        ([110, 90, 130, 70], [100, 80, 120, 60], 1.0, False),
+        # gains 10, −10, 30, −10: mean 5, std √(1100 / 3) ≈ 19.15, error ≈ 9.57 > 5
+        ([110, 90, 130, 70], [100, 100, 100, 80], 1.0, True),
+        ([110, 90, 130, 70], [100, 100, 100, 80], 0.0, False),  # z = 0: any mean gain
+        # gains 20, 10, 30, 20: mean 20, error √(200 / 3) / 2 ≈ 4.08; z = 5 asks 20.4
+        ([120, 110, 130, 120], [100, 100, 100, 100], 1.0, False),
+        ([120, 110, 130, 120], [100, 100, 100, 100], 5.0, True),
+        ([90, 90], [100, 100], 0.0, True),
     ],
 )
-def test_tree_wins_matches_hand_computed_cases(policy, tree, stds, n, z, kept):
-    result = tree_wins(
-        policy_mean=policy, policy_std=stds[0], tree_mean=tree, tree_std=stds[1], episodes=n, z=z
-    )
-    assert result is kept
+def test_tree_wins_matches_hand_computed_cases(policy, tree, z, kept):
+    assert tree_wins(policy, tree, z=z) is kept
+
+
+def test_tree_wins_needs_the_same_episodes_for_both():
+    with pytest.raises(ValueError, match="same >= 2 episodes for both, got 3 and 2"):
+        tree_wins([1.0, 2.0, 3.0], [1.0, 2.0], z=1.0)
+    with pytest.raises(ValueError, match="got 1 and 1"):
+        tree_wins([1.0], [1.0], z=1.0)
 
 
 @pytest.mark.parametrize(
@@ -59,38 +66,40 @@ class FallingBack(CountingAlgorithm):
         self.tree, self.kept = tree, False
 
     def tree_state(self) -> Weights:
-        return {"updates": torch.tensor(self.tree)}
+        return {"updates": torch.tensor(self.tree), "tree": torch.tensor(1.0)}
 
     def keep_tree(self) -> None:
         self.kept = True
 
 
 class ScoringEvaluator:
-    """The return is the weights' "updates", with a fixed spread; records episode counts."""
+    """Every episode returns the weights' "updates"; the tree's alternate ± `spread` around
+    it. Records episode counts."""
 
-    def __init__(self, std: float) -> None:
-        self.std, self.episodes = std, []
+    def __init__(self, spread: float) -> None:
+        self.spread, self.episodes = spread, []
 
     def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
         self.episodes.append(episodes)
+        spread = self.spread if "tree" in weights else 0.0
+        returns = [float(weights["updates"]) + spread * (-1) ** i for i in range(episodes)]
         future: Future[Evaluation] = Future()
-        future.set_result(
-            {"tag": tag, "mean": float(weights["updates"]), "std": self.std, "stats": {}}
-        )
+        mean = float(np.mean(returns))
+        future.set_result({"tag": tag, "mean": mean, "std": 0.0, "stats": {}, "returns": returns})
         return future
 
 
 @pytest.mark.parametrize(
-    "tree, std, episodes, kept",
+    "tree, spread, episodes, kept",
     [
         (10.0, 0.0, 4, True),  # the policy scores 4 (its updates) < 10
-        (1.0, 0.0, 4, False),  # 4 > 1
-        (1.0, 6.0, 4, True),  # 3 ≤ √((36 + 36) / 4) ≈ 4.2
+        (1.0, 0.0, 4, False),  # 4 > 1 on every episode
+        (1.0, 6.0, 4, True),  # gains −3, 9, −3, 9: mean 3 ≤ √48 / 2 ≈ 3.46
         (1.0, 6.0, 0, False),  # no selection at all
     ],
 )
-def test_the_loop_keeps_the_tree_unless_the_policy_beat_it(tmp_path, tree, std, episodes, kept):
-    algorithm, evaluator = FallingBack(tree), ScoringEvaluator(std)
+def test_the_loop_keeps_the_tree_unless_the_policy_beat_it(tmp_path, tree, spread, episodes, kept):
+    algorithm, evaluator = FallingBack(tree), ScoringEvaluator(spread)
     loop = LearnerLoop(
         algorithm,
         phases=[Phase("online", env_steps=0, updates=4, min_size=1)],
