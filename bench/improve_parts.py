@@ -17,8 +17,11 @@ margin loss — need runs of their own: `--set` them off.)
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 from pathlib import Path
+
+import numpy as np
 
 import graft
 from bench.seeds import GRAFT
@@ -83,9 +86,10 @@ def reselect(run_dir: Path, *, episodes: int, eval_seed: int) -> dict[str, float
     state = load_checkpoint(checkpoint)
     state["algorithm"]["tree_only"] = kept
     torch.save(state, checkpoint)
-    record = {k: sum(v) / n for k, v in returns.items()} | {"tree_kept": float(kept)}
+    record = {k: float(np.mean(v)) for k, v in returns.items()} | {"tree_kept": float(kept)}
     summary = json.loads((run_dir / "summary.json").read_text())
-    if summary.get("selection") != record:
+    before = summary.get("selection") or {}
+    if not all(math.isclose(before.get(k, math.nan), v, rel_tol=1e-9) for k, v in record.items()):
         summary |= {"selection": record, "reselected": True}
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         command = [*GRAFT, "eval", "--policy", str(run_dir), "--episodes", str(episodes)]
