@@ -207,6 +207,7 @@ class Evaluator:
             "tag": tag,
             "mean": float(played.returns.mean()),
             "std": float(played.returns.std()),
+            "returns": [float(r) for r in played.returns],
             "stats": {**played.metric_means(), **self.behaviour.stats()},
         }
 

@@ -92,3 +92,34 @@ class PolicyNet:
             centre, half_width = self._squash
             h = centre + half_width * np.tanh(h)
         return h
+
+
+class TwinQ:
+    """A twin critic (learner/td3/networks.py's `TwinCritic`) in numpy: the smaller of its
+    two estimates, min(Q1, Q2)(x, a), as value-based switching takes it."""
+
+    def __init__(self, weights: WeightArrays) -> None:
+        self.q1, self.q2 = (PolicyNet(part) for part in self._split(weights))
+
+    @staticmethod
+    def _split(weights: WeightArrays) -> tuple[WeightArrays, WeightArrays]:
+        parts = tuple(
+            {k.removeprefix(p): v for k, v in weights.items() if k.startswith(p)}
+            for p in ("q1_net.", "q2_net.")
+        )
+        if sum(map(len, parts)) != len(weights):
+            raise ValueError(
+                f"a twin critic's weights are q1_net.* and q2_net.*: {sorted(weights)}"
+            )
+        return parts[0], parts[1]
+
+    def load(self, weights: WeightArrays) -> None:
+        """Adopts new weights of the same names and shapes."""
+        q1, q2 = self._split(weights)
+        self.q1.load(q1)
+        self.q2.load(q2)
+
+    def __call__(self, x: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """min(Q1, Q2) of inputs [B, in] and actions [B, A], float32 [B]."""
+        xa = np.concatenate([np.asarray(x, np.float32), np.asarray(action, np.float32)], axis=-1)
+        return np.minimum(self.q1(xa), self.q2(xa))[:, 0]

@@ -17,6 +17,10 @@ time; prints a table, writes OUT/improve.json and OUT/improve.png.
     python -m bench.improve --task lunarlander --seeds 5 [--env-steps N] [--set k=v ...]
     python -m bench.improve --suite --seeds 5
     python -m bench.improve --task pendulum --quick     # a smoke run: 1 seed, tiny budget
+    python -m bench.improve --task lunarlander --seeds 5 --parts   # + each part's share
+
+With ``--parts`` each seed's networks are also scored without the final selection and
+without switching too, on the same episodes (`bench/improve_parts.py`).
 
 The examples must be installed (``pip install -e examples/mountaincar examples/cartpole
 examples/lunarlander``). A seed whose run finished is read back, not re-run.
@@ -30,13 +34,14 @@ import math
 import subprocess
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
 
 import graft
+from bench.improve_parts import part_scores, parts_table, reselect
 from bench.seeds import run_seed
 from service.metrics import read_metric
 from service.run.config import load_preset
@@ -97,6 +102,8 @@ class SeedRow:
     """The run's in-run evaluations (mean returns) and their env steps."""
     env_steps: int
     wall_s: float
+    parts: dict[str, float] = field(default_factory=dict)
+    """With --parts: the final networks' variants on the final episodes (improve_parts)."""
 
     @property
     def improvement(self) -> float:
@@ -123,6 +130,8 @@ def run_task(
     overrides: Sequence[str],
     env_steps: Optional[int],
     quick: bool = False,
+    parts: bool = False,
+    reselected: bool = False,
 ) -> tuple[dict[str, Any], list[SeedRow]]:
     """Trains and scores every seed of one task; its summary row and per-seed rows."""
     preset = TASKS[task]
@@ -140,6 +149,11 @@ def run_task(
     rows: list[SeedRow] = []
     for seed in seeds:
         start = time.perf_counter()
+        if reselected and (out / task / f"s{seed}" / "summary.json").exists():
+            record = reselect(
+                out / task / f"s{seed}", episodes=EPISODES, eval_seed=final_seed(seed)
+            )
+            print(f"{task} seed {seed}: selection {record}", flush=True)
         try:
             result = run_seed(
                 str(preset),
@@ -165,6 +179,9 @@ def run_task(
             evaluations=evaluations,
             env_steps=int(summary["env_steps"]),
             wall_s=result.wall_s,
+            parts=part_scores(result.run_dir, episodes=EPISODES, seed=final_seed(seed))
+            if parts
+            else {},
         )
         rows.append(row)
         print(
@@ -271,6 +288,10 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--out", type=Path, default=Path("runs/bench-improve"))
     parser.add_argument("--quick", action="store_true", help="1 seed, 600 env steps")
+    parser.add_argument("--parts", action="store_true", help="score each acting part too")
+    parser.add_argument(
+        "--reselect", action="store_true", help="apply the current selection rule to finished runs"
+    )
     args = parser.parse_args(argv)
     if args.seeds < 1:
         parser.error(f"--seeds {args.seeds}: must be >= 1")
@@ -290,12 +311,21 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
             overrides=args.set,
             env_steps=args.env_steps,
             quick=args.quick,
+            parts=args.parts,
+            reselected=args.reselect,
         )
         summaries.append(summary)
         results[task] = rows
         print(summary["improvement_line"], flush=True)
     print()
     print(table(summaries))
+    if args.parts:
+        print()
+        print(
+            parts_table(
+                {t: [(r.seed, r.tree, r.final, r.parts) for r in rs] for t, rs in results.items()}
+            )
+        )
     args.out.mkdir(parents=True, exist_ok=True)
     stem = "improve" if args.suite else f"improve-{args.task}"
     (args.out / f"{stem}.json").write_text(

@@ -11,6 +11,7 @@
             every log_every updates:     log metrics, perf/policy_lag from the batch
             every checkpoint_every:      self.checkpoint()  (model, optimiser, counters)
         evaluate at the end of every phase
+    with a final selection: score the policy and the tree alone, keep the better (`_select`)
 
 In reproducible mode (a `Lockstep`) the loop also drives the actors: before each update
 it has the actors insert, one batch at a time in a fixed order, until the phase's held
@@ -26,13 +27,14 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Protocol, runtime_checkable
 
 import torch
 
 from learner.agent import Phase
 from learner.checkpoint import save_checkpoint
 from learner.device import CPU, BatchFeed
+from learner.selection import SelectionConfig, tree_wins
 from service.core import (
     Algorithm,
     Columns,
@@ -73,6 +75,19 @@ class LoopState:
     warmup_s: float = 0.0
     """Seconds until the first batch: the table filling to its minimum size."""
     evaluations: list[Evaluation] = field(default_factory=list)
+    selection: dict[str, float] = field(default_factory=dict)
+    """The final selection's scores (``policy``, ``tree``) and ``tree_kept`` (1 or 0)."""
+
+
+@runtime_checkable
+class FallsBack(Protocol):
+    """An algorithm whose greedy policy can fall back to the hard-coded one."""
+
+    def tree_state(self) -> Weights:
+        """Published weights under which the greedy policy is the tree alone."""
+
+    def keep_tree(self) -> None:
+        """From now on the greedy policy (published and checkpointed) is the tree alone."""
 
 
 @dataclass(frozen=True)
@@ -85,6 +100,7 @@ class LoopSettings:
     checkpoint_every: int
     keep_checkpoints: int = 3
     log_every: int = 250
+    selection: SelectionConfig = SelectionConfig()
 
 
 @dataclass(frozen=True)
@@ -222,8 +238,32 @@ class LearnerLoop:
         weights = self.publish()
         self._evaluate(weights)  # the final policy is always evaluated
         self._collect_evaluations(wait=True)
+        if self.settings.selection.episodes and isinstance(self.algorithm, FallsBack):
+            self._select(weights, self.algorithm)
         self.checkpoint()
         return s
+
+    def _select(self, weights: Weights, algorithm: FallsBack) -> None:
+        """Scores the final policy and the tree alone on the evaluator's episodes (the
+        training side's, never a benchmark's held-out ones); keeps the tree unless the
+        policy beats it (`tree_wins`)."""
+        c, s = self.settings.selection, self.state
+        tag: EvalTag = {"env_steps": s.env_steps, "updates": s.updates, "wall_s": 0.0}
+        scored = [
+            self.evaluator.evaluate(w, episodes=c.episodes, tag=tag)
+            for w in (weights, algorithm.tree_state())
+        ]
+        policy, tree = (future.result() for future in scored)
+        kept = tree_wins(policy.get("returns", []), tree.get("returns", []), z=c.z)
+        if kept:
+            algorithm.keep_tree()
+            self.publish()
+        s.selection = {"policy": policy["mean"], "tree": tree["mean"], "tree_kept": float(kept)}
+        self.logger.log(
+            {f"select/{k}": v for k, v in s.selection.items()},
+            env_steps=s.env_steps,
+            updates=s.updates,
+        )
 
     def _next_batch(self, stream: SampleStream) -> Columns:
         """Waits for a batch, asking the watchdog every few seconds whether the actors

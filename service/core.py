@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
-from typing import TYPE_CHECKING, Any, Optional, Protocol, TypedDict
+from typing import TYPE_CHECKING, Any, NotRequired, Optional, Protocol, TypedDict
 
 import numpy as np
 
@@ -225,6 +225,7 @@ class Evaluation(TypedDict):
     mean: float
     std: float
     stats: dict[str, float]  # what the behaviour counted while acting greedily
+    returns: NotRequired[list[float]]  # episode by episode, reset seeds seed, seed + 1, ...
 
 
 class Evaluator(Protocol):

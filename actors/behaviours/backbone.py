@@ -16,9 +16,10 @@ from typing import Optional
 import numpy as np
 
 from actors.behaviours.gaussian import box_column
+from actors.behaviours.switching import check_margin, split_weights, switch_mask
 from actors.hardcoded import HardCodedPolicy
 from actors.policies import gaussian_log_prob
-from actors.policy_net import ActingNet
+from actors.policy_net import ActingNet, TwinQ
 from service.core import Columns, ColumnSpec, WeightArrays
 
 
@@ -69,6 +70,8 @@ class BackboneBehaviour:
         high: np.ndarray,
         observe_backbone: bool = False,
         gate: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+        critic: Optional[TwinQ] = None,
+        switch_margin: Optional[float] = None,
     ) -> None:
         """Initialises the behaviour.
 
@@ -84,7 +87,20 @@ class BackboneBehaviour:
             gate: Where it returns False ([B] bool from the observation) the greedy
                 policy drops the correction and acts μ(s) alone (e.g. the tree's recovery
                 when progress stalls). Exploration ignores it.
+            critic: The twin critic Q(s, c) (published with the weights under
+                ``critic.``), for value-based switching; needs `switch_margin`.
+            switch_margin: The greedy policy acts π's correction only where the smaller
+                twin estimate values it above the tree's (c = 0) by this fraction of
+                |Q(s, 0)| (`switch_mask`), else the tree alone. None: no switching.
+                Exploration ignores it.
         """
+        check_margin("switch_margin", switch_margin)
+        if (critic is None) != (switch_margin is None):
+            raise ValueError("value-based switching needs both a critic and a switch_margin")
+        self.critic = critic
+        self.switch_margin = switch_margin
+        self.tree_only = False
+        self._switched: list[float] = []
         self.correction = correction
         self.observe_backbone = observe_backbone
         self._next_mu: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -111,7 +127,10 @@ class BackboneBehaviour:
         return columns
 
     def load(self, weights: WeightArrays) -> None:
-        self.correction.load(weights)
+        policy, critic, self.tree_only = split_weights(weights)
+        self.correction.load(policy)
+        if self.critic is not None:
+            self.critic.load(critic)
 
     def _mu(self, obs: np.ndarray, envs: Optional[np.ndarray] = None) -> np.ndarray:
         obs = np.asarray(obs)
@@ -135,11 +154,28 @@ class BackboneBehaviour:
             obs = backbone_input(obs, mu, self.high.astype(np.float32))
         return self.correction(obs)
 
+    def _switch(self, obs: np.ndarray, mu: np.ndarray, correction: np.ndarray) -> np.ndarray:
+        """[B] bool: where the critic values π's correction above the tree's (c = 0)."""
+        assert self.critic is not None and self.switch_margin is not None
+        if self.observe_backbone:
+            obs = backbone_input(obs, mu, self.high.astype(np.float32))
+        q_tree = self.critic(obs, np.zeros_like(correction))
+        q_policy = self.critic(obs, correction)
+        use = switch_mask(q_tree, q_policy, self.switch_margin)
+        self._switched.append(float(use.mean()))
+        return use
+
     def greedy(self, obs: np.ndarray) -> np.ndarray:
         mu = np.asarray(self.backbone(obs), dtype=np.float32)
+        if self.tree_only:  # the final selection kept the tree
+            return compose_action(
+                mu, np.zeros_like(mu), limit=self.limit, low=self.low, high=self.high
+            )
         correction = self._pi(obs, mu)
         if self.gate is not None:
             correction = correction * self.gate(obs)[..., None]
+        if self.critic is not None:
+            correction = correction * self._switch(obs, mu, correction)[..., None]
         return compose_action(mu, correction, limit=self.limit, low=self.low, high=self.high)
 
     def next_columns(self, next_obs: np.ndarray, envs: Optional[np.ndarray] = None) -> Columns:
@@ -173,4 +209,7 @@ class BackboneBehaviour:
         pass  # a new episode's first s differs from the cached s': μ is ticked anew
 
     def stats(self) -> dict[str, float]:
-        return {}
+        """With switching: the share of greedy steps π acted (``switch/policy_share``)."""
+        out = {"switch/policy_share": float(np.mean(self._switched))} if self._switched else {}
+        self._switched.clear()
+        return out

@@ -11,6 +11,7 @@ from typing import Optional
 
 import numpy as np
 
+from actors.behaviours.switching import check_margin, split_weights, switch_mask
 from actors.hardcoded import HardCodedPolicy
 from actors.policy_net import ActingNet
 from service.core import Columns, ColumnSpec, WeightArrays
@@ -62,6 +63,7 @@ class EpsilonGreedyBehaviour:
         num_actors: int,
         hardcoded: Optional[HardCodedPolicy] = None,
         demo_epsilon: float = 0.1,
+        switch_margin: Optional[float] = None,
     ) -> None:
         """Initialises the behaviour.
 
@@ -75,6 +77,9 @@ class EpsilonGreedyBehaviour:
                 acts ε-greedy around μ(s) with `demo_epsilon` and every step records
                 ``backbone_action`` = μ(s).
             demo_epsilon: Probability of a uniform action instead of μ(s) in warm-up.
+            switch_margin: With `hardcoded`, the greedy policy acts argmax_a Q(s, a) only
+                where Q values it above μ(s) by this fraction of |Q(s, μ(s))|
+                (`switch_mask`), else μ(s). None: plain argmax. Exploration ignores it.
 
         Raises:
             ValueError: If `hardcoded` is given with `demo_epsilon` outside (0, 1].
@@ -84,7 +89,13 @@ class EpsilonGreedyBehaviour:
                 f"demo_epsilon={demo_epsilon} must lie in (0, 1] around a hard-coded policy: "
                 "its deterministic actions alone would give other actions probability 0"
             )
+        check_margin("switch_margin", switch_margin)
+        if switch_margin is not None and hardcoded is None:
+            raise ValueError("switch_margin compares with μ's action: it needs a hard-coded policy")
         self.hardcoded, self.demo_epsilon = hardcoded, demo_epsilon
+        self.switch_margin = switch_margin
+        self.tree_only = False
+        self._switched: list[float] = []
         self.q_network = q_network
         self.start, self.end, self.decay = epsilon_start, epsilon_end, decay_env_steps
         self.num_actors = num_actors
@@ -104,13 +115,25 @@ class EpsilonGreedyBehaviour:
         return {**columns, "log_prob": {"dtype": "float32", "shape": []}}
 
     def load(self, weights: WeightArrays) -> None:
-        self.q_network.load(weights)
+        policy, _, self.tree_only = split_weights(weights)
+        self.q_network.load(policy)
 
     def _q(self, obs: np.ndarray) -> np.ndarray:
         return self.q_network(obs)
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
-        return self._q(obs).argmax(axis=1)
+        if self.hardcoded is None or (self.switch_margin is None and not self.tree_only):
+            return self._q(obs).argmax(axis=1)
+        mu = np.asarray(self.hardcoded(obs), dtype=np.int64).reshape(len(obs))
+        if self.tree_only:  # the final selection kept the tree
+            return mu
+        q = self._q(obs)
+        best = q.argmax(axis=1)
+        rows = np.arange(len(obs))
+        assert self.switch_margin is not None
+        use = switch_mask(q[rows, mu], q[rows, best], self.switch_margin)
+        self._switched.append(float(use.mean()))
+        return np.where(use, best, mu)
 
     def act(
         self,
@@ -143,5 +166,8 @@ class EpsilonGreedyBehaviour:
 
     def stats(self) -> dict[str, float]:
         out = {"charts/epsilon": float(np.mean(self._epsilons))} if self._epsilons else {}
+        if self._switched:  # greedy steps Q's action was taken (with switching)
+            out["switch/policy_share"] = float(np.mean(self._switched))
         self._epsilons.clear()
+        self._switched.clear()
         return out

@@ -10,6 +10,7 @@ import torch
 
 from actors.behaviours.backbone import BackboneBehaviour
 from actors.hardcoded import HardCodedPolicy, required_policy
+from actors.policy_net import TwinQ
 from learner.agent import Phase
 from learner.backbone.config import BackboneConfig
 from learner.backbone.learning import ObservingBackboneLearner, TeacherBackboneLearner
@@ -17,7 +18,8 @@ from learner.backbone.networks import load_teacher, zero_output_
 from learner.device import CPU, CompileMode
 from learner.td3.builder import TD3Builder, make_actor_network
 from learner.td3.learning import TD3Learner
-from learner.td3.networks import acting_copy
+from learner.td3.networks import TwinCritic, acting_copy
+from service.core import as_arrays
 
 
 class BackboneBuilder:
@@ -84,6 +86,7 @@ class BackboneBuilder:
                 device=device,
                 compile=compile,
                 correction_penalty=self.config.correction_penalty,
+                publish_critic=self.config.switch_margin is not None,
             )
         else:
             learner = TD3Learner(
@@ -111,6 +114,11 @@ class BackboneBuilder:
         t = self.td3
         in_dim = t.obs_dim + (t.act_dim if self.config.observe_backbone else 0)
         correction = make_actor_network(in_dim, t.act_dim, -self.bound, self.bound, t.config)
+        switching = self.config.switch_margin is not None
+        critic = None
+        if switching:  # the behaviour's copy of the critic, in numpy as actors run it
+            twin = TwinCritic(in_dim, t.act_dim, t.config.hidden_sizes)
+            critic = TwinQ(as_arrays(twin.state_dict()))
         return BackboneBehaviour(
             acting_copy(correction),
             self._backbone(),
@@ -120,4 +128,6 @@ class BackboneBuilder:
             low=t.low,
             high=t.high,
             observe_backbone=self.config.observe_backbone,
+            critic=critic,
+            switch_margin=self.config.switch_margin,
         )

@@ -27,6 +27,12 @@ class BackboneConfig:
     critic's gain outweighs it (TD3+BC's normalisation, Fujimoto & Gu 2021, with the
     backbone as the behaviour). 0: TD3's actor loss. Needs observe_backbone."""
 
+    switch_margin: Optional[float] = None
+    """Value-based switching: the greedy policy acts μ(s) + π(s) only where
+    min(Q1, Q2)(s, π(s)) > min(Q1, Q2)(s, 0) + margin · |min(Q1, Q2)(s, 0)|, else the tree
+    μ(s) alone (`actors.behaviours.switching`). None: no switching. Needs observe_backbone
+    (the critic values a correction next to μ(s))."""
+
     def __post_init__(self) -> None:
         if not self.correction_limit > 0.0:
             raise ValueError(
@@ -41,6 +47,16 @@ class BackboneConfig:
             raise ValueError(
                 f"correction_penalty={self.correction_penalty} needs observe_backbone=True "
                 "(the residual learner); set backbone.observe_backbone: true"
+            )
+        if self.switch_margin is not None and not self.switch_margin >= 0.0:
+            raise ValueError(
+                f"switch_margin={self.switch_margin} must be >= 0 (a fraction of "
+                "|Q(s, μ(s))| the correction must gain), or null for no switching"
+            )
+        if self.switch_margin is not None and not self.observe_backbone:
+            raise ValueError(
+                f"switch_margin={self.switch_margin} needs observe_backbone=True (the residual "
+                "learner's critic); set backbone.observe_backbone: true"
             )
         if self.observe_backbone and self.teacher:
             raise ValueError(

@@ -9,13 +9,16 @@ its prediction is Q̂(s, μ̂(s)) + Q_θ(s, c) and its target is eq. (11).
 from __future__ import annotations
 
 import copy
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from actors.behaviours.switching import CRITIC_PREFIX
 from learner.backbone.networks import backbone_input
 from learner.device import CPU, CompileMode, compile_networks
+from learner.selection import with_tree_only
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner, td3_target
 from learner.td3.networks import Actor, TwinCritic
@@ -91,9 +94,12 @@ class ObservingBackboneLearner(TD3Learner):
         device: torch.device = CPU,
         compile: CompileMode = "off",
         correction_penalty: float = 0.0,
+        publish_critic: bool = False,
     ) -> None:
         """`bound` is L per action dimension; `scale` the half-width of the action box;
-        `correction_penalty` β of `conservative_actor_loss` (0: TD3's actor loss)."""
+        `correction_penalty` β of `conservative_actor_loss` (0: TD3's actor loss);
+        `publish_critic`: the published weights carry the critic too (value-based
+        switching in the behaviour)."""
         act_dim = bound.shape[0]
         super().__init__(
             obs_dim + act_dim,
@@ -108,6 +114,33 @@ class ObservingBackboneLearner(TD3Learner):
         self._scale = torch.as_tensor(scale, dtype=torch.float32, device=self.device)
         self._bound = torch.as_tensor(bound, dtype=torch.float32, device=self.device)
         self._penalty = correction_penalty
+        self._publish_critic = publish_critic
+        self.tree_only = False
+        """Set by the final selection (`keep_tree`): the greedy policy is the tree alone."""
+
+    def policy_state(self) -> dict[str, torch.Tensor]:
+        """π's weights, the critic's (``critic.``-prefixed) when publishing it, and the
+        tree-only flag."""
+        state = super().policy_state()
+        if self._publish_critic:
+            for k, v in self.critic.state_dict().items():
+                state[CRITIC_PREFIX + k] = v.detach().to("cpu", copy=True)
+        return with_tree_only(state, self.tree_only)
+
+    def tree_state(self) -> dict[str, torch.Tensor]:
+        """Published weights under which the greedy policy is the tree alone."""
+        return with_tree_only(self.policy_state(), True)
+
+    def keep_tree(self) -> None:
+        """From now on the greedy policy (published and checkpointed) is the tree alone."""
+        self.tree_only = True
+
+    def state_dict(self) -> dict[str, Any]:
+        return {**super().state_dict(), "tree_only": self.tree_only}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        self.tree_only = bool(state.get("tree_only", False))
 
     def _actor_loss(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         if self._penalty == 0.0:

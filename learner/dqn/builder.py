@@ -90,4 +90,5 @@ class DQNBuilder:
             num_actors=num_actors,
             hardcoded=self.hardcoded,
             demo_epsilon=c.demo_epsilon,
+            switch_margin=c.switch_margin,
         )

@@ -53,6 +53,14 @@ class DQNConfig:
     """With warmup: hardcoded, the burn-in updates add DQfD's large-margin loss
     max_a [Q(s, a) + margin·1(a ≠ μ(s))] − Q(s, μ(s)), so that Q ranks μ's action first
     (Hester et al. 2018, eq. 2; 0 disables it)."""
+    margin_after_burn_in: bool = False
+    """Keep the large-margin loss after the burn-in, its weight decaying linearly from 1 to
+    0 at the run's last update (`margin_weight`), so that Q leaves μ's ranking only as
+    fast as the TD error pulls it away; False: the burn-in only."""
+    switch_margin: Optional[float] = None
+    """Value-based switching (warmup: hardcoded): the greedy policy acts argmax_a Q(s, a)
+    only where Q(s, a) > Q(s, μ(s)) + margin · |Q(s, μ(s))|, else μ(s)
+    (`actors.behaviours.switching`). None: plain argmax."""
 
     def __post_init__(self) -> None:
         """Refuses settings that cannot train, naming the field."""
@@ -92,5 +100,17 @@ class DQNConfig:
             raise ValueError(f"burn_in_updates={self.burn_in_updates} must be >= 0 (0: none)")
         if self.margin < 0.0:
             raise ValueError(f"margin={self.margin} must be >= 0 (0 disables the margin loss)")
+        if self.switch_margin is not None and not self.switch_margin >= 0.0:
+            raise ValueError(
+                f"switch_margin={self.switch_margin} must be >= 0 (a fraction of "
+                "|Q(s, μ(s))| the greedy action must gain), or null for no switching"
+            )
+        if (self.switch_margin is not None or self.margin_after_burn_in) and (
+            self.warmup != "hardcoded"
+        ):
+            raise ValueError(
+                "dqn.switch_margin and dqn.margin_after_burn_in compare with the hard-coded "
+                f"policy's action: they need dqn.warmup: hardcoded (got {self.warmup!r})"
+            )
         if self.epsilon_decay_env_steps < 1:
             raise ValueError(f"epsilon_decay_env_steps={self.epsilon_decay_env_steps} must be >= 1")

@@ -13,6 +13,7 @@ from torch import nn
 from learner.device import CPU, CompileMode, adam, compile_networks
 from learner.dqn.config import DQNConfig
 from learner.dqn.networks import make_q_network
+from learner.selection import with_tree_only
 from learner.td3.learning import soft_update
 
 
@@ -89,11 +90,23 @@ def linear_decay(start: float, end: float, *, step: int, steps: int) -> float:
     return end if step >= steps else start + (end - start) * step / steps
 
 
+def margin_weight(update: int, *, burn_in: int, total: int, after_burn_in: bool) -> float:
+    """The large-margin loss's weight at update `update` (counted from 0): 1 in the
+    burn-in; after it 0, or with `after_burn_in` 1 − (update − burn_in) / (total − burn_in),
+    down to 0 at the run's last update."""
+    if update < burn_in:
+        return 1.0
+    if not after_burn_in or update >= total:
+        return 0.0
+    return linear_decay(1.0, 0.0, step=update - burn_in, steps=total - burn_in)
+
+
 class DQNLearner:
     """Online and target Q networks, Adam; the target moves every `target_update_every`.
 
     With `config.warmup` = hardcoded, the first `config.burn_in_updates` updates (drawn from
-    the demonstrations alone) add `large_margin_loss` towards the recorded μ(s).
+    the demonstrations alone) add `large_margin_loss` towards the recorded μ(s); with
+    `config.margin_after_burn_in` the later ones too, weighted by `margin_weight`.
 
     With `config.learning_rate_end` set, update u (counted from 0) steps at
     lr(u) = linear_decay(learning_rate, learning_rate_end, step=u, steps=total_updates):
@@ -136,7 +149,20 @@ class DQNLearner:
         self._total_updates = total_updates
         self._margin_updates = config.burn_in_updates if config.warmup == "hardcoded" else 0
         self._margin = config.margin
+        self._margin_after = config.margin_after_burn_in and config.warmup == "hardcoded"
+        if self._margin_after and total_updates is None:
+            raise ValueError("margin_after_burn_in decays over the run: pass total_updates")
         self.num_updates = 0
+        self.tree_only = False
+        """Set by the final selection (`keep_tree`): the greedy policy is μ alone."""
+
+    def _margin_weight(self) -> float:
+        return margin_weight(
+            self.num_updates,
+            burn_in=self._margin_updates,
+            total=self._total_updates or 0,
+            after_burn_in=self._margin_after,
+        )
 
     @property
     def learning_rate(self) -> float:
@@ -159,7 +185,7 @@ class DQNLearner:
         """
         batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
         expert = None
-        if self.num_updates < self._margin_updates and self._margin > 0.0:
+        if self._margin > 0.0 and self._margin_weight() > 0.0:
             expert = batch["backbone_action"]
         if batch["reward"].dim() == 1:
             # Truncation is not termination: only a terminal s' stops the bootstrap.
@@ -201,7 +227,7 @@ class DQNLearner:
         margin_loss = None
         if expert_action is not None:
             margin_loss = large_margin_loss(q_all, expert_action, self._margin)
-            loss = loss + margin_loss
+            loss = loss + self._margin_weight() * margin_loss
         scalars = [loss.detach(), q.detach().mean()]
         if margin_loss is not None:
             scalars.append(margin_loss.detach())
@@ -223,8 +249,18 @@ class DQNLearner:
         return metrics
 
     def policy_state(self) -> dict[str, torch.Tensor]:
-        """The Q network's weights as detached CPU copies, for broadcasting to actors."""
-        return {k: v.detach().to("cpu", copy=True) for k, v in self.q.state_dict().items()}
+        """The Q network's weights as detached CPU copies, for broadcasting to actors, and
+        the tree-only flag."""
+        weights = {k: v.detach().to("cpu", copy=True) for k, v in self.q.state_dict().items()}
+        return with_tree_only(weights, self.tree_only)
+
+    def tree_state(self) -> dict[str, torch.Tensor]:
+        """Published weights under which the greedy policy is μ alone."""
+        return with_tree_only(self.policy_state(), True)
+
+    def keep_tree(self) -> None:
+        """From now on the greedy policy (published and checkpointed) is μ alone."""
+        self.tree_only = True
 
     def state_dict(self) -> dict[str, Any]:
         return {
@@ -232,6 +268,7 @@ class DQNLearner:
             "target_q": self.target_q.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "num_updates": self.num_updates,
+            "tree_only": self.tree_only,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -239,3 +276,4 @@ class DQNLearner:
         self.target_q.load_state_dict(state["target_q"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.num_updates = int(state["num_updates"])
+        self.tree_only = bool(state.get("tree_only", False))

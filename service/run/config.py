@@ -18,6 +18,7 @@ from learner.backbone.config import BackboneConfig
 from learner.dqn.config import DQNConfig
 from learner.options.config import OptionsConfig
 from learner.pretrain.config import PretrainConfig
+from learner.selection import SelectionConfig
 from learner.td3.config import TD3Config
 from service.run.placement import ActorPlacement, LearnerPlacement, ReplaySettings
 from service.run.recipe import with_default_recipe
@@ -30,6 +31,7 @@ SECTIONS = {
     "backbone": BackboneConfig,
     "pretrain": PretrainConfig,
     "options": OptionsConfig,
+    "selection": SelectionConfig,
     "actors": ActorPlacement,
     "evaluator": ActorPlacement,
     "learner": LearnerPlacement,
@@ -124,6 +126,8 @@ class TrainConfig:
     """Demonstrations and pre-training losses (pretrain_td3)."""
     options: OptionsConfig = field(default_factory=OptionsConfig)
     """Option length, Retrace λ and the changes past the paper (options)."""
+    selection: SelectionConfig = field(default_factory=SelectionConfig)
+    """The final selection between the learned policy and the tree (the default recipe)."""
     actors: ActorPlacement = field(default_factory=ActorPlacement)
     """What each env actor reserves, where it may run, how often it is restarted."""
     evaluator: ActorPlacement = field(default_factory=ActorPlacement)
@@ -167,6 +171,14 @@ class TrainConfig:
                 f"dqn.warmup=hardcoded is for algorithm ddqn (demonstrations of the hard-coded "
                 f"policy), not {self.algorithm}: pretrain_td3 is its continuous-action "
                 "counterpart"
+            )
+        tree_methods = (self.algorithm == "backbone_td3" and self.backbone.observe_backbone) or (
+            self.algorithm == "ddqn" and self.dqn.warmup == "hardcoded"
+        )
+        if self.selection.episodes and not tree_methods:
+            raise ValueError(
+                f"selection.episodes={self.selection.episodes} falls back to the tree: it needs "
+                "backbone_td3 with backbone.observe_backbone, or ddqn with dqn.warmup: hardcoded"
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")

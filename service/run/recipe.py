@@ -24,7 +24,7 @@ from actors.task import EnvSpec
 from service.run.validation import ConfigError
 
 RECIPES = resources.files("service.run") / "recipes"
-SECTIONS = ("td3", "dqn", "backbone", "pretrain", "options")
+SECTIONS = ("td3", "dqn", "backbone", "pretrain", "options", "selection")
 """The preset sections a recipe may set (merged field by field with the preset's)."""
 PREFILL_FRACTION = 10
 """A recipe's prefill (``learning_starts``) is at most 1/PREFILL_FRACTION of the budget."""

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from actors.policy_net import PolicyNet
+from actors.policy_net import PolicyNet, TwinQ
 from learner.dqn.networks import make_q_network
-from learner.td3.networks import Actor, acting_copy
+from learner.td3.networks import Actor, TwinCritic, acting_copy
 from service.core import as_arrays
 
 LOW, HIGH = np.array([-2.0, 0.0], np.float32), np.array([2.0, 3.0], np.float32)
@@ -86,3 +86,17 @@ def test_layers_run_in_index_order_not_name_order() -> None:
     for w in layers:
         expected = expected @ w.T  # all positive: the ReLUs pass everything
     np.testing.assert_allclose(out, expected)
+
+
+def test_the_twin_critic_in_numpy_is_the_smaller_of_torchs_two_estimates() -> None:
+    torch.manual_seed(0)
+    critic = TwinCritic(4, 2, (16, 16))
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(9, 4)).astype(np.float32)
+    a = rng.normal(size=(9, 2)).astype(np.float32)
+    with torch.no_grad():
+        expected = torch.min(*critic(torch.as_tensor(x), torch.as_tensor(a))).numpy()
+    twin = TwinQ(as_arrays(critic.state_dict()))
+    np.testing.assert_allclose(twin(x, a), expected, rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="q1_net"):
+        twin.load({**as_arrays(critic.state_dict()), "extra.0.weight": np.ones((1, 1))})

@@ -68,3 +68,14 @@ def test_quick_run_of_one_task_trains_scores_and_plots(tmp_path, capsys):
     assert saved["seeds"]["pendulum"][0]["evaluations"]  # the in-run evaluations were read
     assert (tmp_path / "improve-pendulum.png").stat().st_size > 0
     assert "| pendulum | backbone_td3 |" in capsys.readouterr().out
+    # Read back: the selection applied again gives the run's own choice, on the same
+    # episodes; each acting part is scored on the final episodes.
+    run = tmp_path / "pendulum" / "s0"
+    before = json.loads((run / "summary.json").read_text())["selection"]
+    improve.main(["--task", "pendulum", "--quick", "--out", str(tmp_path), "--reselect", "--parts"])
+    after = json.loads((run / "summary.json").read_text())
+    assert after["selection"] == pytest.approx(before) and "reselected" not in after
+    out = capsys.readouterr().out
+    assert "| task | seed | tree | π everywhere | with switching | selected (final) |" in out
+    saved = json.loads((tmp_path / "improve-pendulum.json").read_text())
+    assert set(saved["seeds"]["pendulum"][0]["parts"]) == {"switching", "policy"}

@@ -266,3 +266,43 @@ def test_correction_penalty_needs_the_residual_learner():
         BackboneConfig(correction_penalty=0.5)
     with pytest.raises(ValueError, match="correction_penalty=-1.0 must be >= 0"):
         BackboneConfig(correction_penalty=-1.0, observe_backbone=True)
+
+
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        ({"switch_margin": 0.0}, "switch_margin=0.0 needs observe_backbone=True"),
+        ({"switch_margin": -0.1, "observe_backbone": True}, "switch_margin=-0.1 must be >= 0"),
+    ],
+)
+def test_switching_settings_are_refused_by_name(fields, message):
+    from learner.backbone.config import BackboneConfig
+
+    with pytest.raises(ValueError, match=message):
+        BackboneConfig(**fields)
+
+
+def test_the_switching_learner_publishes_its_critic_and_checkpoints_the_tree_only_flag():
+    from actors.behaviours.switching import TREE_ONLY, split_weights
+    from learner.backbone.learning import ObservingBackboneLearner
+    from learner.td3.config import TD3Config
+
+    def make(seed: int) -> ObservingBackboneLearner:
+        return ObservingBackboneLearner(
+            3,
+            np.array([4.0], np.float32),
+            np.array([2.0]),
+            config=TD3Config(hidden_sizes=(8,)),
+            seed=seed,
+            publish_critic=True,
+        )
+
+    learner = make(0)
+    policy, critic, tree_only = split_weights(learner.policy_state())
+    assert set(policy) == set(learner.actor.state_dict()) and not tree_only
+    assert set(critic) == set(learner.critic.state_dict())
+    assert learner.tree_state()[TREE_ONLY].item() == 1.0
+    learner.keep_tree()
+    again = make(1)
+    again.load_state_dict(learner.state_dict())
+    assert split_weights(again.policy_state())[2] is True

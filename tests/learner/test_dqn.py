@@ -15,8 +15,15 @@ from actors.behaviours.epsilon_greedy import (
     epsilon_greedy,
     linear_epsilon,
 )
+from actors.behaviours.switching import TREE_ONLY
 from learner.dqn.config import DQNConfig
-from learner.dqn.learning import DQNLearner, double_q_target, large_margin_loss, linear_decay
+from learner.dqn.learning import (
+    DQNLearner,
+    double_q_target,
+    large_margin_loss,
+    linear_decay,
+    margin_weight,
+)
 from learner.dqn.networks import make_q_network
 from learner.td3.networks import acting_copy
 from tests.learner.helpers import Table
@@ -229,11 +236,61 @@ def test_demonstrations_act_epsilon_greedily_around_the_hard_coded_policy():
         ("demo_epsilon", 0.0, "demo_epsilon=0.0 must lie in (0, 1]"),
         ("burn_in_updates", -1, "burn_in_updates=-1 must be >= 0"),
         ("margin", -0.1, "margin=-0.1 must be >= 0"),
+        ("switch_margin", -0.1, "switch_margin=-0.1 must be >= 0"),
     ],
 )
 def test_dqn_demonstration_settings_are_refused_by_name(field, value, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         DQNConfig(**{field: value})
+
+
+@pytest.mark.parametrize("field, value", [("switch_margin", 0.0), ("margin_after_burn_in", True)])
+def test_comparing_with_the_tree_needs_the_trees_demonstrations(field, value):
+    with pytest.raises(ValueError, match="need dqn.warmup: hardcoded"):
+        DQNConfig(**{field: value})
+    DQNConfig(warmup="hardcoded", **{field: value})
+
+
+@pytest.mark.parametrize(
+    "update, after, expected",
+    [
+        (0, False, 1.0),  # burn-in: 4 updates of 10
+        (3, False, 1.0),
+        (4, False, 0.0),  # cut off after it
+        (3, True, 1.0),
+        (4, True, 1.0),  # decaying: 1 − (u − 4) / 6
+        (7, True, 0.5),
+        (9, True, 1.0 / 6.0),
+        (10, True, 0.0),
+        (12, True, 0.0),
+    ],
+)
+def test_margin_weight_is_one_in_the_burn_in_then_cut_off_or_decayed(update, after, expected):
+    weight = margin_weight(update, burn_in=4, total=10, after_burn_in=after)
+    assert weight == pytest.approx(expected)
+
+
+def test_the_margin_loss_goes_on_after_the_burn_in_weighted_by_its_decay():
+    config = DQNConfig(
+        hidden_sizes=(16,), warmup="hardcoded", burn_in_updates=2, margin_after_burn_in=True
+    )
+    learner = DQNLearner(2, 2, config=config, seed=0, total_updates=6)
+    rng = np.random.default_rng(0)
+    seen = ["losses/margin" in learner.update(_demo_batch(8, rng)) for _ in range(7)]
+    # updates 0-1: burn-in; 2-5: weights 1, 3/4, 1/2, 1/4; from the run's end (6): none
+    assert seen == [True] * 6 + [False]
+    with pytest.raises(ValueError, match="pass total_updates"):
+        DQNLearner(2, 2, config=config, seed=0)
+
+
+def test_the_dqn_learner_publishes_and_checkpoints_the_tree_only_flag():
+    learner = DQNLearner(2, 2, config=DQNConfig(hidden_sizes=(4,), warmup="hardcoded"), seed=0)
+    assert TREE_ONLY not in learner.policy_state()
+    assert learner.tree_state()[TREE_ONLY].item() == 1.0
+    learner.keep_tree()
+    again = DQNLearner(2, 2, config=DQNConfig(hidden_sizes=(4,), warmup="hardcoded"), seed=1)
+    again.load_state_dict(learner.state_dict())
+    assert again.policy_state()[TREE_ONLY].item() == 1.0
 
 
 @pytest.mark.parametrize(

@@ -212,6 +212,7 @@ def train_here(
             eval_episodes=config.eval_episodes,
             checkpoint_every=config.checkpoint_every,
             keep_checkpoints=config.keep_checkpoints,
+            selection=config.selection,
         )
         bar = tqdm(
             total=sum(p.updates for p in phases),
@@ -280,6 +281,7 @@ def train_here(
         if config.replay.shards > 1:
             summary["replay_shard_inserts"] = replay.inserts()
         summary["interrupted"] = interrupted
+        summary["selection"] = final.selection or None
         summary["replay_restored"] = dataclasses.asdict(restored) if restored else None
         summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
         summary.update(hardware, learner_compile=compile_mode)

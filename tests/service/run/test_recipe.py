@@ -30,11 +30,28 @@ def test_a_tree_with_continuous_actions_gets_the_residual_recipe_scaled_to_its_b
     assert config.backbone.correction_limit == 4.0 and config.backbone.prefill_noise == 0.6
     assert config.td3.burn_in_updates > 0 and config.td3.frozen_actor_updates > 0
     assert config.learning_starts == 2000  # a tenth of the 20,000-step budget
+    # Greedy switching between π and the tree, and a final selection between them.
+    assert config.backbone.switch_margin is not None and config.selection.episodes > 0
 
 
 def test_a_tree_with_discrete_actions_gets_double_dqn_from_its_demonstrations(tmp_path):
     config = load_preset(_preset(tmp_path, CARTPOLE))
     assert (config.recipe, config.algorithm, config.dqn.warmup) == ("discrete", "ddqn", "hardcoded")
+    assert config.dqn.margin_after_burn_in and config.dqn.switch_margin is not None
+    assert config.selection.episodes > 0
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "env_id: Pendulum-v1\n",  # TD3 alone: no tree to fall back to
+        PENDULUM + "algorithm: backbone_td3\n",  # μ not observed by the learner
+        CARTPOLE + "algorithm: ddqn\n",  # no demonstrations of the tree
+    ],
+)
+def test_a_final_selection_without_a_tree_to_fall_back_to_is_refused(tmp_path, text):
+    with pytest.raises(ValueError, match=r"selection.episodes=30 falls back to the tree"):
+        load_preset(_preset(tmp_path, text + "selection: {episodes: 30}\n"))
 
 
 def test_the_presets_own_fields_and_overrides_win_over_the_recipe(tmp_path):

@@ -1,0 +1,118 @@
+"""What each acting-side part of the default recipe earns, on a trained run, for free.
+
+Value-based switching and the final selection change only how the trained networks act,
+not how they learn, so one run scores all of them on the same held-out episodes:
+
+    selected   the run's final policy as `graft eval` scores it (switching, then selection)
+    switching  the same networks with switching, the selection undone
+    policy     the same networks acting π (or argmax Q) everywhere: neither part
+
+(`bench/improve.py --parts`; the learning-side parts — the penalty, the burn-in, the decayed
+margin loss — need runs of their own: `--set` them off.)
+
+`reselect` applies the current final-selection rule to a finished run, on the very episodes
+`graft train` selects on (`bench/improve.py --reselect`, for runs trained under an older rule).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+
+import graft
+from bench.seeds import GRAFT
+
+PARTS = ("switching", "policy")
+"""The variants scored besides the final policy, in the order the table prints them."""
+
+
+def part_scores(run_dir: Path, *, episodes: int, seed: int) -> dict[str, float]:
+    """Mean returns of each variant of `run_dir`'s final networks on `episodes` episodes
+    reset from `seed` (cached in RUN/parts.json)."""
+    cache = run_dir / "parts.json"
+    key = f"{episodes}@{seed}"
+    saved = json.loads(cache.read_text()) if cache.exists() else {}
+    if key in saved:
+        return dict(saved[key])
+    from service.run.trained import load_behaviour
+
+    behaviour, config = load_behaviour(run_dir)
+    scores: dict[str, float] = {}
+    for part in PARTS:
+        behaviour.tree_only = False  # the selection undone
+        if part == "policy":  # switching off too: the backbone's critic, DQN's margin
+            if hasattr(behaviour, "critic"):
+                behaviour.critic = None
+            behaviour.switch_margin = None
+        played = graft.evaluate(
+            behaviour.greedy, env=config.env_spec(), episodes=episodes, seed=seed
+        )
+        scores[part] = played.mean
+    saved[key] = scores
+    cache.write_text(json.dumps(saved))
+    return scores
+
+
+def reselect(run_dir: Path, *, episodes: int, eval_seed: int) -> dict[str, float]:
+    """Re-runs the final selection (`learner.selection.tree_wins`) of a finished run with
+    its own settings, on the evaluator's episodes (reset seeds 10,000 + seed + i), writes the
+    choice into its last checkpoint and its summary, and when the choice changed scores the
+    final policy again as `bench.seeds.run_seed` does (`graft eval`, `episodes` from
+    `eval_seed`) into ``eval.json``.
+
+    Returns:
+        The selection record, as `graft train` writes it (``policy``, ``tree``, ``tree_kept``).
+    """
+    import torch
+
+    from actors.evaluator import play_episodes
+    from learner.checkpoint import find_checkpoint, load_checkpoint
+    from learner.selection import tree_wins
+    from service.run.trained import load_behaviour
+
+    behaviour, config = load_behaviour(run_dir)
+    n, seed = config.selection.episodes, 10_000 + config.seed
+    returns = {}
+    for name, tree_only in (("policy", False), ("tree", True)):
+        behaviour.tree_only = tree_only
+        played = play_episodes(behaviour.greedy, env=config.env_spec(), episodes=n, seed=seed)
+        returns[name] = [float(r) for r in played.returns]
+    kept = tree_wins(returns["policy"], returns["tree"], z=config.selection.z)
+    checkpoint, _ = find_checkpoint(run_dir)
+    state = load_checkpoint(checkpoint)
+    state["algorithm"]["tree_only"] = kept
+    torch.save(state, checkpoint)
+    record = {k: float(np.mean(v)) for k, v in returns.items()} | {"tree_kept": float(kept)}
+    summary = json.loads((run_dir / "summary.json").read_text())
+    before = summary.get("selection") or {}
+    if not all(math.isclose(before.get(k, math.nan), v, rel_tol=1e-9) for k, v in record.items()):
+        summary |= {"selection": record, "reselected": True}
+        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        command = [*GRAFT, "eval", "--policy", str(run_dir), "--episodes", str(episodes)]
+        command += ["--seed", str(eval_seed), "--json"]
+        out = subprocess.run(command, check=True, capture_output=True, text=True).stdout
+        saved = json.loads(out.strip().splitlines()[-1])
+        done = run_dir / "eval.json"
+        saved["wall_s"] = json.loads(done.read_text()).get("wall_s", 0.0) if done.exists() else 0.0
+        done.write_text(json.dumps(saved))
+    return record
+
+
+def parts_table(rows: dict[str, list[tuple[int, float, float, dict[str, float]]]]) -> str:
+    """Markdown: per task and seed, the tree, each variant and the final, minus the tree."""
+    lines = [
+        "| task | seed | tree | π everywhere | with switching | selected (final) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for task, seeds in rows.items():
+        for seed, tree, final, scores in seeds:
+            cells = [f"{scores[p]:.1f} ({scores[p] - tree:+.1f})" for p in reversed(PARTS)]
+            lines.append(
+                f"| {task} | {seed} | {tree:.1f} | {' | '.join(cells)} "
+                f"| {final:.1f} ({final - tree:+.1f}) |"
+            )
+    return "\n".join(lines)
