@@ -271,8 +271,4 @@ def run_episode(
         client, root, ctx, seed=seed, max_ticks=max_ticks, stop_when=stop_when,
         profile=profile, ticks_per_step=ticks_per_step, corrections=corrections,
     )  # fmt: skip
-    alive = episode.start()
-    while alive:
-        episode.act()
-        alive = episode.observe()
-    return episode.result()
+    return episode.run()

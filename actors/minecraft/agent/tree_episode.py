@@ -108,6 +108,7 @@ class TreeEpisode:
         self.travel = TravelCorrection(self.corrections.travel) if self.corrections.travel else None
         self.decided: dict[str, int] = {}
         self.last_choice = ""  # the last drop decision, for captions ("leave cobblestone")
+        self.last_choice_tick = -1
         self.reply: Optional[StepResult] = None
         self.best, self.ticks, self.steps, self.end = -1, 0, 0, "time limit"
         self.reached: dict[str, int] = {}
@@ -157,6 +158,7 @@ class TreeEpisode:
         """Chase (0) or leave (1) ``item``."""
         self.decided[item.uid] = int(action)
         self.last_choice = f"{DROP_ACTIONS[int(action)]} {item.name}"
+        self.last_choice_tick = self.ticks
         if action:
             self.ctx.memory.setdefault(SKIPPED_KEY, set()).add(item.uid)
 
@@ -181,6 +183,25 @@ class TreeEpisode:
             reply = client.step("")
         self.reply = reply
         self.steps += 1
+
+    def run(self) -> EpisodeResult:
+        """Play the episode to its end."""
+        alive = self.start()
+        while alive:
+            self.act()
+            alive = self.observe()
+        return self.result()
+
+    def correction_note(self, *, hold: int = 40) -> str:
+        """What the corrections did at the last step, in a few words (for captions): the
+        travel correction π(s) = a − μ(s) while walking, a drop decision for ``hold``
+        ticks after it was taken; "" when neither."""
+        if self.travel is not None and self.travel.last is not None:
+            d = self.travel.last
+            return f"RL walk: move {d[0]:+.2f} strafe {d[1]:+.2f} turn {d[2]:+.2f}"
+        if self.last_choice and self.ticks - self.last_choice_tick <= hold:
+            return f"RL drops: {self.last_choice}"
+        return ""
 
     def result(self) -> EpisodeResult:
         """The outcome, once ``observe`` returned False."""
