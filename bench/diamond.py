@@ -213,7 +213,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(str(error))
     seeds = list(range(args.first_seed, args.first_seed + args.worlds))
     agents = {TREE: ()} | ({CORRECTED: controllers} if controllers else {})
-    jobs = [(s, args.max_ticks, args.ticks_per_step, c) for c in agents.values() for s in seeds]
+    # World by world, the agents of one world together: pairs complete as the run goes.
+    jobs = [(s, args.max_ticks, args.ticks_per_step, c) for s in seeds for c in agents.values()]
     t0 = time.perf_counter()
     done: dict[tuple[str, int], tuple[EpisodeResult, float, LeafTimes]] = {}
     label = {c: name for name, c in agents.items()}
