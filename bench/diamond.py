@@ -8,7 +8,15 @@ obtain-diamond mission (20 in-game minutes = 24,000 ticks; the small frame, as t
 reads observations only).
 
     python bench/diamond.py [--worlds 20] [--first-seed 0] [--procs 2]
-        [--png diamond_time.png] [--max-ticks 24000]
+        [--png diamond_time.png] [--max-ticks 24000] [--ticks-per-step 1]
+        [--controller RUN_DIR ...]
+
+``--ticks-per-step k``: a slow client, deciding every k-th tick and holding its commands
+in between. ``--controller RUN_DIR`` (repeatable, one per leaf: a travel run corrects
+"Step to cell", a drops run decides "Pick up drops"; ``service.run.trained.
+load_corrections``): every world is run twice, the tree alone and the tree with the
+trained corrections, and the two are compared world by world (a sign test on the time to
+diamond, a world without one counting as the time limit).
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from actors.minecraft.agent.corrections import Corrections  # noqa: E402
 from actors.minecraft.agent.diamond_tree import EpisodeResult, run_episode  # noqa: E402
 from actors.minecraft.agent.tree_profile import (  # noqa: E402
     ACTIVITIES,
@@ -35,6 +44,8 @@ from actors.minecraft.malmo.mission_xml import obtain_diamond  # noqa: E402
 from actors.minecraft.sim.server import WorldServer  # noqa: E402
 
 TIME_LIMIT_TICKS = 24_000
+TREE, CORRECTED = "tree alone", "tree + corrections"
+_loaded: dict[tuple[str, ...], Corrections] = {}
 
 
 def _mission(seed: int) -> str:
@@ -42,24 +53,44 @@ def _mission(seed: int) -> str:
     return obtain_diamond(seed=seed, pixels=False)
 
 
+def corrections_of(runs: tuple[str, ...]) -> Corrections:
+    """The trained corrections of ``runs``, loaded once per process."""
+    if runs not in _loaded:
+        from service.run.trained import load_corrections
+
+        _loaded[runs] = load_corrections([Path(r) for r in runs])
+    return _loaded[runs]
+
+
 def run_world(
-    seed: int, max_ticks: int = TIME_LIMIT_TICKS + 5
+    seed: int,
+    max_ticks: int = TIME_LIMIT_TICKS + 5,
+    ticks_per_step: int = 1,
+    controllers: tuple[str, ...] = (),
 ) -> tuple[EpisodeResult, float, LeafTimes]:
-    """One world: a server on a free port, the tree through the client, profiled."""
+    """One world: a server on a free port, the tree (with the corrections of the
+    ``controllers`` runs) through the client, profiled."""
+    corrections = corrections_of(controllers) if controllers else None
     t0 = time.perf_counter()
     profile = TimeProfile()
     with WorldServer(port=0, seed=seed) as server:
         client = MalmoClient("127.0.0.1", server.port, synchronous=True, seed=seed)
         client.init(_mission(seed))
         try:
-            result = run_episode(client, seed=seed, max_ticks=max_ticks, profile=profile)
+            result = run_episode(
+                client, seed=seed, max_ticks=max_ticks, profile=profile,
+                ticks_per_step=ticks_per_step, corrections=corrections,
+            )  # fmt: skip
         finally:
             client.close()
     return result, time.perf_counter() - t0, profile.summary()
 
 
-def _run_world(job: tuple[int, int]) -> tuple[EpisodeResult, float, LeafTimes]:
-    return run_world(*job)
+Job = tuple[int, int, int, tuple[str, ...]]
+
+
+def _run_world(job: Job) -> tuple[Job, EpisodeResult, float, LeafTimes]:
+    return job, *run_world(*job)
 
 
 def _pct(x: float) -> str:
@@ -105,24 +136,28 @@ def _rows_table(rows: list[Row], title: str) -> str:
     return "\n".join(out)
 
 
-def plot_time(episodes: list[tuple[EpisodeResult, LeafTimes]], path: Path) -> None:
-    """A stacked bar per world: in-game seconds by activity."""
+def plot_time(agents: dict[str, list[tuple[EpisodeResult, LeafTimes]]], path: Path) -> None:
+    """A stacked bar per world: in-game seconds by activity, a panel per agent (one
+    y scale)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    xs = [str(r.seed) for r, _ in episodes]
-    bottom = [0.0] * len(episodes)
-    for a in ACTIVITIES:
-        ys = [t.by("activity").get(a, 0) / 20 for _, t in episodes]
-        ax.bar(xs, ys, bottom=bottom, label=a)
-        bottom = [b + y for b, y in zip(bottom, ys, strict=True)]
-    ax.set_xlabel("world seed")
-    ax.set_ylabel("in-game seconds")
-    ax.set_title("Obtain-diamond tree: where the in-game time goes")
-    ax.legend(ncol=len(ACTIVITIES), fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.15))
+    n = len(agents)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 1.0 + 3.5 * n), sharey=True, squeeze=False)
+    for ax, (name, episodes) in zip(axes[:, 0], agents.items(), strict=True):
+        xs = [str(r.seed) for r, _ in episodes]
+        bottom = [0.0] * len(episodes)
+        for a in ACTIVITIES:
+            ys = [t.by("activity").get(a, 0) / 20 for _, t in episodes]
+            ax.bar(xs, ys, bottom=bottom, label=a)
+            bottom = [b + y for b, y in zip(bottom, ys, strict=True)]
+        ax.set_ylabel("in-game seconds")
+        ax.set_title(f"Obtain-diamond tree: where the in-game time goes ({name})")
+    axes[-1, 0].set_xlabel("world seed")
+    axes[-1, 0].legend(ncol=len(ACTIVITIES), fontsize=8, loc="upper center",
+                       bbox_to_anchor=(0.5, -0.18))  # fmt: skip
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -131,6 +166,26 @@ def plot_time(episodes: list[tuple[EpisodeResult, LeafTimes]], path: Path) -> No
 def _clock(ticks: int) -> str:
     s = ticks // 20
     return f"{s // 60}:{s % 60:02d}"
+
+
+def outcome_table(results: list[tuple[EpisodeResult, float]]) -> str:
+    """Markdown: one row per world."""
+    lines = ["| world seed | diamond | stage reached | in-game time (m:ss) | ticks | deaths | "
+             "iron pickaxe at | drops left / decided | wall s |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r, secs in results:
+        iron = r.reached.get("iron_pickaxe")
+        lines.append(
+            f"| {r.seed} | {'yes' if r.diamond else 'no'} | {r.stage} | {_clock(r.ticks)} | "
+            f"{r.ticks} | {r.deaths} | {_clock(iron) if iron is not None else '-'} | "
+            f"{r.drops_left} / {r.drops_decided} | {secs:.0f} |"
+        )
+    got = [r for r, _ in results if r.diamond]
+    median = _clock(int(statistics.median(r.ticks for r in got))) if got else "-"
+    deaths = sum(r.deaths for r, _ in results)
+    lines += ["", f"diamonds: {len(got)}/{len(results)} worlds; deaths: {deaths}; "
+              f"median time to diamond: {median}"]  # fmt: skip
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -142,43 +197,47 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--png", type=Path, default=Path("diamond_time.png"),
                     help="where to write the time-per-world chart")  # fmt: skip
     ap.add_argument("--max-ticks", type=int, default=TIME_LIMIT_TICKS + 5,
-                    help="steps before giving up (the mission ends at 24,000 ticks)")  # fmt: skip
+                    help="game ticks before giving up (the mission ends at 24,000)")  # fmt: skip
+    ap.add_argument("--ticks-per-step", type=int, default=1,
+                    help="ticks each decision is held (a slow client; 1: every tick)")  # fmt: skip
+    ap.add_argument("--controller", action="append", default=[], metavar="RUN_DIR",
+                    help="a run correcting the leaf it trained for (repeatable)")  # fmt: skip
     args = ap.parse_args(argv)
-    if args.worlds < 1 or args.procs < 1 or args.max_ticks < 1:
-        ap.error("--worlds, --procs and --max-ticks must be at least 1")
+    if min(args.worlds, args.procs, args.max_ticks, args.ticks_per_step) < 1:
+        ap.error("--worlds, --procs, --max-ticks and --ticks-per-step must be at least 1")
+    controllers = tuple(args.controller)
+    if controllers:
+        try:
+            corrections_of(controllers)  # a wrong folder fails here, in one line
+        except (ValueError, FileNotFoundError) as error:
+            ap.error(str(error))
     seeds = list(range(args.first_seed, args.first_seed + args.worlds))
+    agents = {TREE: ()} | ({CORRECTED: controllers} if controllers else {})
+    # World by world, the agents of one world together: pairs complete as the run goes.
+    jobs = [(s, args.max_ticks, args.ticks_per_step, c) for s in seeds for c in agents.values()]
     t0 = time.perf_counter()
-    results: list[tuple[EpisodeResult, float]] = []
-    profiles: dict[int, LeafTimes] = {}
-    jobs = [(s, args.max_ticks) for s in seeds]
+    done: dict[tuple[str, int], tuple[EpisodeResult, float, LeafTimes]] = {}
+    label = {c: name for name, c in agents.items()}
     with mp.get_context("spawn").Pool(args.procs) as pool:
-        for r, secs, prof in pool.imap_unordered(_run_world, jobs, chunksize=1):
-            results.append((r, secs))
-            profiles[r.seed] = prof
-            print(f"[{len(results)}/{len(seeds)}] seed {r.seed}: {r.stage}, "
+        for job, r, secs, prof in pool.imap_unordered(_run_world, jobs, chunksize=1):
+            done[label[job[3]], r.seed] = (r, secs, prof)
+            print(f"[{len(done)}/{len(jobs)}] {label[job[3]]}, seed {r.seed}: {r.stage}, "
                   f"{r.ticks} ticks, {secs:.0f} s", file=sys.stderr, flush=True)  # fmt: skip
-    results.sort(key=lambda rs: rs[0].seed)
     wall = time.perf_counter() - t0
-    print("| world seed | diamond | stage reached | in-game time (m:ss) | ticks | deaths | "
-          "iron pickaxe at | wall s |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|")
-    for r, secs in results:
-        iron = r.reached.get("iron_pickaxe")
-        print(
-            f"| {r.seed} | {'yes' if r.diamond else 'no'} | {r.stage} | {_clock(r.ticks)} | "
-            f"{r.ticks} | {r.deaths} | {_clock(iron) if iron is not None else '-'} | "
-            f"{secs:.0f} |"
-        )
-    got = [r for r, _ in results if r.diamond]
-    print()
-    print(f"diamonds: {len(got)}/{len(results)} worlds; deaths: "
-          f"{sum(r.deaths for r, _ in results)}; median time to diamond: "
-          f"{_clock(int(statistics.median(r.ticks for r in got))) if got else '-'}; "
-          f"wall {wall:.0f} s with {args.procs} processes")  # fmt: skip
-    episodes = [(r, profiles[r.seed]) for r, _ in results]
-    print()
-    print(time_tables(episodes))
-    plot_time(episodes, args.png)
+    runs = {name: [done[name, s] for s in seeds] for name in agents}
+    for name, rows in runs.items():
+        print(f"\n### {name} (one decision every {args.ticks_per_step} ticks)\n")
+        print(outcome_table([(r, secs) for r, secs, _ in rows]))
+    print(f"\nwall {wall:.0f} s with {args.procs} processes")
+    if controllers:
+        from diamond_compare import comparison  # bench/, beside this script
+
+        print()
+        print(comparison(runs[TREE], runs[CORRECTED], limit=args.max_ticks))
+    for name, rows in runs.items():
+        print(f"\n### where the time goes: {name}\n")
+        print(time_tables([(r, prof) for r, _, prof in rows]))
+    plot_time({name: [(r, prof) for r, _, prof in rows] for name, rows in runs.items()}, args.png)
     print(f"\nwrote {args.png}")
     return 0
 

@@ -9,14 +9,18 @@ import dataclasses
 import logging
 import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
 from actors.minecraft.malmo import protocol as P
 from actors.minecraft.sim.limits import DEFAULT_LIMITS, Limits
 from actors.minecraft.sim.timing import IDEAL, JOIN_S, WAIT_S, Timing
+
+if TYPE_CHECKING:
+    from actors.minecraft.agent.corrections import Corrections
 
 
 def _timing(args: argparse.Namespace) -> Timing:
@@ -118,9 +122,21 @@ def _view_tree(args: argparse.Namespace) -> int:
     from actors.minecraft.malmo.mission_xml import obtain_diamond
     from actors.minecraft.sim.server import WorldServer
 
-    if args.every < 1 or args.steps < 1:
-        print("graft minecraft view: --every and --steps must be at least 1", file=sys.stderr)
+    if args.every < 1 or args.steps < 1 or args.ticks_per_step < 1:
+        print("graft minecraft view: --every, --steps and --ticks-per-step must be at least 1",
+              file=sys.stderr)  # fmt: skip
         return 2
+    corrections = None
+    if args.controller:
+        if args.load_corrections is None:
+            print("graft minecraft view: --controller needs graft's service (run it as "
+                  "`graft minecraft view`)", file=sys.stderr)  # fmt: skip
+            return 2
+        try:
+            corrections = args.load_corrections([Path(c) for c in args.controller])
+        except (ValueError, FileNotFoundError) as error:
+            print(f"graft minecraft view: {error}", file=sys.stderr)
+            return 2
     with WorldServer(port=0, seed=args.seed) as server:
         result, n = record_gif(
             server.port,
@@ -129,6 +145,8 @@ def _view_tree(args: argparse.Namespace) -> int:
             seed=args.seed,
             max_ticks=args.steps,
             every=args.every,
+            ticks_per_step=args.ticks_per_step,
+            corrections=corrections,
         )
     print(f"wrote {args.gif}: {n} frames; {result.stage} reached at tick {result.ticks}")
     return 0
@@ -145,10 +163,15 @@ def _tree(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_minecraft_commands(subparsers: argparse._SubParsersAction) -> None:
+def add_minecraft_commands(
+    subparsers: argparse._SubParsersAction,
+    load_corrections: Optional[Callable[[list[Path]], Corrections]] = None,
+) -> None:
     """Register ``minecraft serve``, ``view`` and ``tree`` on a subparsers object.
 
-    Each leaf parser sets ``func`` (``args.func(args) -> int``).
+    Each leaf parser sets ``func`` (``args.func(args) -> int``). ``load_corrections``
+    (trained run folders -> the corrections they make; given by graft's CLI, which may
+    load runs) serves ``view --controller``.
     """
     mc = subparsers.add_parser("minecraft", help="simulated Minecraft (MalmoEnv) worlds")
     sub = mc.add_subparsers(dest="minecraft_command", required=True)
@@ -225,7 +248,14 @@ def add_minecraft_commands(subparsers: argparse._SubParsersAction) -> None:
         "--gif", default="", help="run the obtain-diamond tree instead and write this GIF"
     )
     view.add_argument("--every", type=int, default=10, help="GIF: one frame every N steps")
-    view.set_defaults(func=_view)
+    view.add_argument(
+        "--ticks-per-step", type=int, default=1, help="GIF: ticks each decision is held"
+    )
+    view.add_argument(
+        "--controller", action="append", default=[], metavar="RUN_DIR",
+        help="GIF: a trained run correcting the leaf it trained for (repeatable)",
+    )  # fmt: skip
+    view.set_defaults(func=_view, load_corrections=load_corrections)
     tree = sub.add_parser("tree", help="print the obtain-diamond behaviour tree, save a PNG")
     tree.add_argument("--png", default="diamond_tree.png", help="PNG path ('' for none)")
     tree.set_defaults(func=_tree)

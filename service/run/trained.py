@@ -50,3 +50,45 @@ def load_behaviour(path: Path) -> tuple[Any, TrainConfig]:
     behaviour.load(as_arrays(learner.policy_state()))
     torch.set_num_threads(1)  # one episode at a time; leave the other core to the env
     return behaviour, config
+
+
+CORRECTED_LEAVES = {
+    "actors.minecraft.agent.travel_env:MinecraftTravel-v0": "travel",
+    "actors.minecraft.agent.drop_env:MinecraftDrops-v0": "drops",
+}
+"""The obtain-diamond tree's leaves a run can correct, by the environment it trained on."""
+
+
+def load_corrections(runs: list[Path]) -> Any:
+    """The greedy policies of trained runs, each at the tree's leaf its task trains
+    (``actors.minecraft.agent.corrections.Corrections``): a travel run corrects "Step to
+    cell", a drops run decides "Pick up drops".
+
+    Raises:
+        ValueError: a run of another task, or two runs for one leaf.
+        FileNotFoundError: no such run folder or checkpoint.
+    """
+    from actors.minecraft.agent.corrections import Corrections
+
+    found: dict[str, Any] = {}
+    for run in runs:
+        behaviour, config = load_behaviour(Path(run))
+        leaf = CORRECTED_LEAVES.get(config.env_id)
+        if leaf is None:
+            raise ValueError(
+                f"{run} trained {config.env_id}, which corrects no leaf of the diamond tree; "
+                f"runs of {sorted(CORRECTED_LEAVES)} do"
+            )
+        if leaf in found:
+            raise ValueError(f"{run}: a second run for the {leaf} leaf")
+        found[leaf] = _one_at_a_time(behaviour.greedy)
+    return Corrections(**found)
+
+
+def _one_at_a_time(batched: Any) -> Any:
+    import numpy as np
+
+    def policy(obs: Any) -> Any:
+        return np.asarray(batched(np.asarray(obs, np.float32)[None]))[0]
+
+    return policy

@@ -23,13 +23,13 @@ chosen from it directly, and no block touching a liquid is ever broken.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Optional
 
 import py_trees
 from py_trees.behaviour import Behaviour
 from py_trees.composites import Selector, Sequence
 
+from actors.minecraft.agent.corrections import DROP_ITEMS, Corrections
 from actors.minecraft.agent.leaves import conditions as C
 from actors.minecraft.agent.leaves.context import CONTEXT_KEY, Context, new_namespace
 from actors.minecraft.agent.leaves.goals import (
@@ -40,20 +40,15 @@ from actors.minecraft.agent.leaves.goals import (
     MineTarget,
 )
 from actors.minecraft.agent.leaves.items import Craft
-from actors.minecraft.agent.leaves.percept import Percept, parse
+from actors.minecraft.agent.leaves.percept import Percept
 from actors.minecraft.agent.leaves.survival import Eat, EscapeLiquid
 from actors.minecraft.agent.leaves.travel import travel_subtree
+from actors.minecraft.agent.tree_episode import EpisodeResult, TreeEpisode
 from actors.minecraft.agent.tree_profile import TimeProfile
 from actors.minecraft.malmo.client import MalmoClient
 
 MINING_Y = 12  # feet height for the diamond search: sees y 5..19 in the grid, above lava
-WANTED = (
-    "log", "cobblestone", "iron_ore", "diamond", "coal", "apple", "porkchop", "beef",
-)  # fmt: skip
-MILESTONES = (
-    "log", "planks", "stick", "crafting_table", "wooden_pickaxe", "cobblestone",
-    "stone_pickaxe", "iron_ore", "furnace", "iron_ingot", "iron_pickaxe", "diamond",
-)  # fmt: skip
+WANTED = DROP_ITEMS
 BETTER = {
     "wooden_pickaxe": ("stone_pickaxe", "iron_pickaxe"),
     "stone_pickaxe": ("iron_pickaxe",),
@@ -242,31 +237,6 @@ def build_tree(
     return _Builder(ns, seed).root(goal), ctx
 
 
-@dataclass
-class EpisodeResult:
-    """One run of the tree in one world.
-
-    Attributes:
-        seed: world seed.
-        diamond: a diamond was obtained.
-        stage: the furthest milestone item ever held.
-        ticks: game ticks used (20 per second).
-        deaths: 1 if the agent died (death ends a Malmo mission).
-        end: why the episode ended.
-        stuck: times the agent was jammed in one cell while travelling.
-        reached: milestone -> tick it was first held.
-    """
-
-    seed: int
-    diamond: bool
-    stage: str
-    ticks: int
-    deaths: int
-    end: str
-    stuck: int = 0
-    reached: dict[str, int] = field(default_factory=dict)
-
-
 def run_episode(
     client: MalmoClient,
     *,
@@ -276,68 +246,29 @@ def run_episode(
     goal: str = "diamond",
     stop_when: Optional[Callable[[Percept], bool]] = None,
     profile: Optional[TimeProfile] = None,
+    ticks_per_step: int = 1,
+    corrections: Optional[Corrections] = None,
 ) -> EpisodeResult:
     """Run the tree in the client's (already initialised) mission until it ends.
 
-    Each tick: step with the commands the tree wrote, parse the observation into the
-    context, tick the tree. Nothing but MalmoEnv steps reaches the world.
+    Each step: parse the observation into the context, tick the tree, send the commands
+    it wrote (``tree_episode.TreeEpisode``). Nothing but MalmoEnv steps reaches the world.
 
     Args:
         client: a client with the mission set (``init``); reset here.
         seed: the world seed (for the record and the exploration headings).
-        max_ticks: steps before giving up (the mission's own time limit ends it too).
+        max_ticks: game ticks before giving up (the mission's own time limit ends it too).
         namespace: blackboard namespace.
         goal: see ``build_tree``.
         stop_when: end early when this returns True for a percept.
         profile: charged each tick with the leaf that was running when the action was
             sent (``tree.tip()`` after the tick); its ticks sum to the result's.
+        ticks_per_step: ticks each decision is held (a slow client; 1: every tick).
+        corrections: learned corrections at the leaves they were trained for.
     """
     root, ctx = build_tree(namespace=namespace, seed=seed, goal=goal)
-    tree = py_trees.trees.BehaviourTree(root)
-    client.reset()
-    reply = client.step("")
-    best = -1
-    reached: dict[str, int] = {}
-    end = "time limit"
-    ticks = 0
-    for _ in range(max_ticks):
-        ctx.percept = parse(reply.info)
-        ticks = ctx.percept.tick
-        if profile is not None:
-            profile.observed(ctx.percept)
-        for i, m in enumerate(MILESTONES):
-            if m not in reached and ctx.percept.count(m):
-                reached[m] = ticks
-                best = max(best, i)
-        if reply.done:
-            end = "done"
-            break
-        if stop_when is not None and stop_when(ctx.percept):
-            end = "stopped"
-            break
-        ctx.commands.still()
-        ctx.commands.once = []
-        tree.tick()
-        if profile is not None:
-            profile.acted(tree.tip(), ctx)
-        reply = client.step(ctx.commands.render())
-    final = parse(reply.info) if reply.info else ctx.percept
-    got = final.count("diamond") > 0 or (reply.done and best == len(MILESTONES) - 1)
-    if reply.done and reply.info and not final.alive:
-        end = "died"
-    deaths = 1 if end == "died" or (reply.done and not got and final.life <= 0) else 0
-    for i, m in enumerate(MILESTONES):
-        if i > best and final.count(m):
-            best = i
-    if profile is not None:
-        profile.finish(max(ticks, final.tick))
-    return EpisodeResult(
-        seed=seed,
-        diamond=got or best == len(MILESTONES) - 1,
-        stage=MILESTONES[best] if best >= 0 else "none",
-        ticks=max(ticks, final.tick),
-        deaths=deaths,
-        end=end,
-        stuck=int(ctx.memory.get("stuck_total", 0)),
-        reached=reached,
-    )
+    episode = TreeEpisode(
+        client, root, ctx, seed=seed, max_ticks=max_ticks, stop_when=stop_when,
+        profile=profile, ticks_per_step=ticks_per_step, corrections=corrections,
+    )  # fmt: skip
+    return episode.run()

@@ -1,15 +1,19 @@
 """Record an episode of the obtain-diamond tree as an animated GIF: the agent's frames
-with the running leaf (its sub-tree and activity) written under each."""
+with the running leaf (its sub-tree and activity) written under each, and, with learned
+corrections in place, what they did (``TreeEpisode.correction_note``)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 from PIL import Image, ImageDraw
 
-from actors.minecraft.agent.diamond_tree import EpisodeResult, run_episode
+from actors.minecraft.agent.corrections import Corrections
+from actors.minecraft.agent.diamond_tree import build_tree
+from actors.minecraft.agent.tree_episode import EpisodeResult, TreeEpisode
 from actors.minecraft.agent.tree_profile import LeafKey, TimeProfile
 from actors.minecraft.malmo.client import MalmoClient, StepResult
 
@@ -21,7 +25,8 @@ class _RecordingClient(MalmoClient):
         super().__init__("127.0.0.1", port, synchronous=True, seed=seed)
         self.every = every
         self.profile = profile
-        self.frames: list[tuple[np.ndarray, LeafKey, int]] = []
+        self.frames: list[tuple[np.ndarray, LeafKey, int, str]] = []
+        self.note: Callable[[], str] = lambda: ""
         self._steps = 0
 
     def step(self, commands: str | Sequence[str] = "", *, with_info: bool = True) -> StepResult:
@@ -30,18 +35,23 @@ class _RecordingClient(MalmoClient):
         self._steps += 1
         if self._steps % self.every == 0 and r.frame.size:
             tick = int(r.info.get("TotalTime", 0)) if r.info else 0
-            self.frames.append((r.frame[..., :3].copy(), self.profile.current, tick))
+            frame = r.frame[..., :3].copy()
+            self.frames.append((frame, self.profile.current, tick, self.note()))
         return r
 
 
-def _caption(frame: np.ndarray, key: LeafKey, tick: int, scale: int) -> Image.Image:
+def _caption(
+    frame: np.ndarray, key: LeafKey, tick: int, note: str, scale: int, lines: int
+) -> Image.Image:
     img = Image.fromarray(frame).resize((frame.shape[1] * scale, frame.shape[0] * scale))
-    out = Image.new("RGB", (img.width, img.height + 28), (0, 0, 0))
+    out = Image.new("RGB", (img.width, img.height + 2 + 13 * lines), (0, 0, 0))
     out.paste(img, (0, 0))
     draw = ImageDraw.Draw(out)
     s = tick // 20
     draw.text((3, img.height + 2), f"{s // 60}:{s % 60:02d}  {key.activity}", fill=(255, 255, 0))
     draw.text((3, img.height + 15), f"{key.leaf} [{key.subtree}]", fill=(255, 255, 255))
+    if note:
+        draw.text((3, img.height + 28), note, fill=(0, 255, 255))
     return out
 
 
@@ -54,8 +64,11 @@ def record_gif(
     max_ticks: int,
     every: int = 10,
     scale: int = 3,
+    ticks_per_step: int = 1,
+    corrections: Optional[Corrections] = None,
 ) -> tuple[EpisodeResult, int]:
-    """Run the tree in the mission on a server at ``port`` and write the GIF.
+    """Run the tree (with ``corrections``, one decision every ``ticks_per_step`` ticks)
+    in the mission on a server at ``port`` and write the GIF.
 
     Returns:
         The episode's result and the number of frames written.
@@ -63,11 +76,18 @@ def record_gif(
     profile = TimeProfile()
     client = _RecordingClient(port, seed=seed, every=every, profile=profile)
     client.init(mission)
+    root, ctx = build_tree(seed=seed)
+    episode = TreeEpisode(
+        client, root, ctx, seed=seed, max_ticks=max_ticks, profile=profile,
+        ticks_per_step=ticks_per_step, corrections=corrections,
+    )  # fmt: skip
+    client.note = episode.correction_note
     try:
-        result = run_episode(client, seed=seed, max_ticks=max_ticks, profile=profile)
+        result = episode.run()
     finally:
         client.close()
-    images = [_caption(f, k, t, scale) for f, k, t in client.frames]
+    lines = 3 if corrections else 2
+    images = [_caption(f, k, t, n, scale, lines) for f, k, t, n in client.frames]
     if not images:
         raise RuntimeError("the episode produced no frames")
     images[0].save(path, save_all=True, append_images=images[1:], duration=100, loop=0)

@@ -41,7 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     except ImportError:  # the Minecraft simulator is optional at import time
         pass
     else:
-        add_minecraft_commands(commands)
+        from service.run.trained import load_corrections
+
+        add_minecraft_commands(commands, load_corrections)
     return parser
 
 

@@ -40,6 +40,8 @@ BUDGETS = {
         "td3.burn_in_updates": 30,
         "td3.frozen_actor_updates": 30,
     },
+    # A step is a drop decision of the whole diamond tree: a few short episodes.
+    "minecraft-drops": {"env_steps": 150, "env_kwargs.max_ticks": 300},
     "pendulum-options-residual": {
         "env_steps": 300,
         "td3.burn_in_updates": 30,

@@ -194,7 +194,9 @@ class Descend(Leaf):
 
 class ChooseDrop(Leaf):
     """SUCCESS with ``ctx.goals`` the cell of the nearest dropped item worth having
-    within 4 blocks; FAILURE when there is none (or it was chased too long)."""
+    within 4 blocks; FAILURE when there is none (or it was chased too long). Items
+    whose uid is in ``ctx.memory["skipped_drops"]`` (left by a learned correction) are
+    not chased."""
 
     def __init__(self, names: tuple[str, ...], *, namespace: str) -> None:
         """Args: names: item names to pick up; namespace: blackboard."""
@@ -206,9 +208,10 @@ class ChooseDrop(Leaf):
         ctx = self.ctx
         p, mem = ctx.percept, ctx.memory
         chased: dict = mem.setdefault("chased", {})
+        left: set = mem.get("skipped_drops", set())
         best = None
         for it in p.items:
-            if it.name not in self.names:
+            if it.name not in self.names or it.uid in left:
                 continue
             d = abs(it.x - p.x) + abs(it.y - p.y) + abs(it.z - p.z)
             first = chased.setdefault(it.uid, p.tick)

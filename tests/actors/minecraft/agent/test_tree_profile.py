@@ -148,3 +148,34 @@ def test_gif_records_frames_with_the_running_leaf(tmp_path) -> None:
     with Image.open(path) as im:
         assert 2 <= im.n_frames <= n  # Pillow merges identical neighbouring frames
         assert im.size == (16 * 3, 12 * 3 + 28)
+
+
+@pytest.mark.service  # a real world server process
+def test_gif_with_corrections_captions_what_they_did(tmp_path) -> None:
+    import numpy as np
+    from PIL import Image
+
+    from actors.minecraft.agent.corrections import Corrections
+    from actors.minecraft.agent.tree_gif import record_gif
+
+    calls: list[np.ndarray] = []
+
+    def slower(obs: np.ndarray) -> np.ndarray:  # μ(s) at 0.9 of its speed
+        calls.append(obs)
+        mu = obs[-4:]
+        return np.array([0.9 * mu[0], 0.9 * mu[1], mu[2], mu[3]])
+
+    deco = '<DrawCuboid x1="4" y1="4" z1="0" x2="4" y2="6" z2="0" type="log"/>'
+    pool = _pool()
+    try:
+        path = tmp_path / "tree.gif"
+        mission = flat_mission(decorators=deco, grid_radius=7, ms_per_tick=50, video=True)
+        result, n = record_gif(
+            pool.ports[0], mission, path, seed=3, max_ticks=60, every=10,
+            corrections=Corrections(travel=slower),
+        )  # fmt: skip
+    finally:
+        pool.stop()
+    assert n >= 5 and result.ticks > 0 and calls  # the walk to the log was corrected
+    with Image.open(path) as im:
+        assert im.size == (16 * 3, 12 * 3 + 41)  # a third caption line: the correction
