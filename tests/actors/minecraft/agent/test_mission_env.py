@@ -63,6 +63,7 @@ def test_ticks_in_info_and_the_time_limit_truncates(server: WorldServer) -> None
     env.close()
 
 
+@pytest.mark.serial  # real-time pacing: a starved world server misses its ticks
 def test_a_real_time_step_ends_at_a_new_tick_and_keeps_every_reward() -> None:
     """Frames come at 60/s and ticks at 20/s: a step landing between two ticks waits for
     the next tick's observation instead of returning the same world again, and the
