@@ -41,7 +41,13 @@ BUDGETS = {
         "td3.frozen_actor_updates": 30,
     },
     # A step is a drop decision of the whole diamond tree: a few short episodes.
-    "minecraft-drops": {"env_steps": 150, "env_kwargs.max_ticks": 300},
+    # A decision comes every few hundred ticks of the whole tree: few of them, short worlds.
+    "minecraft-drops": {
+        "env_steps": 40,
+        "learning_starts": 24,
+        "dqn.batch_size": 16,
+        "env_kwargs.max_ticks": 300,
+    },
     "pendulum-options-residual": {
         "env_steps": 300,
         "td3.burn_in_updates": 30,
@@ -73,7 +79,9 @@ def test_preset_runs_through_the_service(preset, ray_local, tmp_path):
     assert config.env_steps - config.slack_env_steps <= s["env_steps"] <= config.env_steps
     pretrain = config.pretrain.pretrain_updates if config.algorithm == "pretrain_td3" else 0
     online = config.online_env_steps
-    online_updates = int((online - 100) * config.updates_per_env_step) if online else 0
+    online_updates = (
+        int((online - config.learning_starts) * config.updates_per_env_step) if online else 0
+    )
     burn_in = config.td3.burn_in_updates
     expected_updates = pretrain + online_updates + burn_in
     assert s["updates"] == expected_updates
