@@ -30,9 +30,8 @@ from gymnasium import spaces
 from actors.minecraft.agent.corrections import DROP_ACTIONS, DROP_OBS_DIM
 from actors.minecraft.agent.diamond_tree import build_tree
 from actors.minecraft.agent.leaves.percept import ItemSeen
-from actors.minecraft.agent.travel_env import SIM_WORLD_SERVER, LocalWorldServer, load
+from actors.minecraft.agent.travel_env import SIM_WORLD_SERVER, WorldLink
 from actors.minecraft.agent.tree_episode import TreeEpisode
-from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.malmo.mission_xml import obtain_diamond
 
 ENV_ID = "actors.minecraft.agent.drop_env:MinecraftDrops-v0"
@@ -86,25 +85,11 @@ class MinecraftDropsEnv(gym.Env):
         self.action_space = spaces.Discrete(len(DROP_ACTIONS))
         self.address, self.world_seeds = address, tuple(world_seeds)
         self.max_ticks, self.k, self.tick_scale = max_ticks, ticks_per_step, tick_scale
-        self._new_server = load(world_server) if address is None else None
-        self._server: Optional[LocalWorldServer] = None
-        self._client: Optional[MalmoClient] = None
+        self._world = WorldLink(address, world_server, synchronous=True)
         self._rng = random.Random(0)
         self.episode: Optional[TreeEpisode] = None
         self._item: Optional[ItemSeen] = None
         self._alive = False
-
-    def _connect(self) -> MalmoClient:
-        if self._client is None:
-            if self._new_server is not None:
-                self._server = self._new_server(port=0)
-                host, port = "127.0.0.1", self._server.start()
-            else:
-                assert self.address is not None
-                host, _, p = self.address.rpartition(":")
-                port = int(p)
-            self._client = MalmoClient(host, port, synchronous=True, timeout=30.0)
-        return self._client
 
     def _advance(self) -> None:
         """Run the tree until a new item is in reach or the episode ends."""
@@ -130,7 +115,7 @@ class MinecraftDropsEnv(gym.Env):
         super().reset(seed=seed)
         if seed is not None:
             self._rng = random.Random(seed)
-        client = self._connect()
+        client = self._world.connect()
         while True:  # a world whose first item comes only after the end is replayed
             world = self._rng.choice(self.world_seeds)
             client.init(obtain_diamond(seed=world, pixels=False))
@@ -161,12 +146,7 @@ class MinecraftDropsEnv(gym.Env):
         return self._obs(), float(reward), terminated, truncated, info
 
     def close(self) -> None:
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-        if self._server is not None:
-            self._server.stop()
-            self._server = None
+        self._world.close()
 
 
 gym.register(id="MinecraftDrops-v0", entry_point=f"{__name__}:MinecraftDropsEnv")

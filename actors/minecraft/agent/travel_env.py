@@ -78,6 +78,41 @@ class LocalWorldServer(Protocol):
         ...
 
 
+class WorldLink:
+    """An environment's way to its world: a Malmo client to `address`, or, when that is
+    None, to a world server (`world_server`, an import string, resolved here so that a bad
+    one fails at once) it starts in-process on first use. `close` ends both."""
+
+    def __init__(self, address: Optional[str], world_server: str, *, synchronous: bool) -> None:
+        self._new_server: Optional[Callable[..., LocalWorldServer]] = (
+            load(world_server) if address is None else None
+        )
+        self.address, self.synchronous = address, synchronous
+        self._server: Optional[LocalWorldServer] = None
+        self.client: Optional[MalmoClient] = None
+
+    def connect(self) -> MalmoClient:
+        """The client, connecting (and starting the server) the first time."""
+        if self.client is None:
+            if self._new_server is not None:
+                self._server = self._new_server(port=0)
+                host, port = "127.0.0.1", self._server.start()
+            else:
+                assert self.address is not None
+                host, _, p = self.address.rpartition(":")
+                port = int(p)
+            self.client = MalmoClient(host, port, synchronous=self.synchronous, timeout=30.0)
+        return self.client
+
+    def close(self) -> None:
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+        if self._server is not None:
+            self._server.stop()
+            self._server = None
+
+
 def load(spec: str) -> Any:
     """The object an import string ``"package.module:name"`` names.
 
@@ -187,13 +222,9 @@ class MinecraftTravelEnv(gym.Env):
         self.ticks_per_step = ticks_per_step
         self.reward_fn = TravelReward(reward_config(reward))
         self.steering = TreeSteering()
-        # Resolved here, only when they will be used: a bad import string fails at once.
-        self._new_server: Optional[Callable[..., LocalWorldServer]] = (
-            load(world_server) if address is None else None
-        )
+        self._world = WorldLink(address, world_server, synchronous=not real_time)
+        # Resolved here, only when it will be used: a bad import string fails at once.
         self._terrain_of: Optional[TerrainSource] = None if missions else load(terrain)
-        self._server: Optional[LocalWorldServer] = None
-        self._client: Optional[MalmoClient] = None
         self._rng = random.Random(0)
         self._played = 0
         self.mission: Optional[TravelMission] = None
@@ -203,18 +234,6 @@ class MinecraftTravelEnv(gym.Env):
         self._ticks = 0
 
     # ------------------------------------------------------------------ plumbing
-    def _connect(self) -> MalmoClient:
-        if self._client is None:
-            if self._new_server is not None:
-                self._server = self._new_server(port=0)
-                host, port = "127.0.0.1", self._server.start()
-            else:
-                assert self.address is not None
-                host, _, p = self.address.rpartition(":")
-                port = int(p)
-            self._client = MalmoClient(host, port, synchronous=not self.real_time, timeout=30.0)
-        return self._client
-
     def _next_mission(self) -> TravelMission:
         if self.fixed is not None:
             m = self.fixed[self._played % len(self.fixed)]
@@ -250,7 +269,7 @@ class MinecraftTravelEnv(gym.Env):
         if seed is not None:
             self._rng = random.Random(seed)
             self._played = 0 if self.fixed is None else seed
-        client = self._connect()
+        client = self._world.connect()
         self.mission = self._next_mission()
         client.init(travel_mission_xml(self.mission, time_limit_ticks=self.max_ticks + 20))
         client.reset()
@@ -265,12 +284,13 @@ class MinecraftTravelEnv(gym.Env):
         return obs, {"phi": self.reward_fn.phi, "tick": p.tick}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        assert self.mission is not None and self._client is not None
-        reply = self._client.step(compose_commands(action, self._pitch))
+        client = self._world.client
+        assert self.mission is not None and client is not None
+        reply = client.step(compose_commands(action, self._pitch))
         for _ in range(self.ticks_per_step - 1):  # hold the commands, unseen frames
             if reply.done or not reply.info or self._ended(parse(reply.info)):
                 break
-            reply = self._client.step("")
+            reply = client.step("")
         prev = self._percept
         assert prev is not None
         p = parse(reply.info) if reply.info else prev
@@ -302,12 +322,7 @@ class MinecraftTravelEnv(gym.Env):
         return p.cell == self.mission.destination or not p.alive
 
     def close(self) -> None:
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-        if self._server is not None:
-            self._server.stop()
-            self._server = None
+        self._world.close()
 
 
 gym.register(id="MinecraftTravel-v0", entry_point=f"{__name__}:MinecraftTravelEnv")
