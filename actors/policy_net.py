@@ -68,14 +68,14 @@ class PolicyNet:
             if match is not None:
                 prefixes.add(match["prefix"])
                 part = layers.setdefault(int(match["index"]), {})
-                part[match["part"]] = np.asarray(value, dtype=np.float32)
+                part[match["part"]] = np.array(value, dtype=np.float32)  # its own copy
         if len(prefixes) > 1:  # e.g. a twin critic: split it into its networks first
             raise ValueError(f"weights of more than one network: {sorted(prefixes)}")
         if any(len(part) != 2 for part in layers.values()) or not layers:
             raise ValueError(f"every linear layer needs a weight and a bias: {sorted(shapes)}")
         self._layers = [(layers[i]["weight"].T, layers[i]["bias"]) for i in sorted(layers)]
         if all(k in weights for k in _SQUASH):
-            low, high = (np.asarray(weights[k], dtype=np.float32) for k in _SQUASH)
+            low, high = (np.array(weights[k], dtype=np.float32) for k in _SQUASH)
             self._squash = ((high + low) / 2, (high - low) / 2)
         elif any(k in weights for k in _SQUASH):
             raise ValueError(f"an actor needs both {_SQUASH}, got {sorted(shapes)}")

@@ -29,9 +29,10 @@ names (they act without torch: actors/policy_net.py)."""
 
 
 def as_arrays(weights: Mapping[str, Any]) -> WeightArrays:
-    """Weights (tensors on any device, or arrays) as float32 numpy arrays of their own."""
+    """Weights (tensors on any device, or arrays) as numpy arrays, without a copy where
+    they are in host memory already: whoever keeps them copies (`ray.put`, `PolicyNet`)."""
     return {
-        k: np.array(v.detach().cpu().numpy() if hasattr(v, "detach") else v, dtype=np.float32)
+        k: np.asarray(v.detach().cpu().numpy() if hasattr(v, "detach") else v)
         for k, v in weights.items()
     }
 

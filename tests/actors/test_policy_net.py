@@ -100,3 +100,15 @@ def test_the_twin_critic_in_numpy_is_the_smaller_of_torchs_two_estimates() -> No
     np.testing.assert_allclose(twin(x, a), expected, rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError, match="q1_net"):
         twin.load({**as_arrays(critic.state_dict()), "extra.0.weight": np.ones((1, 1))})
+
+
+def test_an_acting_copy_keeps_its_weights_when_the_network_trains_on() -> None:
+    torch.manual_seed(0)
+    net = Actor(3, 2, LOW, HIGH, (8,))
+    acting = acting_copy(net)
+    obs = np.ones((1, 3), np.float32)
+    before = acting(obs)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(1.0)  # the learner's in-place update
+    np.testing.assert_array_equal(acting(obs), before)
