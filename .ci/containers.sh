@@ -20,7 +20,11 @@ dockerd_pid="" policy="" no_start=""
 
 say() { echo "containers: $*" >&2; }
 
-forward_policy() { iptables -S FORWARD 2>/dev/null | awk '$1 == "-P" { print $3 }'; }
+# The FORWARD chain's policy; nothing where iptables is absent (a fresh machine has none).
+forward_policy() {
+  command -v iptables > /dev/null || return 0
+  iptables -S FORWARD 2> /dev/null | awk '$1 == "-P" { print $3 }' || true
+}
 
 put_back_forward_policy() {
   if [ -n "$policy" ] && [ "$(forward_policy)" != "$policy" ]; then
@@ -59,11 +63,12 @@ clean_up() {
   exit "$status"
 }
 trap clean_up EXIT
+trap 'say "stopped at line $LINENO (exit $?)"' ERR
 
 if ! timeout 30 "$DOCKER" info > /dev/null 2>&1; then
   # What to put back: without iptables nothing has set a policy yet (the kernel's ACCEPT).
   policy=$(forward_policy)
-  command -v iptables > /dev/null || policy=ACCEPT
+  [ -n "$policy" ] || policy=ACCEPT
   if ! command -v dockerd > /dev/null; then
     say "installing docker.io"
     timeout 300 apt-get update -q > /dev/null
