@@ -21,13 +21,14 @@ TEST_PACKAGES := $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example
 # `serial`: they run beside the parallel part, in one process, at normal priority while
 # the parallel part is niced, so they get a core when they ask for one.
 TEST_WORKERS ?= 2
+TEST_DIST ?= loadfile
 TEST_SELECT := not long and not wheel and not container
 
 # Every test: the parallel part, with the real-time part beside it (its log printed after).
 test: setup $(TEST_PACKAGES)
 	@log=$$(mktemp); \
 	$(BIN)/python -m pytest -q -p no:cacheprovider -m "serial and $(TEST_SELECT)" > $$log 2>&1 & serial=$$!; \
-	nice -n 10 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial and $(TEST_SELECT)"; parallel=$$?; \
+	nice -n 10 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist $(TEST_DIST) -m "not serial and $(TEST_SELECT)"; parallel=$$?; \
 	wait $$serial; real_time=$$?; \
 	echo "--- the real-time part (serial tests, run beside it):"; \
 	if [ $$real_time -eq 0 ]; then tail -n 1 $$log; else cat $$log; fi; rm -f $$log; \

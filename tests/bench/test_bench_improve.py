@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+import ray
 
 from bench import improve
 
@@ -59,7 +60,9 @@ def test_fewer_than_three_seeds_get_no_interval_and_no_ci_target():
 @pytest.mark.slow
 @pytest.mark.service
 @pytest.mark.timeout(600)
-def test_quick_run_of_one_task_trains_scores_and_plots(tmp_path, capsys):
+def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, capsys, monkeypatch):
+    # Its `graft train` joins the session's cluster, as on a user's (RAY_ADDRESS).
+    monkeypatch.setenv("RAY_ADDRESS", ray.get_runtime_context().gcs_address)
     (summary,) = improve.main(["--task", "pendulum", "--quick", "--out", str(tmp_path)])
     assert summary["task"] == "pendulum" and summary["algorithm"] == "backbone_td3"
     assert summary["seeds"] == 1 and np.isfinite(summary["final_mean"])

@@ -94,6 +94,7 @@ def memory_passes(metrics_port: int) -> int:
 
 
 @pytest.mark.service
+@pytest.mark.serial  # seconds of the server's own pass timer
 def test_a_server_makes_passes_after_refused_and_aborted_calls_only() -> None:
     """Ordinary inserts and samples cost no pass; a refused insert and a sample stream
     its client cancels while it waits each get theirs (counted in the metrics)."""

@@ -98,6 +98,7 @@ def test_wait_until_ready_honours_the_token():
             ReplayClient(server.address, token="wrong").wait_until_ready(timeout=30)
 
 
+@pytest.mark.serial  # a plaintext client's wait runs out
 def test_wait_until_ready_honours_tls(tmp_path):
     cert, key = self_signed_cert(tmp_path)
     with ReplayProcess(TABLE, extra_args=["--tls-cert", str(cert), "--tls-key", str(key)]) as s:

@@ -43,9 +43,9 @@ BUDGETS = {
     # A step is a drop decision of the whole diamond tree: a few short episodes.
     # A decision comes every few hundred ticks of the whole tree: few of them, short worlds.
     "minecraft-drops": {
-        "env_steps": 40,
-        "learning_starts": 24,
-        "dqn.batch_size": 16,
+        "env_steps": 16,
+        "learning_starts": 8,
+        "dqn.batch_size": 8,
         "env_kwargs.max_ticks": 300,
     },
     "pendulum-options-residual": {

@@ -31,6 +31,7 @@ def _running(pid: int) -> bool:
     return state != "Z"
 
 
+@pytest.mark.serial  # waits for the orphaned server to notice
 def test_the_replay_server_stops_when_its_parent_is_killed() -> None:
     parent = subprocess.Popen(
         [sys.executable, "-c", PARENT], cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},

@@ -162,7 +162,7 @@ def test_tune_over_replay_shards_spreads_inserts_over_every_shard(ray_local):
         overrides={**SMALL, "num_actors": 2}, costs=Costs(learner="drain", step_latency_ms=2.0),
         address="local",
     )  # fmt: skip
-    rows = [run_point(p, warmup_s=1.0, measure_s=3.0, address="local") for p in points]
+    rows = [run_point(p, warmup_s=0.5, measure_s=1.5, address="local") for p in points]
     one, two = rows
     assert "/" not in one["shard_inserted_per_s"] and one["inserted_per_s"] > 0
     per_shard = [float(v) for v in two["shard_inserted_per_s"].split(" / ")]

@@ -31,6 +31,9 @@ from actors.minecraft.sim.server import WorldServer
 from actors.minecraft.sim.timing import Timing
 from tests.actors.minecraft.conftest import init_reply
 
+# Real Malmo timing: loading, busy and ending waits (the serial lane, beside the CPU-bound tests).
+pytestmark = pytest.mark.serial
+
 MISSIONS = Path(__file__).with_name("missions")
 WALK = (MISSIONS / "walk.xml").read_text()
 NO_VIDEO = (MISSIONS / "no_video.xml").read_text()

@@ -10,11 +10,16 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.sim.server import WorldServer
 from actors.minecraft.sim.timing import IDEAL
 from actors.tick_meter import TickMeter
 from tests.actors.minecraft.conftest import flat_mission
+
+# Real timing: ticks and frames paced by the clock.
+pytestmark = pytest.mark.serial
 
 TOUCH_GRASS = (
     '<RewardForTouchingBlockType><Block type="grass" reward="1" behaviour="constant"/>'

@@ -17,6 +17,9 @@ from actors.minecraft.sim.server import WorldServer
 from actors.minecraft.sim.timing import REAL
 from tests.actors.minecraft.conftest import FAST, connect, flat_mission, mission_init
 
+# Join timeouts and abandoned missions wait in real time.
+pytestmark = pytest.mark.serial
+
 TWO_AGENTS = (
     Path(__file__).parents[1] / "compat" / "missions" / "two_agents_shared.xml"
 ).read_text()
