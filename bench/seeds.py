@@ -3,7 +3,9 @@
 Each seed is the documented pair of commands, each in its own process with its own local
 Ray instance, so up to `parallel` seeds run side by side. A seed whose `eval.json` exists
 is read back, not re-run, so an interrupted benchmark continues where it stopped; a seed
-folder without one is started afresh, so give each benchmark process its own `--out`.
+whose training ended (its summary.json, not interrupted) but was never evaluated is only
+evaluated; any other seed folder is started afresh, so give each benchmark process its own
+`--out`.
 A seed whose run fails is reported with its log and left out; the others go on.
 """
 
@@ -55,18 +57,22 @@ def run_seed(
     if done.exists():
         saved = json.loads(done.read_text())
         return SeedResult(seed, saved["mean"], saved["std"], run_dir, saved.get("wall_s", 0.0))
-    if run_dir.exists():  # an interrupted run: start it again from an empty folder
-        subprocess.run(["rm", "-rf", str(run_dir)], check=True)
-    run_dir.parent.mkdir(parents=True, exist_ok=True)
-    train = [*GRAFT, "train", "--preset", preset, "--seed", str(seed)]
-    train += ["--run-dir", str(run_dir), "--no-progress"]
-    train += [a for o in overrides for a in ("--set", o)]
-    if env_steps is not None:
-        train += ["--env-steps", str(env_steps)]
-    start = time.perf_counter()
-    with open(run_dir.parent / f"{run_dir.name}.log", "w") as log:
-        subprocess.run(train, check=True, stdout=log, stderr=subprocess.STDOUT)
-    wall_s = time.perf_counter() - start
+    trained = trained_wall_s(run_dir)
+    if trained is not None:  # trained, then stopped before its evaluation
+        wall_s = trained
+    else:
+        if run_dir.exists():  # an interrupted run: start it again from an empty folder
+            subprocess.run(["rm", "-rf", str(run_dir)], check=True)
+        run_dir.parent.mkdir(parents=True, exist_ok=True)
+        train = [*GRAFT, "train", "--preset", preset, "--seed", str(seed)]
+        train += ["--run-dir", str(run_dir), "--no-progress"]
+        train += [a for o in overrides for a in ("--set", o)]
+        if env_steps is not None:
+            train += ["--env-steps", str(env_steps)]
+        start = time.perf_counter()
+        with open(run_dir.parent / f"{run_dir.name}.log", "w") as log:
+            subprocess.run(train, check=True, stdout=log, stderr=subprocess.STDOUT)
+        wall_s = time.perf_counter() - start
     evaluate = [*GRAFT, "eval", "--policy", str(run_dir), "--episodes", str(episodes)]
     evaluate += ["--seed", str(eval_seed), "--json"]
     out = subprocess.run(evaluate, check=True, capture_output=True, text=True).stdout
@@ -74,6 +80,15 @@ def run_seed(
     saved["wall_s"] = wall_s
     done.write_text(json.dumps(saved))
     return SeedResult(seed, saved["mean"], saved["std"], run_dir, wall_s)
+
+
+def trained_wall_s(run_dir: Path) -> float | None:
+    """The training wall time of a run that ended (summary.json, not interrupted), or None."""
+    summary = run_dir / "summary.json"
+    if not summary.exists():
+        return None
+    recorded = json.loads(summary.read_text())
+    return None if recorded.get("interrupted") else float(recorded["wall_s"])
 
 
 def run_seeds(
