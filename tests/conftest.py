@@ -25,6 +25,7 @@ import ray
 import torch
 
 from service.replay.client import ReplayClient
+from service.run.orchestration.ray_session import LOCAL_STARTS, start_retrying
 from service.run.replay_host.process import ReplayProcess
 
 TESTS = Path(__file__).resolve().parent
@@ -151,7 +152,13 @@ def replay_client(replay_server) -> ReplayClient:
 
 @pytest.fixture(scope="session")
 def ray_local():
-    """One real local Ray instance for the whole test session."""
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    """One real local Ray instance for the whole test session (started again, as `graft
+    train` does, if its GCS does not answer in time on a loaded machine)."""
+    start_retrying(
+        lambda: ray.init(
+            num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False
+        ),
+        tries=LOCAL_STARTS,
+    )
     yield
     ray.shutdown()

@@ -7,8 +7,9 @@ import contextlib
 import os
 import signal
 import socket
+import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Optional
 
@@ -18,6 +19,9 @@ from service.run.validation import ConfigError
 
 HEAD_ANSWER_S = 10.0
 """How long a cluster's head at HOST:PORT has to accept a connection."""
+LOCAL_STARTS = 3
+"""Tries at starting a local Ray instance: on a loaded machine its GCS may not answer
+within the 5 s Ray's driver waits ("Failed to connect to GCS"), and a second try does."""
 
 
 def connect_ray(address: str) -> bool:
@@ -27,16 +31,35 @@ def connect_ray(address: str) -> bool:
         return False
     with _keeping_sigterm():
         if address == "local":
-            ray.init(
-                address="local",
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=False,
-            )
+            start_retrying(_start_local, tries=LOCAL_STARTS)
             return True
         _use_token_auth(address)
         ray.init(address=address, log_to_driver=False)
         return False
+
+
+def _start_local() -> None:
+    ray.init(address="local", include_dashboard=False, log_to_driver=False, configure_logging=False)
+
+
+def start_retrying(
+    start: Callable[[], None], *, tries: int, stop: Callable[[], None] = ray.shutdown
+) -> None:
+    """`start()`, again (after `stop()`, which ends what the failed start left) while it
+    fails with Ray's system error, at most `tries` times; each retry said in one line."""
+    for attempt in range(1, tries + 1):
+        try:
+            start()
+            return
+        except ray.exceptions.RaySystemError as error:
+            stop()
+            if attempt == tries:
+                raise
+            print(
+                f"local Ray did not start ({str(error).splitlines()[0][:120]}); "
+                f"starting it again ({attempt + 1} of {tries})",
+                file=sys.stderr,
+            )
 
 
 @contextlib.contextmanager
