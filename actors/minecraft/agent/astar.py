@@ -141,6 +141,17 @@ class _Node:
         else:
             self.last_destroy = parent.last_destroy if parent is not None else None
 
+    def destroyed_cells(self) -> list[int]:
+        """Flat indices of the blocks destroyed on the way to this node."""
+        out = []
+        n = self.last_destroy
+        while n is not None:
+            assert n.broken is not None
+            out.append(n.broken)
+            p = n.parent
+            n = p.last_destroy if p is not None else None
+        return out
+
     def destroyed(self, flat_index: int) -> bool:
         """Whether the block at ``flat_index`` was destroyed on the way to this node."""
         n = self.last_destroy
@@ -167,6 +178,19 @@ def _zobrist(n: int) -> list[int]:
     return np.random.default_rng(0x5EED).integers(1, 2**63, size=n, dtype=np.int64).tolist()
 
 
+def _breakable(grid: np.ndarray) -> bytes:
+    """Per cell (flat, Malmo order): 1 for a solid block no water or lava touches."""
+    liquid = np.isin(grid, (WATER, LAVA))
+    touched = liquid.copy()
+    for axis in range(3):
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[axis], hi[axis] = slice(None, -1), slice(1, None)
+        touched[tuple(hi)] |= liquid[tuple(lo)]  # the cell above / after a liquid
+        touched[tuple(lo)] |= liquid[tuple(hi)]  # the cell below / before one
+    return ((grid == SOLID) & ~touched).astype(np.uint8).reshape(-1).tobytes()
+
+
 class _Search:
     """One A* search over a fixed grid."""
 
@@ -176,8 +200,21 @@ class _Search:
             raise ValueError(f"grid must be 3-D [y, z, x], got shape {grid.shape}")
         self.ny, self.nz, self.nx = grid.shape
         self.cells = bytes(np.ascontiguousarray(grid, dtype=np.uint8).reshape(-1))
+        self._breakable = _breakable(grid)
         self.goals = goals
         self.zobrist = _zobrist(len(self.cells))
+        # h's parts: each goal with its solid own cells, and solid cell -> goals it blocks.
+        self._goal_terms: list[tuple[Cell, int]] = []
+        self._goal_solids: dict[int, list[int]] = {}
+        for k, g in enumerate(goals):
+            solid = [i for c in (g, (g[0], g[1] + 1, g[2])) if self._is_solid(i := self.index(c))]
+            self._goal_terms.append((g, len(solid)))
+            for i in solid:
+                self._goal_solids.setdefault(i, []).append(k)
+        self._h_at: dict[Cell, tuple[float, list[float]]] = {}
+
+    def _is_solid(self, i: int) -> bool:
+        return i >= 0 and self.cells[i] == SOLID
 
     # ---------------------------------------------------------------- cells
     def index(self, c: Cell) -> int:
@@ -189,9 +226,10 @@ class _Search:
 
     def cat(self, c: Cell, node: _Node) -> int:
         """Category of ``c`` in the node's state (outside the grid: hard)."""
-        i = self.index(c)
-        if i < 0:
+        x, y, z = c
+        if not (0 <= x < self.nx and 0 <= y < self.ny and 0 <= z < self.nz):
             return HARD
+        i = (y * self.nz + z) * self.nx + x
         k = self.cells[i]
         if k == SOLID and node.destroyed(i):
             return FREE
@@ -200,13 +238,7 @@ class _Search:
     def breakable(self, c: Cell) -> bool:
         """A solid block that may be destroyed: no liquid touches it."""
         i = self.index(c)
-        if i < 0 or self.cells[i] != SOLID:
-            return False
-        for dx, dy, dz in NEIGHBOURS6:
-            j = self.index((c[0] + dx, c[1] + dy, c[2] + dz))
-            if j >= 0 and self.cells[j] in (WATER, LAVA):
-                return False
-        return True
+        return i >= 0 and self._breakable[i] == 1
 
     def landing(self, c: Cell, node: _Node, below_first: int = 1) -> Optional[Cell]:
         """Where a body whose feet enter free cell ``c`` comes to rest, if safely.
@@ -297,17 +329,29 @@ class _Search:
     # ----------------------------------------------------------------- search
     def h(self, node: _Node) -> float:
         """Admissible: the move bound plus 5 per solid block in the goal's own two cells
-        (standing there needs them broken, whatever the way in)."""
-        best = math.inf
-        for g in self.goals:
-            v = heuristic(node.pos, g)
-            if v >= best:
-                continue
-            for c in (g, (g[0], g[1] + 1, g[2])):
-                if self.cat(c, node) == SOLID:
-                    v += DESTROY_COST
-            best = min(best, v)
-        return best
+        (standing there needs them broken, whatever the way in).
+
+        The bound at a position with nothing destroyed is kept per position; a node's
+        destroyed blocks change it only when one of them is a goal's own cell."""
+        at = self._h_at.get(node.pos)
+        if at is None:
+            at = self._h_at[node.pos] = self._h_intact(node.pos)
+        bound, per_goal = at
+        if node.last_destroy is None or not self._goal_solids:
+            return bound
+        opened = [i for i in node.destroyed_cells() if i in self._goal_solids]
+        if not opened:
+            return bound
+        v = list(per_goal)
+        for i in opened:
+            for k in self._goal_solids[i]:
+                v[k] -= DESTROY_COST
+        return min(v)
+
+    def _h_intact(self, pos: Cell) -> tuple[float, list[float]]:
+        """(h with nothing destroyed, each goal's term of that minimum)."""
+        v = [heuristic(pos, g) + DESTROY_COST * n for g, n in self._goal_terms]
+        return min(v), v
 
     def run(self, start: Cell, max_expansions: int) -> Plan:
         if not self.goals:

@@ -152,3 +152,42 @@ def test_state_chain_stores_one_change_per_node() -> None:
     assert east.parent.parent.parent is root
     assert east.destroyed(search.index((8, 8, 7))) and east.destroyed(search.index((8, 7, 7)))
     assert not root.destroyed(search.index((8, 7, 7)))
+
+
+def test_kept_heuristic_and_breakable_flags_match_their_definitions() -> None:
+    """The per-position cache of h and the precomputed breakable flags give what the
+    definitions give: h = min over goals of the move bound + 5 per solid goal cell not
+    destroyed on the way; breakable = solid with no water or lava among its 6 neighbours."""
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        g = rng.choice(
+            [A.FREE, A.SOLID, A.HARD, A.WATER, A.LAVA], (N, N, N), p=[0.4, 0.4, 0.1, 0.05, 0.05]
+        )
+        g = g.astype(np.uint8)
+        goals = frozenset(tuple(int(v) for v in rng.integers(-1, N + 1, 3)) for _ in range(6))
+        search = A._Search(g, goals, 4)
+        for c in np.ndindex(N, N, N):
+            liquid = any(
+                0 <= c[0] + d[0] < N and 0 <= c[1] + d[1] < N and 0 <= c[2] + d[2] < N
+                and g[c[1] + d[1], c[2] + d[2], c[0] + d[0]] in (A.WATER, A.LAVA)
+                for d in A.NEIGHBOURS6
+            )  # fmt: skip
+            assert search.breakable(c) == (g[c[1], c[2], c[0]] == A.SOLID and not liquid)
+        # Nodes that destroyed goal cells, other solid cells, or nothing.
+        goal_cells = [c for gl in goals for c in (gl, (gl[0], gl[1] + 1, gl[2]))]
+        for _ in range(50):
+            node = A._Node(None, tuple(int(v) for v in rng.integers(0, N, 3)), None, 0.0, 0)
+            for _ in range(int(rng.integers(0, 4))):
+                c = goal_cells[int(rng.integers(len(goal_cells)))] if rng.random() < 0.5 else (
+                    tuple(int(v) for v in rng.integers(0, N, 3))
+                )  # fmt: skip
+                i = search.index(c)
+                if i >= 0 and search.cat(c, node) == A.SOLID:  # as the search breaks blocks
+                    node = A._Node(node, node.pos, i, node.g + 5, 0)
+            node = A._Node(node, tuple(int(v) for v in rng.integers(0, N, 3)), None, node.g, 0)
+            expected = min(
+                A.heuristic(node.pos, gl)
+                + 5.0 * sum(search.cat(c, node) == A.SOLID for c in (gl, (gl[0], gl[1] + 1, gl[2])))
+                for gl in goals
+            )
+            assert search.h(node) == expected
