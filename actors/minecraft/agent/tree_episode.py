@@ -103,6 +103,7 @@ class TreeEpisode:
         self.tree = py_trees.trees.BehaviourTree(root)
         self.max_ticks, self.stop_when, self.profile = max_ticks, stop_when, profile
         self.k = ticks_per_step
+        ctx.commands.hold = ticks_per_step  # the leaves' controllers size commands to it
         self.corrections = corrections or Corrections()
         self.gate_drops = gate_drops or self.corrections.drops is not None
         self.travel = TravelCorrection(self.corrections.travel) if self.corrections.travel else None

@@ -30,7 +30,13 @@ def new_namespace() -> str:
 
 @dataclass
 class Commands:
-    """ContinuousMovementCommands states plus one-shot commands for one step."""
+    """ContinuousMovementCommands states plus one-shot commands for one step.
+
+    ``hold`` is how many ticks the commands stay in force (a slow client sends one step
+    every ``hold`` ticks and Malmo keeps continuous commands until the next): the
+    controllers (``control.steer``, ``control.aim``) size a turn or a walk to cover the
+    error left in that many ticks, not in one.
+    """
 
     move: float = 0.0
     strafe: float = 0.0
@@ -40,6 +46,7 @@ class Commands:
     attack: bool = False
     use: bool = False
     once: list[str] = field(default_factory=list)
+    hold: int = 1
 
     def still(self) -> None:
         """Stop moving, turning and acting."""

@@ -27,7 +27,9 @@ def steer(p: Percept, cell: Cell, cmd: Commands) -> float:
     tx, tz = cell[0] + 0.5, cell[2] + 0.5
     dx, dz = tx - p.x, tz - p.z
     dist = math.hypot(dx, dz)
-    scale = min(1.0, dist / WALK_PER_TICK) / dist if dist > 1e-6 else 0.0
+    # Full speed far off; near the centre, the speed that covers what is left in the
+    # ``cmd.hold`` ticks the command is held.
+    scale = min(1.0, dist / (WALK_PER_TICK * cmd.hold)) / dist if dist > 1e-6 else 0.0
     vx, vz = dx * scale, dz * scale
     yr = math.radians(p.yaw)
     fx, fz = -math.sin(yr), math.cos(yr)
@@ -60,9 +62,14 @@ def aim(p: Percept, point: tuple[float, float, float], cmd: Commands) -> float:
     pitch = -math.degrees(math.atan2(dy, math.hypot(dx, dz)))
     dyaw = (yaw - p.yaw + 180.0) % 360.0 - 180.0
     dpitch = pitch - p.pitch
-    cmd.turn = max(-1.0, min(1.0, dyaw / TURN_DEGS_PER_TICK))
-    cmd.pitch = max(-1.0, min(1.0, dpitch / TURN_DEGS_PER_TICK))
+    cmd.turn = turn_rate(dyaw, cmd.hold)
+    cmd.pitch = turn_rate(dpitch, cmd.hold)
     return max(abs(dyaw), abs(dpitch))
+
+
+def turn_rate(error_degs: float, hold: int) -> float:
+    """The turn (or pitch) command in [-1, 1] that closes ``error_degs`` in ``hold`` ticks."""
+    return max(-1.0, min(1.0, error_degs / (TURN_DEGS_PER_TICK * hold)))
 
 
 def looking_at(p: Percept, cell: Cell) -> bool:

@@ -27,6 +27,7 @@ from actors.minecraft.agent.leaves.items import hold, tool_for
 from actors.minecraft.agent.leaves.percept import RADIUS, SIDE, Cell, Percept
 
 STUCK_TICKS = 40
+AIRTIME_TICKS = 12  # a jump's time in the air
 
 
 class AtDestination(Leaf):
@@ -47,7 +48,11 @@ class PlanPath(Leaf):
     in ``ctx.plan_step``, FAILURE when no goal is in view or no step makes progress.
 
     While airborne (mid-jump or falling) the previous step is kept: the feet cell of a
-    body in the air is not a state of the planner's model.
+    body in the air is not a state of the planner's model. A slow client (commands held
+    ``hold`` > 1 ticks) keeps it only for a jump's air time after it was planned: it sees
+    the body in the air at the start of a decision far more often, and a step kept from
+    before a fall (a block mined underfoot) would steer it forever (a held jump towards
+    a cell far above lands it in the air at every decision).
     """
 
     def __init__(self, *, namespace: str) -> None:
@@ -58,7 +63,10 @@ class PlanPath(Leaf):
         """Plan, or keep the step while in the air."""
         ctx = self.ctx
         p = ctx.percept
-        if not p.on_ground and ctx.plan_step is not None and not p.in_liquid():
+        fresh = (
+            ctx.commands.hold == 1 or p.tick - ctx.memory.get("planned_tick", 0) <= AIRTIME_TICKS
+        )
+        if not p.on_ground and ctx.plan_step is not None and not p.in_liquid() and fresh:
             return Status.SUCCESS
         goals = [g for g in (p.to_grid(c) for c in ctx.goals) if _inside(g)]
         if not goals:
@@ -73,6 +81,7 @@ class PlanPath(Leaf):
             return Status.FAILURE
         step = plan.steps[0]
         ctx.plan_step = (step.kind, p.to_world(step.cell))
+        ctx.memory["planned_tick"] = p.tick
         return Status.SUCCESS
 
 
@@ -177,7 +186,7 @@ class StepTo(Leaf):
             return Status.FAILURE
         cmd.attack = False
         cmd.turn = 0.0
-        cmd.pitch = max(-1.0, min(1.0, (10.0 - p.pitch) / control.TURN_DEGS_PER_TICK))
+        cmd.pitch = control.turn_rate(10.0 - p.pitch, cmd.hold)
         control.steer(p, ctx.plan_step[1], cmd)
         mem = ctx.memory
         if mem.get("stuck_cell") != p.cell:

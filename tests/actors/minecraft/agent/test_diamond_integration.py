@@ -31,7 +31,10 @@ def _pool() -> ServerPool:
     raise AssertionError("unreachable")
 
 
-def test_gathers_a_log_and_crafts_planks() -> None:
+@pytest.mark.parametrize("ticks_per_step", [1, 6])
+def test_gathers_a_log_and_crafts_planks(ticks_per_step: int) -> None:
+    """Every tick, and on a slow client holding each decision for 6 ticks (its aiming
+    and steering sized to the hold, ``Commands.hold``)."""
     # A two-block-high trunk 4 blocks east, a one-block wall to jump on the way.
     deco = (
         '<DrawCuboid x1="4" y1="4" z1="0" x2="4" y2="6" z2="0" type="log"/>'
@@ -49,6 +52,7 @@ def test_gathers_a_log_and_crafts_planks() -> None:
             goal="planks",
             max_ticks=600,
             stop_when=lambda p: p.count("planks") >= 4,
+            ticks_per_step=ticks_per_step,
         )
         client.close()
     finally:

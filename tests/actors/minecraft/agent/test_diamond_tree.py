@@ -202,3 +202,39 @@ def test_underground_without_wood_mines_coal_for_fuel() -> None:
     assert status(table, "Enough wood?") == Status.SUCCESS  # no trees down here
     assert status(table, "Choose coal_ore") == Status.SUCCESS
     assert ctx.target == (2, 30, 0)
+
+
+@pytest.mark.parametrize("hold, kept", [(1, True), (6, False)])
+def test_in_the_air_a_slow_client_drops_a_step_planned_long_ago(hold: int, kept: bool) -> None:
+    """Every tick, the step is kept through the air; a slow client keeps it only for a
+    jump's air time after it was planned (a step from before a fall would steer it to
+    jump forever)."""
+    inv = {"log": 2, "iron_pickaxe": 1}
+    stale = ("move", (0, 70, 0))  # far above: steering towards it jumps
+    root, ctx = build_tree()
+    ctx.percept = scene(inventory=inv, fill="stone", y=60.4, tick=500)  # mid-air
+    ctx.plan_step, ctx.memory["planned_tick"] = stale, 100
+    ctx.commands.hold = hold
+    py_trees.trees.BehaviourTree(root).tick()
+    assert (ctx.plan_step == stale) is kept
+    if not kept:
+        assert ctx.memory["planned_tick"] == 500
+
+
+@pytest.mark.parametrize("hold", [1, 6])
+def test_a_slow_client_aims_over_its_hold(hold: int) -> None:
+    """The turn that closes an error of 27 degrees: all of it in one tick (clipped at
+    full speed, 9 degrees a tick), or a sixth of full speed for each of 6 held ticks."""
+    from actors.minecraft.agent.leaves import control
+    from actors.minecraft.agent.leaves.context import Commands
+
+    cmd = Commands(hold=hold)
+    p = Percept(x=0.5, y=64.0, z=0.5, yaw=0.0, pitch=0.0)
+    # A point 27 degrees to the left of +z, at eye height.
+    a = np.radians(27.0)
+    err = control.aim(p, (0.5 - 10 * np.sin(a), 64.0 + control.EYE, 0.5 + 10 * np.cos(a)), cmd)
+    assert err == pytest.approx(27.0)
+    assert cmd.turn == pytest.approx(1.0 if hold == 1 else 27.0 / (9.0 * 6))
+    # One block to walk: full speed covers 0.216 a tick, 1.3 in 6 ticks.
+    control.steer(p, (0, 64, 1), cmd)
+    assert cmd.move == pytest.approx(1.0 if hold == 1 else 1.0 / (control.WALK_PER_TICK * 6))
