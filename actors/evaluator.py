@@ -22,7 +22,7 @@ import gymnasium as gym
 import numpy as np
 import ray
 from ray import ObjectRef
-from ray.exceptions import RayActorError
+from ray.exceptions import RayActorError, RayTaskError
 
 from actors.policies import UniformRandomPolicy
 from actors.task import EnvSpec
@@ -215,9 +215,11 @@ class Evaluator:
 class RemoteEvaluator:
     """The learner's `Evaluator` (service/core.py): an `Evaluator` Ray actor runs the episodes.
 
-    An evaluator that dies is replaced by a new one (up to `max_restarts` times) and the
-    evaluations it held are started again there: episodes are seeded, so the result is
-    the same. `restarts` counts the replacements; `on_restart` hears of each in one line.
+    An evaluator that dies, or whose environment loses its world (a `ConnectionError`: a
+    Minecraft client or world server gone), is replaced by a new one (up to `max_restarts`
+    times) and the evaluations it held are started again there: episodes are seeded, so
+    the result is the same. `restarts` counts the replacements; `on_restart` hears of each
+    in one line. Any other error of an evaluation is the run's.
     """
 
     def __init__(
@@ -254,7 +256,7 @@ class RemoteEvaluator:
         actor = self._actor
         ref: ObjectRef[Evaluation] = actor.evaluate.remote(weights, episodes=episodes, tag=tag)
 
-        def retry(error: RayActorError) -> None:
+        def retry(error: Exception) -> None:
             try:
                 self._replace(actor, error)
                 self._submit(weights, episodes, tag, result)
@@ -264,7 +266,10 @@ class RemoteEvaluator:
         def done(future: Future[Evaluation]) -> None:
             try:
                 result.set_result(future.result())
-            except RayActorError as error:
+            except (RayActorError, RayTaskError) as error:
+                if isinstance(error, RayTaskError) and not isinstance(error.cause, ConnectionError):
+                    result.set_exception(error)
+                    return
                 # Ray calls this on a thread of its own, which must not wait on Ray (a new
                 # actor, a kill): the replacement starts from a thread of ours.
                 threading.Thread(target=retry, args=(error,), daemon=True).start()
@@ -279,8 +284,11 @@ class RemoteEvaluator:
             self._closed = True
             ray.kill(self._actor)
 
-    def _replace(self, dead: Any, error: RayActorError) -> None:
+    def _replace(self, dead: Any, error: Exception) -> None:
         """A new evaluator for `dead`, unless another evaluation already replaced it."""
+        cause = error.cause if isinstance(error, RayTaskError) else error
+        first = str(cause).strip().splitlines()[0] if str(cause).strip() else "died"
+        what = "lost its world" if isinstance(cause, ConnectionError) else "died"
         with self._lock:
             if self._closed:
                 raise RuntimeError("the evaluator was closed") from error
@@ -288,14 +296,13 @@ class RemoteEvaluator:
                 return
             if self.restarts >= self.max_restarts:
                 raise RuntimeError(
-                    f"the evaluator died after {self.restarts} restarts "
-                    f"(evaluator.max_restarts={self.max_restarts}): {error}"
+                    f"the evaluator {what} ({first}) after {self.restarts} restarts "
+                    f"(evaluator.max_restarts={self.max_restarts})"
                 ) from error
             self.restarts += 1
             ray.kill(dead)
             self._actor = self._start()
         if self._on_restart is not None:
-            first = str(error).strip().splitlines()[0] if str(error).strip() else "died"
             self._on_restart(
-                f"evaluator died ({first}); restarted it (evaluator restart {self.restarts})"
+                f"evaluator {what} ({first}); restarted it (evaluator restart {self.restarts})"
             )
