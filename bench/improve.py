@@ -23,7 +23,8 @@ With ``--parts`` each seed's networks are also scored without the final selectio
 without switching too, on the same episodes (`bench/improve_parts.py`).
 
 The examples must be installed (``pip install -e examples/mountaincar examples/cartpole
-examples/lunarlander``). A seed whose run finished is read back, not re-run.
+examples/lunarlander examples/halfcheetah``). A seed whose run finished is read back, not
+re-run.
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ TASKS = {
     "mountaincar": REPO / "examples" / "mountaincar" / "presets" / "recipe.yaml",
     "cartpole": REPO / "examples" / "cartpole" / "presets" / "recipe.yaml",
     "lunarlander": REPO / "examples" / "lunarlander" / "presets" / "recipe.yaml",
+    "halfcheetah": REPO / "examples" / "halfcheetah" / "presets" / "recipe.yaml",
 }
 """Task name -> a user's preset: environment, hard-coded policy, budget, no algorithm."""
 EPISODES = 50

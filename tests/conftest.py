@@ -36,6 +36,7 @@ USER_PACKAGES = {
     "mountaincar_example": TESTS.parent / "examples" / "mountaincar",
     "cartpole_example": TESTS.parent / "examples" / "cartpole",
     "lunarlander_example": TESTS.parent / "examples" / "lunarlander",
+    "halfcheetah_example": TESTS.parent / "examples" / "halfcheetah",
 }
 """Packages of graft's users (module: project folder), each its own distribution."""
 

@@ -29,6 +29,7 @@ DISTRIBUTIONS = {
     "mountaincar": "graft-example-mountaincar 0.1.0",
     "cartpole": "graft-example-cartpole 0.1.0",
     "lunarlander": "graft-example-lunarlander 0.1.0",
+    "halfcheetah": "graft-example-halfcheetah 0.1.0",
 }
 TINY = {
     "env_steps": 300,
@@ -197,3 +198,39 @@ def test_the_lander_tree_is_mediocre_as_its_readme_says() -> None:
     result = graft.evaluate(graft.load_policy("hardcoded", preset=LANDER), episodes=50, seed=0)
     assert 100.0 <= result.mean <= 180.0, result.mean
     assert 0.3 <= np.mean(result.metrics["landed"]) <= 0.8
+
+
+CHEETAH = EXAMPLES / "halfcheetah/presets/recipe.yaml"
+PITCH, BACK_THIGH, BACK_THIGH_SPEED = 1, 2, 11
+"""Indices into HalfCheetah's observation: the body's pitch, the back thigh's angle and
+its angular velocity (every other entry 0 below: standing level, joints at rest)."""
+CHEETAH_RULES = {
+    "rearing: both thighs lean back": ({PITCH: 1.2}, [1.0, 0, 0, 1.0, 0, 0]),
+    "diving: both thighs lean back": ({PITCH: -1.2}, [-1.0, 0, 0, -1.0, 0, 0]),
+    "tilted beats running": ({PITCH: 1.2, BACK_THIGH: 0.6}, [1.0, 0, 0, 1.0, 0, 0]),
+    "stroke's front end: the back thigh turns back": ({BACK_THIGH: 0.6}, -1.0),
+    "stroke's back end: the back thigh turns forward": ({BACK_THIGH: -0.7}, 1.0),
+    "mid-stroke moving forward: keep pushing": ({BACK_THIGH_SPEED: 1.0}, 1.0),
+    "mid-stroke moving back: keep pulling": ({BACK_THIGH_SPEED: -1.0}, -1.0),
+}
+"""Observation entries -> the whole action (tilted) or the back thigh's torque (running)."""
+
+
+@pytest.mark.parametrize("entries, expected", CHEETAH_RULES.values(), ids=CHEETAH_RULES.keys())
+def test_the_cheetah_tree_answers_each_situation_by_its_rule(entries, expected) -> None:
+    obs = np.zeros(17, np.float32)
+    for index, value in entries.items():
+        obs[index] = value
+    action = graft.load_policy("hardcoded", preset=CHEETAH)(obs)
+    if isinstance(expected, list):
+        np.testing.assert_array_equal(action, expected)
+    else:  # running: the relay drives the back thigh, the PD law the others within ±1
+        assert action[0] == expected and np.all(np.abs(action) <= 1.0), action
+
+
+def test_the_cheetah_gait_runs_far_above_random_and_far_below_rl() -> None:
+    """As its README says: every episode runs forwards (about 1,200), random loses ~270."""
+    result = graft.evaluate(graft.load_policy("hardcoded", preset=CHEETAH), episodes=3, seed=0)
+    random = graft.evaluate(graft.load_policy("random", preset=CHEETAH), episodes=3, seed=0)
+    assert np.all((900.0 < result.returns) & (result.returns < 2000.0)), result.returns
+    assert random.returns.max() < 0.0, random.returns
