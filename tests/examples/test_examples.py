@@ -47,6 +47,8 @@ SECTIONS = {
     "pretrain": {"demo_steps": 100, "pretrain_updates": 20},
     # 250: the learner logs every 250th update's losses, the margin loss among them.
     "dqn": {"batch_size": 32, "burn_in_updates": 250, "epsilon_decay_env_steps": 200},
+    # The recipe's final selection: 2 episodes each for the policy and the tree, not 30.
+    "selection": {"episodes": 2},
 }
 BY_CLI = [
     "mountaincar/presets/backbone.yaml",
@@ -65,6 +67,8 @@ def _tiny(preset: str) -> dict:
     # A preset without an algorithm trains with graft's default recipe, which sets the
     # section of its method.
     used = set(data) | ({"dqn"} if algorithm == "ddqn" else {"td3"})
+    if "algorithm" not in data:
+        used.add("selection")
     sections = {name: dict(fields) for name, fields in SECTIONS.items() if name in used}
     if algorithm != "pretrain_td3":
         sections.pop("pretrain", None)
