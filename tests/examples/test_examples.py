@@ -233,7 +233,7 @@ def test_the_cheetah_tree_answers_each_situation_by_its_rule(entries, expected) 
 
 
 def test_the_cheetah_gait_runs_far_above_random_and_far_below_rl() -> None:
-    """As its README says: every episode runs forwards (about 1,200), random loses ~270."""
+    """As its README says: the gait runs forwards (about 1,200 an episode), random loses ~270."""
     result = graft.evaluate(graft.load_policy("hardcoded", preset=CHEETAH), episodes=3, seed=0)
     random = graft.evaluate(graft.load_policy("random", preset=CHEETAH), episodes=3, seed=0)
     assert np.all((900.0 < result.returns) & (result.returns < 2000.0)), result.returns
