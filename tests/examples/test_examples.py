@@ -14,6 +14,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+# MuJoCo's import runs a helper process (ctypes looking for OpenGL): done here, at
+# collection, since `make test-fast` refuses subprocesses inside its tests.
+import gymnasium.envs.mujoco.half_cheetah_v5  # noqa: F401
 import numpy as np
 import pytest
 import ray
