@@ -14,8 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-# MuJoCo's import runs a helper process (ctypes looking for OpenGL): done here, at
-# collection, since `make test-fast` refuses subprocesses inside its tests.
+# Imported at collection: importing MuJoCo starts a child process (ctypes finding OpenGL),
+# which `make test-fast` refuses inside a test.
 import gymnasium.envs.mujoco.half_cheetah_v5  # noqa: F401
 import numpy as np
 import pytest
