@@ -7,7 +7,6 @@ damages or constrains the way a crash, a bad disk or an operator would.
 from __future__ import annotations
 
 import json
-import resource
 import subprocess
 import sys
 import time
@@ -52,18 +51,14 @@ class Started:
         run.mkdir()
         config, ready, self.log_path = run / "tables.json", run / "ready.json", run / "log"
         config.write_text(json.dumps({"tables": tables}))
-        limit = file_size_limit
-
-        def limit_file_size() -> None:  # in the child, before exec: applies to the server only
-            if limit is not None:
-                resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-
+        limit = [] if file_size_limit is None else ["--file-size-limit", str(file_size_limit)]
         with open(self.log_path, "wb") as log:
-            self.process = subprocess.Popen(
-                [sys.executable, "-m", "service.run.cli.replay", "serve", "--config", str(config),
+            self.process = subprocess.Popen(  # the limit applies to the server only
+                [sys.executable, "-m", "tests.tools.exec_with", *limit, "--",
+                 sys.executable, "-m", "service.run.cli.replay", "serve", "--config", str(config),
                  "--port", "0", "--ready-file", str(ready), "--checkpoint-dir", str(folder),
                  *extra],
-                stdout=log, stderr=subprocess.STDOUT, preexec_fn=limit_file_size,
+                stdout=log, stderr=subprocess.STDOUT,
             )  # fmt: skip
         deadline = time.monotonic() + timeout_s
         while not ready.exists() and self.process.poll() is None:

@@ -94,8 +94,8 @@ def test_a_stop_signal_checkpoints_summarises_and_leaves_no_process(
     # A shell's background job inherits SIGINT ignored, and a Python started that way never
     # raises KeyboardInterrupt: the run gets Ctrl-C's default, as from a terminal.
     process = subprocess.Popen(
-        argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.default_int_handler),
+        [sys.executable, "-m", "tests.tools.exec_with", "--default-sigint", "--", *argv],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     started: set[int] = set()
     try:
