@@ -1,7 +1,7 @@
 """Start a command with a process setting of its own: ``python -m tests.tools.exec_with
 [--file-size-limit BYTES] [--default-sigint] -- COMMAND...``.
 
-Tests use it instead of ``subprocess.Popen(preexec_fn=...)``: a ``preexec_fn`` makes Python
+Tests use it instead of the ``preexec_fn`` of ``subprocess.Popen``, which makes Python
 fork rather than spawn, and a test process that has used gRPC (as every process that joined
 Ray has) then runs gRPC's fork handlers in the child, which may abort there before the exec.
 """
