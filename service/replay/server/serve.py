@@ -47,6 +47,12 @@ def serve_forever(
     The metrics endpoint answers without a token, so it binds `metrics_host` (loopback
     unless told otherwise), whatever `options.host` is. A failed checkpoint is logged and
     counted, and the next period tries again; the log keeps every insert meanwhile."""
+    # Before the server answers or says it is ready: a stop sent the moment it is ready
+    # (a test's, a supervisor's) must still get the final checkpoint, not Python's default
+    # SIGTERM, which ends the process on the spot.
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
     running = build_server(core, options)
     address = host_port(options.host, running.port)
     extra = ""
@@ -59,9 +65,6 @@ def serve_forever(
         with open(ready_file + ".tmp", "w") as f:
             json.dump({"address": address}, f)
         os.replace(ready_file + ".tmp", ready_file)  # atomic: readers never see half a file
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
     # Refused megabyte requests would otherwise leave RSS tens of MiB up (cyclic garbage,
     # and free pages glibc's malloc keeps).
     threading.Thread(target=running.freed_memory.run, args=(stop,), daemon=True).start()
