@@ -61,16 +61,18 @@ def _serve(args: argparse.Namespace) -> int:
                     ms_per_tick=args.ms_per_tick, timing=timing, limits=limits)
         for i in range(args.instances)
     ]  # fmt: skip
-    for server in servers:
-        server.start()
-        print(f"graft minecraft world server ({timing.mode} timing) on "
-              f"{args.host}:{server.port}", flush=True)  # fmt: skip
 
     def stop(*_: object) -> None:
         for server in servers:
             server.stop()
 
+    # Before any server listens: a SIGTERM sent the moment one answers stops them all
+    # (a server stopped before its start returns from serve_forever at once).
     signal.signal(signal.SIGTERM, stop)
+    for server in servers:
+        server.start()
+        print(f"graft minecraft world server ({timing.mode} timing) on "
+              f"{args.host}:{server.port}", flush=True)  # fmt: skip
     try:
         servers[0].serve_forever()
     except KeyboardInterrupt:
