@@ -10,6 +10,12 @@ import argparse
 import os
 import resource
 import signal
+import sys
+
+
+def command(*settings: str) -> list[str]:
+    """The argv prefix that runs what follows it with `settings` (this module's flags)."""
+    return [sys.executable, "-m", "tests.tools.exec_with", *settings, "--"]
 
 
 def main() -> None:

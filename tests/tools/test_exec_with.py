@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.tools.exec_with import command as exec_with
+
 ROOT = Path(__file__).resolve().parents[2]
 SHOW_LIMITS = (
     "import resource, signal; print(resource.getrlimit(resource.RLIMIT_FSIZE)[0],"
@@ -29,15 +31,11 @@ def _shown(argv: list[str]) -> list[str]:
     ).stdout.split()  # fmt: skip
 
 
-def _exec_with(*args: str) -> list[str]:
-    return [sys.executable, "-m", "tests.tools.exec_with", *args, "--"]
-
-
 @pytest.mark.service
 def test_the_limit_and_ctrl_c_reach_the_command_it_runs():
-    assert _shown(_exec_with("--file-size-limit", "65536"))[0] == "65536"
+    assert _shown(exec_with("--file-size-limit", "65536"))[0] == "65536"
     assert _shown(IGNORING_CTRL_C)[1] == "False"  # Python then never raises KeyboardInterrupt
-    assert _shown([*IGNORING_CTRL_C, *_exec_with("--default-sigint")])[1] == "True"
+    assert _shown([*IGNORING_CTRL_C, *exec_with("--default-sigint")])[1] == "True"
 
 
 def test_no_python_file_forks_through_preexec_fn():

@@ -25,6 +25,7 @@ from service.replay.errors import ReplayError
 from service.replay.server import durability
 from service.run.replay_host.process import EXIT_FOLDER_UNUSABLE, ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
+from tests.tools.exec_with import command as exec_with
 
 
 def table(**overrides) -> list[dict]:
@@ -52,12 +53,12 @@ class Started:
         config, ready, self.log_path = run / "tables.json", run / "ready.json", run / "log"
         config.write_text(json.dumps({"tables": tables}))
         limit = [] if file_size_limit is None else ["--file-size-limit", str(file_size_limit)]
+        limited = exec_with(*limit)  # the limit applies to the server only
         with open(self.log_path, "wb") as log:
-            self.process = subprocess.Popen(  # the limit applies to the server only
-                [sys.executable, "-m", "tests.tools.exec_with", *limit, "--",
-                 sys.executable, "-m", "service.run.cli.replay", "serve", "--config", str(config),
-                 "--port", "0", "--ready-file", str(ready), "--checkpoint-dir", str(folder),
-                 *extra],
+            self.process = subprocess.Popen(
+                [*limited, sys.executable, "-m", "service.run.cli.replay", "serve",
+                 "--config", str(config), "--port", "0", "--ready-file", str(ready),
+                 "--checkpoint-dir", str(folder), *extra],
                 stdout=log, stderr=subprocess.STDOUT,
             )  # fmt: skip
         deadline = time.monotonic() + timeout_s

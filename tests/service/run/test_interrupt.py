@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from learner.checkpoint import latest_checkpoint, load_checkpoint
+from tests.tools.exec_with import command as exec_with
 
 pytestmark = pytest.mark.service  # real server processes, or Ray
 
@@ -94,7 +95,7 @@ def test_a_stop_signal_checkpoints_summarises_and_leaves_no_process(
     # A shell's background job inherits SIGINT ignored, and a Python started that way never
     # raises KeyboardInterrupt: the run gets Ctrl-C's default, as from a terminal.
     process = subprocess.Popen(
-        [sys.executable, "-m", "tests.tools.exec_with", "--default-sigint", "--", *argv],
+        [*exec_with("--default-sigint"), *argv],
         cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     started: set[int] = set()
