@@ -257,7 +257,9 @@ def test_a_folder_of_another_table_or_unrestorable_is_moved_aside_and_the_run_re
         f"(max_size 100000 is now 50000); moved it to {run_dir / 'replay.stale-1'}, "
         "refilling a fresh table"
     ], lines
-    assert resumed["replay_restored"] is None and resumed["env_steps"] == 1_000
+    # As above, the resumed learner may finish before the actors' last inserts reach it.
+    assert resumed["replay_restored"] is None
+    assert 1_000 - _config().slack_env_steps <= resumed["env_steps"] <= 1_000
     assert sum(resumed["actor_env_steps"]) == 1_000 - seen  # the refill: nothing of the old table
     stale = _files(run_dir / "replay.stale-1")
     assert {k: v for k, v in stale.items() if k != "replay.json"} == kept  # as it was
