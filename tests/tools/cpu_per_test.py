@@ -29,7 +29,9 @@ _started: dict[str, tuple[float, float]] = {}
 def pytest_configure(config: pytest.Config) -> None:
     global _group
     parent = Path("/sys/fs/cgroup/cpuacct") / os.environ.get("GRAFT_CPU_CGROUP", "suite")
-    _group = parent / os.environ.get("PYTEST_XDIST_WORKER", "main")
+    if config.getoption("dist", "no") != "no" and not hasattr(config, "workerinput"):
+        return  # the xdist controller: its workers measure the tests
+    _group = parent / os.environ.get("PYTEST_XDIST_WORKER", f"main-{os.getpid()}")
     _group.mkdir(parents=True, exist_ok=True)
     (_group / "tasks").write_text(str(os.getpid()))
 
@@ -40,15 +42,20 @@ def _cpu_s() -> float:
 
 
 def pytest_runtest_logstart(nodeid: str, location: tuple[str, Optional[int], str]) -> None:
+    if _group is None:
+        return
     _started[nodeid] = (_cpu_s(), time.monotonic())
 
 
 def pytest_runtest_logfinish(nodeid: str, location: tuple[str, Optional[int], str]) -> None:
+    if _group is None:
+        return
     cpu, wall = _started.pop(nodeid)
     row = {
         "id": nodeid,
         "cpu_s": round(_cpu_s() - cpu, 2),
         "wall_s": round(time.monotonic() - wall, 2),
+        "group": _group.name,
     }
     with open(os.environ.get("GRAFT_CPU_REPORT", "cpu_per_test.jsonl"), "a") as out:
         out.write(json.dumps(row) + "\n")
