@@ -20,7 +20,10 @@ import pytest
 from learner.checkpoint import latest_checkpoint, load_checkpoint
 from tests.tools.exec_with import command as exec_with
 
-pytestmark = pytest.mark.service  # real server processes, or Ray
+# Real server processes and a Ray instance of its own; `serial`: it waits on a run's clock
+# (a signal sent mid-run, processes given time to end), and the real-time lane beside the
+# parallel part has the idle CPU for its two Ray starts.
+pytestmark = [pytest.mark.service, pytest.mark.serial]
 
 ROOT = Path(__file__).resolve().parents[3]
 STARTUP_LIMIT_S = 600.0
