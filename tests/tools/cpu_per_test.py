@@ -1,9 +1,10 @@
 """A pytest plugin for finding where the suite's CPU goes: the CPU each test used, counting
 every process it started (Ray's workers, servers, subprocesses), in a JSON line per test.
 
-Each pytest process (each xdist worker) moves itself into a cgroup of its own under
-``/sys/fs/cgroup/cpuacct/$GRAFT_CPU_CGROUP`` (cgroup v1 ``cpuacct``; root), which every
-process it starts inherits, and reads its ``cpuacct.usage`` around each test. Timing a
+Each pytest process (each xdist worker; not xdist's controller) moves itself into a cgroup
+of its own under ``/sys/fs/cgroup/cpuacct/$GRAFT_CPU_CGROUP`` (cgroup v1 ``cpuacct``;
+root), which every process it starts inherits, and reads its ``cpuacct.usage`` around each
+test. Timing a
 whole run the usual way (``time make test``) misses Ray's workers: they are not the
 timed process's children.
 
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Optional
@@ -30,7 +32,9 @@ def pytest_configure(config: pytest.Config) -> None:
     global _group
     parent = Path("/sys/fs/cgroup/cpuacct") / os.environ.get("GRAFT_CPU_CGROUP", "suite")
     if config.getoption("dist", "no") != "no" and not hasattr(config, "workerinput"):
-        return  # the xdist controller: its workers measure the tests
+        # The xdist controller: its workers measure the tests (it would log each again).
+        config.pluginmanager.unregister(sys.modules[__name__])
+        return
     _group = parent / os.environ.get("PYTEST_XDIST_WORKER", f"main-{os.getpid()}")
     _group.mkdir(parents=True, exist_ok=True)
     (_group / "tasks").write_text(str(os.getpid()))
@@ -42,14 +46,10 @@ def _cpu_s() -> float:
 
 
 def pytest_runtest_logstart(nodeid: str, location: tuple[str, Optional[int], str]) -> None:
-    if _group is None:
-        return
     _started[nodeid] = (_cpu_s(), time.monotonic())
 
 
 def pytest_runtest_logfinish(nodeid: str, location: tuple[str, Optional[int], str]) -> None:
-    if _group is None:
-        return
     cpu, wall = _started.pop(nodeid)
     row = {
         "id": nodeid,
