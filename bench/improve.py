@@ -16,7 +16,7 @@ time; prints a table, writes OUT/improve.json and OUT/improve.png.
 
     python -m bench.improve --task lunarlander --seeds 5 [--env-steps N] [--set k=v ...]
     python -m bench.improve --suite --seeds 5
-    python -m bench.improve --task pendulum --quick     # a smoke run: 1 seed, tiny budget
+    python -m bench.improve --task pendulum --quick   # a smoke run: 1 seed, 600 steps, 10 episodes
     python -m bench.improve --task lunarlander --seeds 5 --parts   # + each part's share
 
 With ``--parts`` each seed's networks are also scored without the final selection and
@@ -60,6 +60,8 @@ TASKS = {
 """Task name -> a user's preset: environment, hard-coded policy, budget, no algorithm."""
 EPISODES = 50
 """Final evaluation episodes per seed (the tree's score uses the same ones)."""
+QUICK_EPISODES = 10
+"""--quick's final evaluation episodes: enough to see the pipeline work, not a result."""
 BURN_IN_FRACTION = 0.1
 """In-run evaluations before this fraction of the budget are not held to the tree."""
 WORST_DROP = 0.1
@@ -148,12 +150,13 @@ def run_task(
     settings = dict(o.split("=", 1) for o in overrides)
     budget = env_steps or config.env_steps
     tree = graft.load_policy("hardcoded", preset=preset)
+    episodes = QUICK_EPISODES if quick else EPISODES
     rows: list[SeedRow] = []
     for seed in seeds:
         start = time.perf_counter()
         if reselected and (out / task / f"s{seed}" / "summary.json").exists():
             record = reselect(
-                out / task / f"s{seed}", episodes=EPISODES, eval_seed=final_seed(seed)
+                out / task / f"s{seed}", episodes=episodes, eval_seed=final_seed(seed)
             )
             print(f"{task} seed {seed}: selection {record}", flush=True)
         try:
@@ -163,7 +166,7 @@ def run_task(
                 out / task / f"s{seed}",
                 overrides=overrides,
                 env_steps=env_steps,
-                episodes=EPISODES,
+                episodes=episodes,
                 eval_seed=final_seed(seed),
             )
         except subprocess.CalledProcessError:  # reported and left out; the others go on
@@ -174,14 +177,14 @@ def run_task(
         summary = json.loads((result.run_dir / "summary.json").read_text())
         row = SeedRow(
             seed=seed,
-            tree=graft.evaluate(tree, episodes=EPISODES, seed=final_seed(seed)).mean,
+            tree=graft.evaluate(tree, episodes=episodes, seed=final_seed(seed)).mean,
             final=result.mean,
             tree_in_run=graft.evaluate(tree, episodes=eval_episodes, seed=in_run_seed(seed)).mean,
             steps=steps,
             evaluations=evaluations,
             env_steps=int(summary["env_steps"]),
             wall_s=result.wall_s,
-            parts=part_scores(result.run_dir, episodes=EPISODES, seed=final_seed(seed))
+            parts=part_scores(result.run_dir, episodes=episodes, seed=final_seed(seed))
             if parts
             else {},
         )
@@ -244,7 +247,7 @@ def table(summaries: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def plot(results: dict[str, list[SeedRow]], png: Path) -> None:
+def plot(results: dict[str, list[SeedRow]], png: Path, episodes: int) -> None:
     """Per task: the in-run evaluations minus the tree's score on the same episodes, each
     seed thin and their mean thick (`experiments.plots.curves`), the final improvements
     as dots at the end."""
@@ -266,7 +269,7 @@ def plot(results: dict[str, list[SeedRow]], png: Path) -> None:
         ax.plot(c["env_steps"], c["mean"], color="tab:blue", label=f"in-run, {c['seeds']} seeds")
         end = max(r.env_steps for r in rows)
         ax.scatter([end] * len(rows), [r.improvement for r in rows], color="tab:orange",
-                   zorder=3, label=f"final, {EPISODES} episodes")  # fmt: skip
+                   zorder=3, label=f"final, {episodes} episodes")  # fmt: skip
         ax.axhline(0.0, color="tab:green", linestyle="--", label="the tree")
         ax.set_title(task)
         ax.set_xlabel("environment steps")
@@ -289,7 +292,9 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     parser.add_argument("--env-steps", type=int, help="override the task's budget")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--out", type=Path, default=Path("runs/bench-improve"))
-    parser.add_argument("--quick", action="store_true", help="1 seed, 600 env steps")
+    parser.add_argument(
+        "--quick", action="store_true", help=f"1 seed, 600 env steps, {QUICK_EPISODES} episodes"
+    )
     parser.add_argument("--parts", action="store_true", help="score each acting part too")
     parser.add_argument(
         "--reselect", action="store_true", help="apply the current selection rule to finished runs"
@@ -339,7 +344,7 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
             indent=1,
         )
     )
-    plot(results, args.out / f"{stem}.png")
+    plot(results, args.out / f"{stem}.png", QUICK_EPISODES if args.quick else EPISODES)
     print(f"\n{args.out / f'{stem}.json'}, {args.out / f'{stem}.png'}")
     return summaries
 

@@ -66,7 +66,7 @@ def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, caps
     (summary,) = improve.main(["--task", "pendulum", "--quick", "--out", str(tmp_path)])
     assert summary["task"] == "pendulum" and summary["algorithm"] == "backbone_td3"
     assert summary["seeds"] == 1 and np.isfinite(summary["final_mean"])
-    assert -1000.0 < summary["tree"] < -200.0  # the swing-up tree on 50 episodes
+    assert -1000.0 < summary["tree"] < -200.0  # the swing-up tree on --quick's 10 episodes
     saved = json.loads((tmp_path / "improve-pendulum.json").read_text())
     assert saved["seeds"]["pendulum"][0]["evaluations"]  # the in-run evaluations were read
     assert (tmp_path / "improve-pendulum.png").stat().st_size > 0

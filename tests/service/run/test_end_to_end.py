@@ -25,6 +25,7 @@ def tiny_preset(*, env_steps: int):
         envs_per_actor=2,
         steps_per_insert=4,
         slack_env_steps=16,
+        **{"td3.hidden_sizes": [32, 32], "td3.batch_size": 32},
     )
 
 
