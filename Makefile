@@ -38,7 +38,8 @@ test: setup $(TEST_PACKAGES)
 test-fast: setup $(TEST_PACKAGES)
 	GRAFT_TEST_FAST=1 $(BIN)/python -m pytest -q -n 2 -m "not service and not slow and not serial and not long"
 
-# Checks too long for `make test` (a C++ build of compiled kernels); CI runs them too.
+# Checks too long for `make test` (a C++ build of compiled kernels; a three-node Ray cluster
+# in network namespaces, as root); CI runs them too.
 test-long: setup $(TEST_PACKAGES)
 	$(BIN)/python -m pytest -q -m long
 

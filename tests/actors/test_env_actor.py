@@ -40,6 +40,10 @@ from service.run.replay_host.process import ReplayProcess
 from service.weights import WeightBroadcaster, WeightSubscriber
 from tests.actors.minecraft.conftest import flat_mission
 
+# Real-time clients and world servers (their start-up, pacing, restarts): every test here
+# mostly waits, so all run in the real-time part, beside the CPU-bound parallel part.
+pytestmark = pytest.mark.serial
+
 MISSION = flat_mission(grid_radius=1, ms_per_tick=20)
 OBS_DIM = 8 + 27
 TD3 = TD3Config(hidden_sizes=(32,), batch_size=16)
@@ -135,7 +139,6 @@ def test_actor_adopts_broadcast_weights_and_records_their_log_prob(
     ray.kill(broadcaster)
 
 
-@pytest.mark.serial  # a port reused across a restart, or pacing
 def test_actor_reconnects_after_world_server_restart(ray_local, replay) -> None:
     pool = ServerPool(1, base_port=0, seed=5, ms_per_tick=20)
     (port,) = pool.start()
@@ -269,7 +272,6 @@ def pooled_mission(*, max_episode_steps: int) -> gym.Env:
 
 
 @pytest.mark.slow
-@pytest.mark.serial
 def test_asynchronous_clients_skip_no_ticks_where_lock_step_ones_wait_for_each_other() -> None:
     """Four real-time clients (real Malmo timing: 20 ticks/s, 60 frames/s, a mission loads
     for a second) with short episodes. In lock-step each step waits for every client's

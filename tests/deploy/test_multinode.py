@@ -66,8 +66,9 @@ from tests.deploy.cluster_story import (
     worlds_beside_their_actors,
 )
 
-# Ray nodes in namespaces, with real-time waits: alone, after the parallel part.
-pytestmark = pytest.mark.serial
+# Three Ray nodes in network namespaces, with real-time waits: a minute and a half of both
+# cores, run by `make test-long` (CI runs it after `make test`), one test at a time.
+pytestmark = pytest.mark.long
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
