@@ -12,40 +12,17 @@ networks and the default (for-each) Adam, so a CPU run computes what it always d
 from __future__ import annotations
 
 import collections
-import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Optional
 
 import torch
 from torch import nn
 
+from learner.device_spec import CompileMode, check_compile_mode, check_device_spec
 from service.core import Columns, TensorBatch
 
-DEVICE_SPEC = re.compile(r"auto|cpu|cuda(:\d+)?")
-"""The spellings of ``learner.device``."""
-COMPILE_MODES = ("off", "auto", "compile", "cuda_graphs")
-"""The values of ``learner.compile``."""
-CompileMode = Literal["off", "compile", "cuda_graphs"]
-"""A resolved compile mode: eager, ``torch.compile``, or ``torch.compile`` with CUDA graphs."""
 CPU = torch.device("cpu")
-
-
-def check_device_spec(spec: str) -> None:
-    """Refuses a ``learner.device`` that is none of auto, cpu, cuda, cuda:N (its spelling only;
-    whether CUDA is there is `resolve_device`'s question, asked where the learner runs).
-
-    Raises:
-        ValueError: ``device=...`` naming the value and what is allowed.
-    """
-    if not isinstance(spec, str) or not DEVICE_SPEC.fullmatch(spec):
-        raise ValueError(f"device={spec!r} must be auto, cpu, cuda or cuda:N (N a GPU index)")
-
-
-def check_compile_mode(mode: str) -> None:
-    """Refuses a ``learner.compile`` outside `COMPILE_MODES`."""
-    if mode not in COMPILE_MODES:
-        raise ValueError(f"compile={mode!r} must be one of {', '.join(COMPILE_MODES)}")
 
 
 def resolve_device(spec: str) -> torch.device:

@@ -19,7 +19,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from learner.device import check_compile_mode, check_device_spec
+from learner.device_spec import check_compile_mode, check_device_spec
 
 
 @dataclass(frozen=True)

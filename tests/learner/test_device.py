@@ -16,14 +16,8 @@ import pytest
 import torch
 
 from learner.checkpoint import load_checkpoint, save_checkpoint
-from learner.device import (
-    CPU,
-    BatchFeed,
-    check_compile_mode,
-    check_device_spec,
-    resolve_compile,
-    resolve_device,
-)
+from learner.device import CPU, BatchFeed, resolve_compile, resolve_device
+from learner.device_spec import check_compile_mode, check_device_spec
 from learner.loop import to_tensors
 from learner.td3.learning import TD3Learner
 from service.run.config import load_preset

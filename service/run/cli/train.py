@@ -90,8 +90,6 @@ def _preset_table(descriptions: dict[str, str]) -> str:
 
 
 def _train(args: argparse.Namespace) -> None:
-    from learner.checkpoint import latest_checkpoint
-    from service.run.api import train
     from service.run.recipe import recipe_line
     from service.run.validation import ConfigError
 
@@ -106,6 +104,11 @@ def _train(args: argparse.Namespace) -> None:
     if line is not None and not args.resume:
         print(f"graft train: {line}", file=sys.stderr)
     address = ray_address("train", args.address)
+    # Imported once the input is checked: torch and Ray take seconds to load, and a refusal
+    # above comes without them.
+    from learner.checkpoint import latest_checkpoint
+    from service.run.api import train
+
     terminated = _stop_on_sigterm()
     try:
         result = train(

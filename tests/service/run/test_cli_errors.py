@@ -4,6 +4,8 @@ allowed, with exit status 2, before Ray starts (these tests never start it)."""
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -381,3 +383,32 @@ def test_tree_written_for_another_task_names_its_leaf_and_the_observation_shape(
     assert not Path("runs").exists()
     refused = ["eval", "--policy", "hardcoded", "--preset", str(preset)]
     assert _refused(refused, capsys) == f"graft eval: {message}"
+
+
+REFUSED_WITHOUT_TORCH = """
+import sys
+from service.run.cli import main
+from service.run.config import load_preset
+load_preset("pendulum-td3", **{"td3.batch_size": 64})
+try:
+    main(["train", "--preset", "pendulum-td3", "--set", "td3.gamma=2"])
+except SystemExit as stop:
+    assert stop.code == 2, stop.code
+print(sorted(m for m in ("torch", "ray") if m in sys.modules))
+"""
+
+
+@pytest.mark.service  # a fresh interpreter: this one has imported torch long since
+def test_presets_load_and_bad_train_input_is_refused_without_importing_torch_or_ray() -> None:
+    """`graft train`'s checks answer in a fraction of a second: torch and Ray (seconds to
+    import) load only once the input is good."""
+    done = subprocess.run(
+        [sys.executable, "-c", REFUSED_WITHOUT_TORCH],
+        cwd=Path(__file__).resolve().parents[3],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "graft train: td3.gamma=2" in done.stderr, done.stderr
+    assert done.stdout.strip() == "[]", done.stdout
