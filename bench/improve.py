@@ -134,6 +134,7 @@ def run_task(
     overrides: Sequence[str],
     env_steps: Optional[int],
     quick: bool = False,
+    episodes: int = EPISODES,
     parts: bool = False,
     reselected: bool = False,
 ) -> tuple[dict[str, Any], list[SeedRow]]:
@@ -150,7 +151,6 @@ def run_task(
     settings = dict(o.split("=", 1) for o in overrides)
     budget = env_steps or config.env_steps
     tree = graft.load_policy("hardcoded", preset=preset)
-    episodes = QUICK_EPISODES if quick else EPISODES
     rows: list[SeedRow] = []
     for seed in seeds:
         start = time.perf_counter()
@@ -307,6 +307,7 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
         parser.error(f"--set {bad[0]!r}: expected key=value, e.g. td3.batch_size=128")
     if args.quick:
         args.seeds, args.env_steps = 1, args.env_steps or 600
+    episodes = QUICK_EPISODES if args.quick else EPISODES
     tasks = sorted(TASKS) if args.suite else [args.task]
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     summaries, results = [], {}
@@ -318,6 +319,7 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
             overrides=args.set,
             env_steps=args.env_steps,
             quick=args.quick,
+            episodes=episodes,
             parts=args.parts,
             reselected=args.reselect,
         )
@@ -344,7 +346,7 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
             indent=1,
         )
     )
-    plot(results, args.out / f"{stem}.png", QUICK_EPISODES if args.quick else EPISODES)
+    plot(results, args.out / f"{stem}.png", episodes)
     print(f"\n{args.out / f'{stem}.json'}, {args.out / f'{stem}.png'}")
     return summaries
 

@@ -159,8 +159,8 @@ def test_a_run_on_two_shards_fills_both_and_survives_a_killed_shard(
         # (1 s here), and its limiter then holds its writer's last inserts by as many
         # items; a slack of 200 items per shard absorbs most of that.
         slack_env_steps=400,
-        **{"replay.shards": 2, "replay.checkpoint_every_s": 1.0, "td3.hidden_sizes": [32, 32]}
-        | {"td3.batch_size": 32},
+        **{"replay.shards": 2, "replay.checkpoint_every_s": 1.0},
+        **{"td3.hidden_sizes": [32, 32], "td3.batch_size": 32},
     )
     outcome: dict[str, object] = {}
 
