@@ -87,6 +87,7 @@ class BackboneBuilder:
                 compile=compile,
                 correction_penalty=self.config.correction_penalty,
                 publish_critic=self.config.switch_margin is not None,
+                ramp_actor_updates=self._ramp_actor_updates(),
             )
         else:
             learner = TD3Learner(
@@ -103,6 +104,13 @@ class BackboneBuilder:
         zero_output_(learner.actor)
         learner.target_actor.load_state_dict(learner.actor.state_dict())
         return learner
+
+    def _ramp_actor_updates(self) -> int:
+        """The actor's gradient steps over which π's range widens (`correction_ramp`)."""
+        c = self.td3.config
+        updates = sum(p.updates for p in self.phases())
+        actor_steps = max(updates - c.frozen_actor_updates, 0) // c.policy_delay
+        return round(self.config.correction_ramp * actor_steps)
 
     def _backbone(self) -> HardCodedPolicy:
         if self.teacher is not None:

@@ -33,6 +33,14 @@ class BackboneConfig:
     μ(s) alone (`actors.behaviours.switching`). None: no switching. Needs observe_backbone
     (the critic values a correction next to μ(s))."""
 
+    correction_ramp: float = 0.0
+    """A trust region that widens: π's range grows linearly from 0 to [−L, L] over this
+    share of the actor's gradient steps in the run (0: the whole range from the first
+    step). Early in a run the critic knows little beyond the tree's actions, and a
+    correction it trusts can take the agent far from them; a narrow range keeps the
+    policy near the tree until the critic has seen where π's corrections lead. Needs
+    observe_backbone."""
+
     def __post_init__(self) -> None:
         if not self.correction_limit > 0.0:
             raise ValueError(
@@ -57,6 +65,16 @@ class BackboneConfig:
             raise ValueError(
                 f"switch_margin={self.switch_margin} needs observe_backbone=True (the residual "
                 "learner's critic); set backbone.observe_backbone: true"
+            )
+        if not 0.0 <= self.correction_ramp <= 1.0:
+            raise ValueError(
+                f"correction_ramp={self.correction_ramp} must be in [0, 1] (a share of the "
+                "actor's gradient steps; 0: no ramp)"
+            )
+        if self.correction_ramp > 0.0 and not self.observe_backbone:
+            raise ValueError(
+                f"correction_ramp={self.correction_ramp} needs observe_backbone=True (the "
+                "residual learner); set backbone.observe_backbone: true"
             )
         if self.observe_backbone and self.teacher:
             raise ValueError(

@@ -95,11 +95,13 @@ class ObservingBackboneLearner(TD3Learner):
         compile: CompileMode = "off",
         correction_penalty: float = 0.0,
         publish_critic: bool = False,
+        ramp_actor_updates: int = 0,
     ) -> None:
         """`bound` is L per action dimension; `scale` the half-width of the action box;
         `correction_penalty` β of `conservative_actor_loss` (0: TD3's actor loss);
         `publish_critic`: the published weights carry the critic too (value-based
-        switching in the behaviour)."""
+        switching in the behaviour); `ramp_actor_updates`: π's range grows linearly from
+        0 to [−L, L] over its first that many gradient steps (0: the whole range at once)."""
         act_dim = bound.shape[0]
         super().__init__(
             obs_dim + act_dim,
@@ -112,9 +114,12 @@ class ObservingBackboneLearner(TD3Learner):
             compile=compile,
         )
         self._scale = torch.as_tensor(scale, dtype=torch.float32, device=self.device)
-        self._bound = torch.as_tensor(bound, dtype=torch.float32, device=self.device)
+        self._bound = torch.tensor(bound, dtype=torch.float32, device=self.device)  # a copy
         self._penalty = correction_penalty
         self._publish_critic = publish_critic
+        self._ramp = ramp_actor_updates
+        if self._ramp:
+            self._set_range()  # before the first step: π starts at the tree
         self.tree_only = False
         """Set by the final selection (`keep_tree`): the greedy policy is the tree alone."""
 
@@ -141,6 +146,19 @@ class ObservingBackboneLearner(TD3Learner):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
         self.tree_only = bool(state.get("tree_only", False))
+
+    def _set_range(self) -> None:
+        """π's range (the actor's and its target's squash bounds, published with the
+        weights) at this point of the ramp: ±L · min(1, (actor steps + 1) / ramp)."""
+        share = min(1.0, (self.num_actor_updates + 1) / self._ramp)
+        for actor in (self.actor, self.target_actor):
+            actor.action_high.copy_(self._bound * share)
+            actor.action_low.copy_(-self._bound * share)
+
+    def _actor_step(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        if self._ramp and self.num_actor_updates < self._ramp:
+            self._set_range()
+        return super()._actor_step(obs, batch)
 
     def _actor_loss(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         if self._penalty == 0.0:

@@ -172,6 +172,9 @@ class TD3Learner:
             self.critic = TwinCritic(obs_dim, act_dim, config.hidden_sizes)
         self.actor.to(self.device)
         self.critic.to(self.device)
+        self.action_box = (self.actor.action_low.clone(), self.actor.action_high.clone())
+        """The actions the critic values: the stored actions are clipped to it, and the
+        target policy's smoothed actions (the actor's own range may be narrower)."""
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_optimizer = adam(self.actor.parameters(), lr=config.actor_lr, device=self.device)
@@ -222,11 +225,7 @@ class TD3Learner:
         # Actors store the *unclipped* sampled action, so that importance ratios can be
         # taken on it later; the environment applied clip(action, low, high), and that is
         # the action whose value the critic must learn.
-        action = torch.clamp(
-            batch["action"].to(dev, non_blocking=True),
-            self.actor.action_low,
-            self.actor.action_high,
-        )
+        action = torch.clamp(batch["action"].to(dev, non_blocking=True), *self.action_box)
         target = self._critic_target(batch)
         q1, q2 = self.critic(obs, action)
         baseline = self._critic_baseline(batch)
@@ -266,8 +265,8 @@ class TD3Learner:
             "target_critic": self.target_critic,
             "policy_noise": self._policy_noise,
             "noise_clip": self._noise_clip,
-            "action_low": self.actor.action_low,
-            "action_high": self.actor.action_high,
+            "action_low": self.action_box[0],
+            "action_high": self.action_box[1],
             "generator": self._generator,
         }
 

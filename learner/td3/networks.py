@@ -63,8 +63,9 @@ class Actor(nn.Module):
             ValueError: If the bounds have the wrong shape, are not finite or are empty.
         """
         super().__init__()
-        low = torch.as_tensor(np.asarray(action_low, dtype=np.float32))
-        high = torch.as_tensor(np.asarray(action_high, dtype=np.float32))
+        # Copies: a buffer sharing the caller's array would change with it, and back.
+        low = torch.tensor(np.asarray(action_low, dtype=np.float32))
+        high = torch.tensor(np.asarray(action_high, dtype=np.float32))
         if low.shape != (act_dim,) or high.shape != (act_dim,):
             raise ValueError(
                 f"action bounds have shapes {tuple(low.shape)} and {tuple(high.shape)}, "

@@ -306,3 +306,48 @@ def test_the_switching_learner_publishes_its_critic_and_checkpoints_the_tree_onl
     again = make(1)
     again.load_state_dict(learner.state_dict())
     assert split_weights(again.policy_state())[2] is True
+
+
+def test_the_correction_ramp_widens_pis_published_range_and_the_critic_keeps_the_whole_box():
+    from actors.policy_net import PolicyNet
+    from learner.backbone.learning import ObservingBackboneLearner
+    from learner.td3.config import TD3Config
+
+    learner = ObservingBackboneLearner(
+        3,
+        np.array([4.0], np.float32),
+        np.array([2.0]),
+        config=TD3Config(hidden_sizes=(8,), policy_delay=1, actor_lr=0.1),
+        seed=0,
+        ramp_actor_updates=4,
+    )
+    batch = {
+        "obs": torch.zeros(8, 3),
+        "action": torch.full((8, 1), 3.5),  # acted with the whole range: stored as it was
+        "backbone_action": torch.zeros(8, 1),
+        "next_backbone_action": torch.zeros(8, 1),
+        "reward": torch.ones(8),
+        "terminated": torch.zeros(8, dtype=torch.bool),
+        "next_obs": torch.zeros(8, 3),
+    }
+    ranges = []
+    for _ in range(6):
+        learner.update(batch)
+        ranges.append(learner.actor.action_high.item())
+        assert learner.target_actor.action_high.item() == ranges[-1]
+    assert ranges == pytest.approx([1.0, 2.0, 3.0, 4.0, 4.0, 4.0])  # ±L·(step / 4), then ±L
+    assert learner.action_box[1].item() == 4.0  # the critic values every action taken
+    # The actors' copy squashes into the published range.
+    policy = learner.policy_state()
+    assert policy["action_high"].item() == 4.0
+    net = PolicyNet({k: v.numpy() for k, v in policy.items() if not k.startswith("critic.")})
+    assert np.all(np.abs(net(np.zeros((2, 4), np.float32))) <= 4.0)
+
+
+def test_the_correction_ramp_is_a_share_of_the_actor_steps_and_needs_the_residual_learner():
+    from learner.backbone.config import BackboneConfig
+
+    with pytest.raises(ValueError, match=r"correction_ramp=1.5 must be in \[0, 1\]"):
+        BackboneConfig(correction_ramp=1.5, observe_backbone=True)
+    with pytest.raises(ValueError, match="correction_ramp=0.5 needs observe_backbone"):
+        BackboneConfig(correction_ramp=0.5)
