@@ -1,4 +1,7 @@
-"""Learner checkpoints: model, optimiser and counters, written atomically to the run folder."""
+"""Learner checkpoints: model, optimiser and counters, written atomically to the run folder.
+
+Finding one needs no torch (the CLI checks a path before torch loads); saving and loading
+import it."""
 
 from __future__ import annotations
 
@@ -6,14 +9,14 @@ import os
 from pathlib import Path
 from typing import Any, Optional
 
-import torch
-
 KEEP = 3
 
 
 def save_checkpoint(folder: Path, state: dict[str, Any], *, updates: int, keep: int = KEEP) -> Path:
     """Writes `ckpt-<updates>.pt` via a temporary file and rename: never half a file; keeps
     the newest ``keep`` checkpoints (0: all of them)."""
+    import torch
+
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"ckpt-{updates:09d}.pt"
     tmp = path.with_suffix(".pt.tmp")
@@ -31,6 +34,8 @@ def latest_checkpoint(folder: Path) -> Optional[Path]:
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
+    import torch
+
     return torch.load(path, map_location="cpu", weights_only=False)
 
 

@@ -15,6 +15,8 @@ what is missing and how to fix it.
 from __future__ import annotations
 
 import math
+import os
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Optional
@@ -148,6 +150,20 @@ class Node:
     name: str
     resources: dict[str, float]
     labels: dict[str, str] = field(default_factory=dict)
+
+
+def local_cpus() -> float:
+    """CPUs of the local Ray instance (running, or the one `connect_ray('local')` starts);
+    Ray is imported only when it is already running or asked (no torch either way)."""
+    ray = sys.modules.get("ray")
+    if ray is not None and ray.is_initialized():
+        return float(ray.cluster_resources().get("CPU", 0.0))
+    try:
+        from ray._private.utils import get_num_cpus  # the cgroup quota, as Ray will see it
+
+        return float(get_num_cpus())
+    except (ImportError, AttributeError):  # not in this Ray version: the machine's cores
+        return float(os.cpu_count() or 1)
 
 
 def cluster_nodes() -> list[Node]:

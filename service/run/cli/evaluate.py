@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from pathlib import Path
 
 from service.run.cli.flags import DEFAULT_PRESET, UsageError, at_least
 
@@ -32,18 +33,18 @@ _EVAL_FIELDS = ("policy", "env_id", "episodes", "mean", "std")
 
 
 def _eval(args: argparse.Namespace) -> None:
-    import numpy as np
-
     from actors.task import add_import_path
-    from service.run.api import evaluate, load_policy
+    from learner.checkpoint import find_checkpoint
     from service.run.config import load_preset
-    from service.run.orchestration.preflight import check_task
     from service.run.validation import ConfigError, check_env_id
 
     at_least("eval", "--episodes", args.episodes, 1)
     at_least("eval", "--seed", args.seed, 0)
 
     try:
+        # The preset, the environment id and the policy's path are checked before torch
+        # and Ray (seconds to import) load.
+        task = None
         if args.policy in ("hardcoded", "random"):
             task = load_preset(args.preset or DEFAULT_PRESET, seed=args.seed)
             if args.env_id is not None:
@@ -54,10 +55,16 @@ def _eval(args: argparse.Namespace) -> None:
                     raise UsageError("eval", f"--env-id: {error}") from None
                 if args.policy == "random":  # random actions may go to any environment
                     task = dataclasses.replace(task, env_id=args.env_id)
+        else:
+            find_checkpoint(Path(args.policy))
+        from service.run.api import load_policy
+        from service.run.orchestration.preflight import check_task
+
+        if task is None:
+            policy = load_policy(args.policy)
+        else:
             check_task(task, policy=args.policy == "hardcoded")
             policy = load_policy(args.policy, preset=task)
-        else:
-            policy = load_policy(args.policy)
     except FileNotFoundError as error:
         raise UsageError(
             "eval",
@@ -69,6 +76,10 @@ def _eval(args: argparse.Namespace) -> None:
     if args.env_id not in (None, env_id):
         what = "was trained on" if args.policy not in ("hardcoded", "random") else "acts in"
         raise UsageError("eval", f"{args.policy} {what} {env_id}, not {args.env_id}")
+    import numpy as np
+
+    from service.run.api import evaluate
+
     result = evaluate(policy, episodes=args.episodes, seed=args.seed)
     out = {
         "policy": args.policy,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from typing import Optional
 
@@ -30,13 +31,19 @@ def at_least(command: str, flag: str, value: Optional[int], minimum: int) -> Non
 
 
 def ray_address(command: str, given: Optional[str]) -> str:
-    """--address, else RAY_ADDRESS (said in one line), else a new local Ray instance."""
-    from service.run.orchestration.ray_session import resolve_address
-
-    address, note = resolve_address(given)
-    if note:
-        print(f"graft {command}: {note}", file=sys.stderr)
-    return address
+    """The Ray address a run uses: --address, else RAY_ADDRESS, said in one line (it must
+    not change a run silently), else 'local' (a new local Ray instance)."""
+    if given is not None:
+        return given
+    from_env = os.environ.get("RAY_ADDRESS")
+    if not from_env:
+        return "local"
+    print(
+        f"graft {command}: joining the Ray cluster at RAY_ADDRESS={from_env}; --address "
+        "local starts a new local Ray instead",
+        file=sys.stderr,
+    )
+    return from_env
 
 
 def set_overrides(command: str, pairs: list[str]) -> dict[str, object]:

@@ -124,9 +124,7 @@ def _experiment(args: argparse.Namespace) -> None:
 
 
 def _tune(args: argparse.Namespace) -> None:
-    from service.run.tuning import report as tune_report
     from service.run.tuning.grid import Costs, parse_grid, plan
-    from service.run.tuning.sweep import sweep
     from service.run.validation import ConfigError
 
     for flag, value in (("--warmup", args.warmup), ("--measure", args.measure)):
@@ -154,6 +152,10 @@ def _tune(args: argparse.Namespace) -> None:
         )
     except (ConfigError, ValueError) as error:
         raise UsageError("tune", str(error)) from None
+    # Imported once the input is checked: torch and Ray take seconds to load.
+    from service.run.tuning import report as tune_report
+    from service.run.tuning.sweep import sweep
+
     knobs = list(grid)
     out, done = args.out, []
 

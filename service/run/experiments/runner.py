@@ -68,7 +68,8 @@ def plan_experiment(
             in parallel than a local Ray instance can place.
     """
     from service.run.config import load_preset
-    from service.run.orchestration.preflight import local_cpus, ray_cpus, run_cpus
+    from service.run.orchestration.preflight import ray_cpus, run_cpus
+    from service.run.placement import local_cpus
 
     if name not in FIGURES:
         raise ConfigError(f"unknown experiment {name!r}; choose from {sorted(FIGURES)}")

@@ -4,18 +4,16 @@ on a local Ray instance or the cluster."""
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 from typing import Any, Optional
 
-import ray
 import yaml
 
 from actors.task import add_import_path
 from learner.checkpoint import latest_checkpoint
 from service.run.config import TrainConfig
-from service.run.placement import Node, Placement, check_placement, cluster_nodes
+from service.run.placement import Node, Placement, check_placement, cluster_nodes, local_cpus
 from service.run.validation import ConfigError, check_env_id, resolve_import_string
 
 USES_HARDCODED_POLICY = ("backbone_td3", "pretrain_td3", "options")
@@ -112,18 +110,6 @@ def run_roles(config: TrainConfig) -> list[tuple[str, Placement, int]]:
 def run_cpus(config: TrainConfig) -> float:
     """CPUs the Ray actors of one run ask for: its env actors and its evaluator."""
     return sum(p.num_cpus * n for _, p, n in run_roles(config))
-
-
-def local_cpus() -> float:
-    """CPUs of the local Ray instance (running, or the one `connect_ray('local')` starts)."""
-    if ray.is_initialized():
-        return float(ray.cluster_resources().get("CPU", 0.0))
-    try:
-        from ray._private.utils import get_num_cpus
-
-        return float(get_num_cpus())
-    except (ImportError, AttributeError):  # not in this Ray version: the machine's cores
-        return float(os.cpu_count() or 1)
 
 
 def check_fits_locally(config: TrainConfig, address: str) -> None:

@@ -1,5 +1,5 @@
 """Joining Ray: a new local instance or a cluster (with Ray's token auth when this machine
-holds a token), keeping `graft train`'s SIGTERM handler, and which address a run uses."""
+holds a token), keeping `graft train`'s SIGTERM handler."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Optional
 
 import ray
 
@@ -143,17 +142,3 @@ def _use_token_auth(address: str) -> None:
             os.environ["RAY_AUTH_MODE"] = "token"
         else:
             _enable_token_auth()
-
-
-def resolve_address(given: Optional[str]) -> tuple[str, Optional[str]]:
-    """The Ray address a run uses: `given`, else RAY_ADDRESS, else 'local'; and, when
-    RAY_ADDRESS decided it, one line saying so (it must not change a run silently)."""
-    if given is not None:
-        return given, None
-    from_env = os.environ.get("RAY_ADDRESS")
-    if from_env:
-        return from_env, (
-            f"joining the Ray cluster at RAY_ADDRESS={from_env}; --address local starts a "
-            "new local Ray instead"
-        )
-    return "local", None

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from service.run.config import TrainConfig, load_preset
-from service.run.orchestration.preflight import local_cpus
+from service.run.placement import local_cpus
 from service.run.validation import ConfigError
 
 LEARNERS = ("real", "cost", "drain")

@@ -13,7 +13,7 @@ import torch
 
 from service.run.cli import main
 from service.run.config import PRESETS, load_preset, preset_descriptions, preset_names
-from service.run.orchestration.preflight import local_cpus
+from service.run.placement import local_cpus
 
 TRAIN = ["train", "--preset", "pendulum-td3"]
 
@@ -390,18 +390,24 @@ import sys
 from service.run.cli import main
 from service.run.config import load_preset
 load_preset("pendulum-td3", **{"td3.batch_size": 64})
-try:
-    main(["train", "--preset", "pendulum-td3", "--set", "td3.gamma=2"])
-except SystemExit as stop:
-    assert stop.code == 2, stop.code
+for argv in (
+    ["train", "--preset", "pendulum-td3", "--set", "td3.gamma=2"],
+    ["eval", "--policy", "no-such-run"],
+    ["eval", "--preset", "no-such-preset"],
+    ["tune", "--preset", "pendulum-td3", "--grid", "actors=0"],
+):
+    try:
+        main(argv)
+    except SystemExit as stop:
+        assert stop.code == 2, (argv, stop.code)
 print(sorted(m for m in ("torch", "ray") if m in sys.modules))
 """
 
 
 @pytest.mark.service  # a fresh interpreter: this one has imported torch long since
-def test_presets_load_and_bad_train_input_is_refused_without_importing_torch_or_ray() -> None:
-    """`graft train`'s checks answer in a fraction of a second: torch and Ray (seconds to
-    import) load only once the input is good."""
+def test_presets_load_and_bad_input_is_refused_without_importing_torch_or_ray() -> None:
+    """`graft train`'s, `graft eval`'s and `graft tune`'s checks answer in a fraction of a
+    second: torch and Ray (seconds to import) load only once the input is good."""
     done = subprocess.run(
         [sys.executable, "-c", REFUSED_WITHOUT_TORCH],
         cwd=Path(__file__).resolve().parents[3],
@@ -410,5 +416,11 @@ def test_presets_load_and_bad_train_input_is_refused_without_importing_torch_or_
         timeout=60,
     )
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "graft train: td3.gamma=2" in done.stderr, done.stderr
+    for line in (
+        "graft train: td3.gamma=2",
+        "graft eval: no-such-run is neither a run folder nor a checkpoint",
+        "graft eval: unknown preset 'no-such-preset'",
+        "graft tune: ",
+    ):
+        assert line in done.stderr, done.stderr
     assert done.stdout.strip() == "[]", done.stdout
