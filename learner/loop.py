@@ -77,11 +77,18 @@ class LoopState:
     evaluations: list[Evaluation] = field(default_factory=list)
     selection: dict[str, float] = field(default_factory=dict)
     """The final selection's scores (``policy``, ``tree``) and ``tree_kept`` (1 or 0)."""
+    guard: dict[str, float] = field(default_factory=dict)
+    """The newest in-run evaluation judged against the tree (`LearnerLoop` with a
+    selection): ``policy``, ``tree`` and ``tree_kept`` (1: a run stopped there plays the
+    tree)."""
 
 
 @runtime_checkable
 class FallsBack(Protocol):
     """An algorithm whose greedy policy can fall back to the hard-coded one."""
+
+    tree_only: bool
+    """The greedy policy is the tree alone (`keep_tree` was called)."""
 
     def tree_state(self) -> Weights:
         """Published weights under which the greedy policy is the tree alone."""
@@ -163,6 +170,8 @@ class LearnerLoop:
         self.device = device
         self.prefetch_to_device = 0 if lockstep is not None else prefetch_to_device
         self._pending_evals: list[Future[Evaluation]] = []
+        self._tree_eval: Optional[Future[Evaluation]] = None
+        """The tree alone on the in-run evaluation's episodes (the same every time)."""
         # The run's env steps when the table was empty: a table refilled on resume counts
         # from zero (offset: the checkpoint's env steps), a restored one goes on counting.
         self._env_steps_offset = (
@@ -188,17 +197,30 @@ class LearnerLoop:
             "updates": self.state.updates,
             "wall_s": time.perf_counter() - self._started,
         }
-        self._pending_evals.append(
-            self.evaluator.evaluate(weights, episodes=self.settings.eval_episodes, tag=tag)
-        )
+        episodes = self.settings.eval_episodes
+        self._pending_evals.append(self.evaluator.evaluate(weights, episodes=episodes, tag=tag))
+        if self._guarded is not None and self._tree_eval is None:
+            self._tree_eval = self.evaluator.evaluate(
+                self._guarded.tree_state(), episodes=episodes, tag=tag
+            )
+
+    @property
+    def _guarded(self) -> Optional[FallsBack]:
+        """The algorithm, when every in-run evaluation is also judged against the tree: a
+        run with a final selection, whose evaluations have a spread to test (≥ 2)."""
+        if self.settings.selection.episodes and self.settings.eval_episodes >= 2:
+            return self.algorithm if isinstance(self.algorithm, FallsBack) else None
+        return None
 
     def _collect_evaluations(self, wait: bool = False) -> None:
-        """Logs the evaluations that have finished (with `wait`, all of them), in order."""
+        """Logs the evaluations that have finished (with `wait`, all of them), in order;
+        each judged against the tree once the tree's own evaluation is in."""
         if wait:
-            concurrent.futures.wait(self._pending_evals)
+            concurrent.futures.wait(self._pending_evals + [f for f in [self._tree_eval] if f])
         pending, self._pending_evals = self._pending_evals, []
+        tree_waits = self._tree_eval is not None and not self._tree_eval.done()
         for future in pending:
-            if not future.done():
+            if not future.done() or tree_waits:
                 self._pending_evals.append(future)
                 continue
             result = future.result()
@@ -206,7 +228,32 @@ class LearnerLoop:
             tag = result["tag"]
             scalars = {"eval/return_mean": result["mean"], "eval/return_std": result["std"]}
             scalars.update({f"eval/{k}": v for k, v in result.get("stats", {}).items()})
+            if self._tree_eval is not None:
+                scalars.update(self._guard(result, self._tree_eval.result()))
             self.logger.log(scalars, env_steps=tag["env_steps"], updates=tag["updates"])
+
+    def _guard(self, policy: Evaluation, tree: Evaluation) -> dict[str, float]:
+        """The final selection's paired test applied to an in-run evaluation: what a run
+        stopped here plays (``guard/return_mean``: the policy's score if it beat the tree,
+        else the tree's) and whether that is the tree (``guard/tree_kept``)."""
+        kept = tree_wins(policy.get("returns", []), tree.get("returns", []),
+                         z=self.settings.selection.z)  # fmt: skip
+        self.state.guard = {
+            "policy": policy["mean"],
+            "tree": tree["mean"],
+            "tree_kept": float(kept),
+        }
+        return {
+            "guard/return_mean": tree["mean"] if kept else policy["mean"],
+            "guard/tree_kept": float(kept),
+        }
+
+    def keep_guarded(self) -> None:
+        """For a run stopped before its end (Ctrl-C): its policy from now on is the tree
+        unless the newest in-run evaluation showed the policy beating it."""
+        algorithm = self._guarded
+        if algorithm is not None and self.state.guard.get("tree_kept", 1.0):
+            algorithm.keep_tree()
 
     def checkpoint(self) -> Path:
         s = self.state

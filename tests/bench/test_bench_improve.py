@@ -3,6 +3,7 @@ through the documented commands (graft train, graft eval; local Ray, replay serv
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -48,7 +49,17 @@ def test_summary_pairs_each_seed_with_the_tree_on_the_same_episodes():
     assert s["worst_in_run"] == pytest.approx(-0.05) and s["never_far_below"]
     line = improve.table([s]).splitlines()[-1]
     assert line.startswith("| t | backbone_td3 | 3,000 | 100.0 | 130.0, 100.0, 105.0 | +11.7 [")
-    assert line.endswith("| 2/3 | -5 % | 10 |")
+    assert line.endswith("| 2/3 | -5 % | - | 10 |")  # runs without a selection: no guard
+
+
+def test_the_guarded_column_is_what_runs_stopped_at_each_evaluation_would_play():
+    rows = [_row(0, 100.0, 130.0, [100.0, 50.0]), _row(1, 90.0, 100.0, [100.0, 105.0])]
+    rows[0] = dataclasses.replace(rows[0], guarded=[100.0, 100.0])  # the tree kept at 1,000
+    rows[1] = dataclasses.replace(rows[1], guarded=[100.0, 105.0])
+    s = improve.summarise("t", rows, budget=2000, algorithm="backbone_td3")
+    assert s["worst_in_run"] == pytest.approx(-0.5) and not s["never_far_below"]
+    assert s["worst_in_run_guarded"] == pytest.approx(0.0) and s["guarded_never_far_below"]
+    assert improve.table([s]).splitlines()[-1].endswith("| 2/2 | -50 % | +0 % | 10 |")
 
 
 def test_fewer_than_three_seeds_get_no_interval_and_no_ci_target():
@@ -68,7 +79,9 @@ def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, caps
     assert summary["seeds"] == 1 and np.isfinite(summary["final_mean"])
     assert -1000.0 < summary["tree"] < -200.0  # the swing-up tree on --quick's 10 episodes
     saved = json.loads((tmp_path / "improve-pendulum.json").read_text())
-    assert saved["seeds"]["pendulum"][0]["evaluations"]  # the in-run evaluations were read
+    first = saved["seeds"]["pendulum"][0]
+    assert first["evaluations"]  # the in-run evaluations were read, each judged by the guard
+    assert len(first["guarded"]) == len(first["evaluations"])
     assert (tmp_path / "improve-pendulum.png").stat().st_size > 0
     assert "| pendulum | backbone_td3 |" in capsys.readouterr().out
     # Read back: the selection applied again gives the run's own choice, on the same

@@ -15,6 +15,7 @@ import torch
 
 from learner.agent import Phase
 from learner.loop import LearnerLoop, Lockstep, LoopSettings, updates_allowed
+from learner.selection import SelectionConfig
 from service.core import Algorithm, Columns, EvalTag, Evaluation, Metrics, TensorBatch, Weights
 from service.metrics import MetricsLogger, read_metric
 
@@ -245,3 +246,98 @@ def test_lockstep_phase_without_a_ratio_updates_once_its_actors_finished(tmp_pat
     loop.run()
     assert log == ["insert 8", "insert 16", "insert 20", "finished"] + ["update"] * 3
     assert actors.versions == [-1] * 4  # the demonstrations need no weights
+
+
+class FallingBackAlgorithm(CountingAlgorithm):
+    """A `FallsBack` algorithm: its published weights say when they are the tree's."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tree_only = False
+
+    def policy_state(self) -> Weights:
+        return {**super().policy_state(), "tree": torch.tensor(float(self.tree_only))}
+
+    def tree_state(self) -> Weights:
+        return {**super().policy_state(), "tree": torch.tensor(1.0)}
+
+    def keep_tree(self) -> None:
+        self.tree_only = True
+
+
+class EpisodeEvaluator:
+    """Per-episode returns: the tree scores 10 + i on episode i; the policy after `u`
+    updates scores 10 + i + (u − 3), so it loses to the tree until its fourth update."""
+
+    def __init__(self) -> None:
+        self.asked: list[float] = []
+
+    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
+        tree = float(weights["tree"]) == 1.0
+        self.asked.append(-1.0 if tree else float(weights["updates"]))
+        gain = 0.0 if tree else float(weights["updates"]) - 3.0
+        returns = [10.0 + i + gain + 0.1 * (i % 2) for i in range(episodes)]
+        future: Future[Evaluation] = Future()
+        future.set_result(
+            {
+                "tag": tag,
+                "mean": float(np.mean(returns)),
+                "std": 0.0,
+                "stats": {},
+                "returns": returns,
+            }  # fmt: skip
+        )
+        return future
+
+
+def _guarded_loop(tmp_path, algorithm, evaluator, updates: int) -> LearnerLoop:
+    online = Phase("online", env_steps=0, updates=updates, min_size=1, acts_with_weights=True)
+    return LearnerLoop(
+        algorithm,
+        phases=[online],
+        open_stream=lambda phase: ListStream(batches(1, updates)),
+        publisher=RecordingPublisher(),
+        evaluator=evaluator,
+        logger=MetricsLogger(tmp_path, tensorboard=False),
+        checkpoint_dir=tmp_path / "checkpoints",
+        settings=LoopSettings(
+            publish_every=1,
+            eval_every=1,
+            eval_episodes=4,
+            checkpoint_every=100,
+            selection=SelectionConfig(episodes=4, z=1.0),
+        ),  # fmt: skip
+    )
+
+
+def test_every_in_run_evaluation_is_judged_against_the_tree_scored_once(tmp_path):
+    algorithm, evaluator = FallingBackAlgorithm(), EpisodeEvaluator()
+    loop = _guarded_loop(tmp_path, algorithm, evaluator, updates=6)
+    state = loop.run()
+    assert evaluator.asked.count(-1.0) == 2  # once for the in-run evaluations, once to select
+    _, policy = read_metric(tmp_path / "metrics.csv", "eval/return_mean")
+    steps, guarded = read_metric(tmp_path / "metrics.csv", "guard/return_mean")
+    _, kept = read_metric(tmp_path / "metrics.csv", "guard/tree_kept")
+    tree = 11.55  # the tree's mean over episodes 0-3
+    # Below the tree (updates 0-3), the guarded score is the tree's; above, the policy's.
+    assert len(guarded) == len(policy) >= 5
+    for p, g, k in zip(policy, guarded, kept, strict=True):
+        assert (g, k) == ((tree, 1.0) if p <= tree else (p, 0.0)), (p, g, k)
+    assert min(guarded) == pytest.approx(tree)
+    assert state.guard["tree_kept"] == 0.0 and not algorithm.tree_only  # 6 updates beat it
+
+
+def test_a_run_stopped_early_keeps_the_tree_unless_its_last_evaluation_beat_it(tmp_path):
+    early, evaluator = FallingBackAlgorithm(), EpisodeEvaluator()
+    loop = _guarded_loop(tmp_path / "early", early, evaluator, updates=2)
+    loop.run()  # with its final selection: 2 updates lose to the tree
+    assert early.tree_only
+    late = FallingBackAlgorithm()
+    loop = _guarded_loop(tmp_path / "late", late, EpisodeEvaluator(), updates=6)
+    loop.run()
+    late.tree_only = False
+    loop.keep_guarded()  # as a Ctrl-C does: the newest verdict (6 updates) was the policy
+    assert not late.tree_only
+    loop.state.guard["tree_kept"] = 1.0
+    loop.keep_guarded()
+    assert late.tree_only

@@ -273,6 +273,8 @@ def train_here(
             # short and leave a half-written folder or processes behind.
             release_sigint = _hold_sigint()
             bar.close()
+        if interrupted:  # no final selection: the newest in-run evaluation's verdict holds
+            loop.keep_guarded()
         loop.checkpoint()  # with the env-step count a resume continues from
         faults.log(final, always=True)
         log_behaviour_stats(logger, actor_reports, config.num_actors, resumed_env_steps)
@@ -282,6 +284,7 @@ def train_here(
             summary["replay_shard_inserts"] = replay.inserts()
         summary["interrupted"] = interrupted
         summary["selection"] = final.selection or None
+        summary["guard"] = final.guard or None
         summary["replay_restored"] = dataclasses.asdict(restored) if restored else None
         summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
         summary.update(hardware, learner_compile=compile_mode)

@@ -9,7 +9,7 @@ from typing import Any, Optional
 
 from learner.agent import Phase
 from learner.checkpoint import load_checkpoint
-from learner.loop import LoopState, updates_allowed
+from learner.loop import FallsBack, LoopState, updates_allowed
 from service.run.config import TrainConfig
 from service.run.replay_host.folder import Restored
 from service.run.validation import ConfigError
@@ -94,6 +94,9 @@ def restore(
             f"--resume: {checkpoint} does not fit this config ({config.algorithm}, "
             f"{config.env_id}): {first}"
         ) from None
+    if isinstance(algorithm, FallsBack):
+        # The run learns on: whether it ends on the tree is decided again when it stops.
+        algorithm.tree_only = False
     state = LoopState(**saved["loop"])
     try:
         check_resumable(phases, state, config, refill=refill)
