@@ -63,13 +63,17 @@ class FallingBack(CountingAlgorithm):
 
     def __init__(self, tree: float) -> None:
         super().__init__()
-        self.tree, self.kept = tree, False
+        self.tree, self.tree_only = tree, False
+
+    @property
+    def kept(self) -> bool:
+        return self.tree_only
 
     def tree_state(self) -> Weights:
         return {"updates": torch.tensor(self.tree), "tree": torch.tensor(1.0)}
 
     def keep_tree(self) -> None:
-        self.kept = True
+        self.tree_only = True
 
 
 class ScoringEvaluator:
