@@ -290,24 +290,28 @@ class EpisodeEvaluator:
         return future
 
 
-def _guarded_loop(tmp_path, algorithm, evaluator, updates: int) -> LearnerLoop:
-    online = Phase("online", env_steps=0, updates=updates, min_size=1, acts_with_weights=True)
+def one_phase_loop(
+    tmp_path, algorithm, evaluator, *, updates: int, settings: LoopSettings
+) -> LearnerLoop:
+    """A loop over one online phase of `updates` batches, logging to `tmp_path`."""
     return LearnerLoop(
         algorithm,
-        phases=[online],
+        phases=[Phase("online", env_steps=0, updates=updates, min_size=1)],
         open_stream=lambda phase: ListStream(batches(1, updates)),
         publisher=RecordingPublisher(),
         evaluator=evaluator,
         logger=MetricsLogger(tmp_path, tensorboard=False),
         checkpoint_dir=tmp_path / "checkpoints",
-        settings=LoopSettings(
-            publish_every=1,
-            eval_every=1,
-            eval_episodes=4,
-            checkpoint_every=100,
-            selection=SelectionConfig(episodes=4, z=1.0),
-        ),  # fmt: skip
+        settings=settings,
     )
+
+
+def _guarded_loop(tmp_path, algorithm, evaluator, updates: int) -> LearnerLoop:
+    settings = LoopSettings(
+        publish_every=1, eval_every=1, eval_episodes=4, checkpoint_every=100,
+        selection=SelectionConfig(episodes=4, z=1.0),
+    )  # fmt: skip
+    return one_phase_loop(tmp_path, algorithm, evaluator, updates=updates, settings=settings)
 
 
 def test_every_in_run_evaluation_is_judged_against_the_tree_scored_once(tmp_path):

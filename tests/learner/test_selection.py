@@ -9,12 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from learner.agent import Phase
-from learner.loop import LearnerLoop, LoopSettings
+from learner.loop import LoopSettings
 from learner.selection import SelectionConfig, tree_wins
 from service.core import EvalTag, Evaluation, Weights
-from service.metrics import MetricsLogger, read_metric
-from tests.learner.test_loop import CountingAlgorithm, ListStream, RecordingPublisher, batches
+from service.metrics import read_metric
+from tests.learner.test_loop import CountingAlgorithm, one_phase_loop
 
 
 @pytest.mark.parametrize(
@@ -104,22 +103,14 @@ class ScoringEvaluator:
 )
 def test_the_loop_keeps_the_tree_unless_the_policy_beat_it(tmp_path, tree, spread, episodes, kept):
     algorithm, evaluator = FallingBack(tree), ScoringEvaluator(spread)
-    loop = LearnerLoop(
-        algorithm,
-        phases=[Phase("online", env_steps=0, updates=4, min_size=1)],
-        open_stream=lambda phase: ListStream(batches(0, 4)),
-        publisher=RecordingPublisher(),
-        evaluator=evaluator,
-        logger=MetricsLogger(tmp_path, tensorboard=False),
-        checkpoint_dir=tmp_path / "checkpoints",
-        settings=LoopSettings(
-            publish_every=2,
-            eval_every=100,
-            eval_episodes=1,
-            checkpoint_every=5,
-            selection=SelectionConfig(episodes=episodes),
-        ),
+    settings = LoopSettings(
+        publish_every=2,
+        eval_every=100,
+        eval_episodes=1,
+        checkpoint_every=5,
+        selection=SelectionConfig(episodes=episodes),
     )
+    loop = one_phase_loop(tmp_path, algorithm, evaluator, updates=4, settings=settings)
     state = loop.run()
     loop.logger.close()
     assert algorithm.kept is kept
