@@ -271,6 +271,7 @@ def plot(results: dict[str, list[SeedRow]], png: Path, episodes: int) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     fig, axes = plt.subplots(1, len(results), figsize=(4.5 * len(results), 3.8), squeeze=False)
     for ax, (task, rows) in zip(axes[0], results.items(), strict=True):
@@ -283,11 +284,22 @@ def plot(results: dict[str, list[SeedRow]], png: Path, episodes: int) -> None:
         for values in c["per_seed"]:
             ax.plot(c["env_steps"], values, color="tab:blue", alpha=0.3, linewidth=0.8)
         ax.plot(c["env_steps"], c["mean"], color="tab:blue", label=f"in-run, {c['seeds']} seeds")
+        guarded = [
+            {"variant": task, "seed": str(r.seed), "env_steps": s, "return_mean": g - r.tree_in_run}
+            for r in rows
+            if len(r.guarded) == len(r.steps)
+            for s, g in zip(r.steps, r.guarded, strict=True)
+        ]
+        if guarded:
+            g = curves(guarded, task)
+            ax.plot(g["env_steps"], g["mean"], color="tab:purple", linewidth=2.0, zorder=4,
+                    label="guarded: what a run stopped there plays")  # fmt: skip
         end = max(r.env_steps for r in rows)
         ax.scatter([end] * len(rows), [r.improvement for r in rows], color="tab:orange",
                    zorder=3, label=f"final, {episodes} episodes")  # fmt: skip
         ax.axhline(0.0, color="tab:green", linestyle="--", label="the tree")
         ax.set_title(task)
+        ax.xaxis.set_major_locator(MaxNLocator(5))
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("return minus the tree's")
@@ -303,6 +315,10 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--task", choices=sorted(TASKS))
     which.add_argument("--suite", action="store_true", help="every task")
+    which.add_argument(
+        "--plot", nargs="+", type=Path, metavar="JSON",
+        help="draw the figure of earlier runs from their improve*.json (to --out), no training",
+    )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--env-steps", type=int, help="override the task's budget")
@@ -321,6 +337,8 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     bad = [o for o in args.set if "=" not in o]
     if bad:
         parser.error(f"--set {bad[0]!r}: expected key=value, e.g. td3.batch_size=128")
+    if args.plot:
+        return replot(args.plot, args.out / "improve.png")
     if args.quick:
         args.seeds, args.env_steps = 1, args.env_steps or 600
     episodes = QUICK_EPISODES if args.quick else EPISODES
@@ -364,6 +382,21 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     )
     plot(results, args.out / f"{stem}.png", episodes)
     print(f"\n{args.out / f'{stem}.json'}, {args.out / f'{stem}.png'}")
+    return summaries
+
+
+def replot(saved: Sequence[Path], png: Path) -> list[dict[str, Any]]:
+    """The figure of the tasks in earlier runs' improve*.json files, in one PNG; their
+    summaries."""
+    results: dict[str, list[SeedRow]] = {}
+    summaries: list[dict[str, Any]] = []
+    for path in saved:
+        data = json.loads(path.read_text())
+        summaries += data["summaries"]
+        for task, rows in data["seeds"].items():
+            results[task] = [SeedRow(**r) for r in rows]
+    plot(results, png, EPISODES)
+    print(png)
     return summaries
 
 

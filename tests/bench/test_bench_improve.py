@@ -95,3 +95,16 @@ def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, caps
     assert "| task | seed | tree | π everywhere | with switching | selected (final) |" in out
     saved = json.loads((tmp_path / "improve-pendulum.json").read_text())
     assert set(saved["seeds"]["pendulum"][0]["parts"]) == {"switching", "policy"}
+
+
+def test_plot_redraws_earlier_runs_from_their_json_without_training(tmp_path):
+    rows = [_row(0, 100.0, 130.0, [100.0, 50.0]), _row(1, 90.0, 100.0, [100.0, 105.0])]
+    rows[0] = dataclasses.replace(rows[0], guarded=[100.0, 100.0])
+    summary = improve.summarise("t", rows, budget=2000, algorithm="backbone_td3")
+    saved = tmp_path / "improve-t.json"
+    saved.write_text(
+        json.dumps({"summaries": [summary], "seeds": {"t": [dataclasses.asdict(r) for r in rows]}})
+    )
+    (back,) = improve.main(["--plot", str(saved), "--out", str(tmp_path / "fig")])
+    assert back["task"] == "t" and back["worst_in_run_guarded"] == 0.0
+    assert (tmp_path / "fig" / "improve.png").stat().st_size > 0
