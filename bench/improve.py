@@ -260,7 +260,7 @@ def table(summaries: Sequence[dict[str, Any]]) -> str:
 
 
 def _percent(fraction: float) -> str:
-    return f"{100 * fraction:+.0f} %" if np.isfinite(fraction) else "-"
+    return f"{round(100 * fraction) + 0:+d} %" if np.isfinite(fraction) else "-"
 
 
 def plot(results: dict[str, list[SeedRow]], png: Path, episodes: int) -> None:
@@ -317,7 +317,8 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     which.add_argument("--suite", action="store_true", help="every task")
     which.add_argument(
         "--plot", nargs="+", type=Path, metavar="JSON",
-        help="draw the figure of earlier runs from their improve*.json (to --out), no training",
+        help="the table and figure of earlier runs from their improve*.json (to --out), no "
+        "training; a task's seeds from several files are taken together",
     )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0)
@@ -386,15 +387,28 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
 
 
 def replot(saved: Sequence[Path], png: Path) -> list[dict[str, Any]]:
-    """The figure of the tasks in earlier runs' improve*.json files, in one PNG; their
-    summaries."""
+    """The table and figure of earlier runs' improve*.json files, a task's seeds from
+    several files (e.g. two benches of different seeds) taken together; their summaries."""
     results: dict[str, list[SeedRow]] = {}
-    summaries: list[dict[str, Any]] = []
+    method: dict[str, tuple[int, str]] = {}
     for path in saved:
         data = json.loads(path.read_text())
-        summaries += data["summaries"]
+        for s in data["summaries"]:
+            method[s["task"]] = (round(s["env_steps"]), s["algorithm"])
         for task, rows in data["seeds"].items():
-            results[task] = [SeedRow(**r) for r in rows]
+            results.setdefault(task, []).extend(SeedRow(**r) for r in rows)
+    summaries = [
+        summarise(
+            task,
+            sorted(rows, key=lambda r: r.seed),
+            budget=method[task][0],
+            algorithm=method[task][1],
+        )  # fmt: skip
+        for task, rows in results.items()
+    ]
+    for summary in summaries:
+        print(summary["improvement_line"])
+    print(table(summaries))
     plot(results, png, EPISODES)
     print(png)
     return summaries
