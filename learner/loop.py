@@ -216,7 +216,8 @@ class LearnerLoop:
         """Logs the evaluations that have finished (with `wait`, all of them), in order;
         each judged against the tree once the tree's own evaluation is in."""
         if wait:
-            concurrent.futures.wait(self._pending_evals + [f for f in [self._tree_eval] if f])
+            tree = [self._tree_eval] if self._tree_eval is not None else []
+            concurrent.futures.wait(self._pending_evals + tree)
         pending, self._pending_evals = self._pending_evals, []
         tree_waits = self._tree_eval is not None and not self._tree_eval.done()
         for future in pending:

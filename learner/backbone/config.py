@@ -51,30 +51,25 @@ class BackboneConfig:
             raise ValueError(f"prefill_noise={self.prefill_noise} must be > 0 (log_prob needs it)")
         if not self.correction_penalty >= 0.0:
             raise ValueError(f"correction_penalty={self.correction_penalty} must be >= 0")
-        if self.correction_penalty > 0.0 and not self.observe_backbone:
-            raise ValueError(
-                f"correction_penalty={self.correction_penalty} needs observe_backbone=True "
-                "(the residual learner); set backbone.observe_backbone: true"
-            )
         if self.switch_margin is not None and not self.switch_margin >= 0.0:
             raise ValueError(
                 f"switch_margin={self.switch_margin} must be >= 0 (a fraction of "
                 "|Q(s, μ(s))| the correction must gain), or null for no switching"
-            )
-        if self.switch_margin is not None and not self.observe_backbone:
-            raise ValueError(
-                f"switch_margin={self.switch_margin} needs observe_backbone=True (the residual "
-                "learner's critic); set backbone.observe_backbone: true"
             )
         if not 0.0 <= self.correction_ramp <= 1.0:
             raise ValueError(
                 f"correction_ramp={self.correction_ramp} must be in [0, 1] (a share of the "
                 "actor's gradient steps; 0: no ramp)"
             )
-        if self.correction_ramp > 0.0 and not self.observe_backbone:
+        residual = {  # the parts that work on the residual learner's inputs and critic
+            "correction_penalty": self.correction_penalty > 0.0,
+            "switch_margin": self.switch_margin is not None,
+            "correction_ramp": self.correction_ramp > 0.0,
+        }
+        for name in [n for n, used in residual.items() if used and not self.observe_backbone]:
             raise ValueError(
-                f"correction_ramp={self.correction_ramp} needs observe_backbone=True (the "
-                "residual learner); set backbone.observe_backbone: true"
+                f"{name}={getattr(self, name)} needs observe_backbone=True (the residual "
+                "learner); set backbone.observe_backbone: true"
             )
         if self.observe_backbone and self.teacher:
             raise ValueError(

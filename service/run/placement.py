@@ -153,8 +153,8 @@ class Node:
 
 
 def local_cpus() -> float:
-    """CPUs of the local Ray instance (running, or the one `connect_ray('local')` starts);
-    Ray is imported only when it is already running or asked (no torch either way)."""
+    """CPUs of the local Ray instance (running, or the one `connect_ray('local')` starts).
+    Needs no torch; Ray, if not loaded yet, is imported only to read the CPU quota."""
     ray = sys.modules.get("ray")
     if ray is not None and ray.is_initialized():
         return float(ray.cluster_resources().get("CPU", 0.0))
