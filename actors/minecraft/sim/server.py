@@ -36,7 +36,7 @@ from actors.minecraft.sim import render
 from actors.minecraft.sim.instance import LOADING, RUNNING, Instance
 from actors.minecraft.sim.limits import DEFAULT_LIMITS, Limits
 from actors.minecraft.sim.mission_start import MissionStarter
-from actors.minecraft.sim.timing import REAL, Timing
+from actors.minecraft.sim.timing import IDEAL, REAL, Timing
 
 log = logging.getLogger("graft.minecraft.server")
 
@@ -369,3 +369,10 @@ class WorldServer:
         if with_info:
             out.append(r.info.encode())
         P.send(conn, *out)
+
+
+def ideal_world_server(**kwargs: object) -> WorldServer:
+    """A world server with graft's ideal pacing (``--ideal``: no loading or ending seconds),
+    for an environment's ``world_server`` import string
+    (``actors.minecraft.sim.server:ideal_world_server``)."""
+    return WorldServer(timing=IDEAL, **kwargs)  # type: ignore[arg-type]

@@ -42,11 +42,14 @@ BUDGETS = {
     },
     # A step is a drop decision of the whole diamond tree: a few short episodes.
     # A decision comes every few hundred ticks of the whole tree: few of them, short worlds.
+    # Ideal pacing: a mission's loading and ending seconds (real Malmo's, the preset's) were
+    # most of this smoke run's time.
     "minecraft-drops": {
         "env_steps": 16,
         "learning_starts": 8,
         "dqn.batch_size": 8,
         "env_kwargs.max_ticks": 300,
+        "env_kwargs.world_server": "actors.minecraft.sim.server:ideal_world_server",
     },
     "pendulum-options-residual": {
         "env_steps": 300,

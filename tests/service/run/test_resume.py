@@ -283,7 +283,8 @@ def test_a_folder_of_another_table_or_unrestorable_is_moved_aside_and_the_run_re
     )
     assert "no complete way back" in lines[0]
     assert lines[0].endswith(f"moved it to {run_dir / 'replay.stale-2'}, refilling a fresh table")
-    assert resumed["replay_restored"] is None and resumed["env_steps"] == 1_500
+    assert resumed["replay_restored"] is None
+    assert 1_500 - _config().slack_env_steps <= resumed["env_steps"] <= 1_500  # as above
     stale = _files(run_dir / "replay.stale-2")
     assert {k: v for k, v in stale.items() if k != "replay.json"} == damaged
 
