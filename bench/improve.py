@@ -55,6 +55,7 @@ TASKS = {
     "mountaincar": REPO / "examples" / "mountaincar" / "presets" / "recipe.yaml",
     "cartpole": REPO / "examples" / "cartpole" / "presets" / "recipe.yaml",
     "lunarlander": REPO / "examples" / "lunarlander" / "presets" / "recipe.yaml",
+    "lunarlander-discrete": REPO / "examples" / "lunarlander" / "presets" / "recipe-discrete.yaml",
     "halfcheetah": REPO / "examples" / "halfcheetah" / "presets" / "recipe.yaml",
 }
 """Task name -> a user's preset: environment, hard-coded policy, budget, no algorithm."""

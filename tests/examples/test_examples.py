@@ -214,6 +214,27 @@ def test_the_lander_tree_is_mediocre_as_its_readme_says() -> None:
     assert 0.3 <= np.mean(result.metrics["landed"]) <= 0.8
 
 
+LANDER_DISCRETE = EXAMPLES / "lunarlander/presets/recipe-discrete.yaml"
+DISCRETE = {(-1.0, 0.0): 0, (-1.0, -1.0): 1, (1.0, 0.0): 2, (-1.0, 1.0): 3}
+"""[main, lateral] -> LunarLander's discrete action (nothing, left, main, right engine)."""
+
+
+@pytest.mark.parametrize("obs, action", LANDER_RULES.values(), ids=LANDER_RULES.keys())
+def test_the_discrete_lander_fires_the_engines_of_each_rule(obs, action) -> None:
+    tree = graft.load_policy("hardcoded", preset=LANDER_DISCRETE)
+    assert tree(np.array(obs, np.float32)) == DISCRETE[tuple(action)]
+
+
+def test_the_discrete_lander_flies_as_the_continuous_one() -> None:
+    """gymnasium's discrete engines are the continuous ones at full power, the only power
+    the tree asks for: the same episodes, step for step."""
+    continuous = graft.evaluate(graft.load_policy("hardcoded", preset=LANDER), episodes=3, seed=0)
+    discrete = graft.load_policy("hardcoded", preset=LANDER_DISCRETE)
+    np.testing.assert_allclose(
+        graft.evaluate(discrete, episodes=3, seed=0).returns, continuous.returns
+    )
+
+
 CHEETAH = EXAMPLES / "halfcheetah/presets/recipe.yaml"
 PITCH, BACK_THIGH, BACK_THIGH_SPEED = 1, 2, 11
 """Indices into HalfCheetah's observation: the body's pitch, the back thigh's angle and

@@ -1,4 +1,5 @@
-"""A hard-coded lander for LunarLander-v3 with continuous actions, as a py_trees tree.
+"""A hard-coded lander for LunarLander-v3 with continuous actions, as a py_trees tree
+(``lander``; ``lander_discrete`` is the same tree for the discrete actions).
 
 The observation is ``[x, y, vx, vy, angle, angular velocity, left leg down, right leg
 down]`` (x = 0 is the pad's centre) and the action ``[main, lateral]`` in [-1, 1]²: the
@@ -86,9 +87,10 @@ class Check(py_trees.behaviour.Behaviour):
 
 
 class Fire(py_trees.behaviour.Behaviour):
-    """Action: writes ``command(observation)``, the engines' [main, lateral]."""
+    """Action: writes ``command(observation)``, the engines' [main, lateral] (or, in the
+    discrete tree, their action number)."""
 
-    def __init__(self, name: str, command: Callable[[Observation], list[float]]) -> None:
+    def __init__(self, name: str, command: Callable[[Observation], object]) -> None:
         super().__init__(name)
         self.command = command
         self.blackboard = self.attach_blackboard_client(name=name, namespace=NAMESPACE)
@@ -112,15 +114,48 @@ def _rule(
     return py_trees.composites.Sequence(name, memory=False, children=[Check(f"{name}?", test), act])
 
 
-def lander() -> py_trees.behaviour.Behaviour:
-    """The tree above (graft calls it once per process and ticks it once per observation)."""
+def engines_off(obs: Observation) -> list[float]:
+    return [-1.0, 0.0]
+
+
+def brake(obs: Observation) -> list[float]:
+    return [THROTTLE, 0.0]
+
+
+Engines = Callable[[Callable[[Observation], list[float]]], Callable[[Observation], object]]
+"""How a rule's [main, lateral] command becomes the action the tree writes."""
+
+
+def _tree(engines: Engines) -> py_trees.behaviour.Behaviour:
     return py_trees.composites.Selector(
         "Lander",
         memory=False,
         children=[
-            _rule("Touched down", legs_down, Fire("Engines off", lambda obs: [-1.0, 0.0])),
-            _rule("Tipping", tipping, Fire("Right the lander", right_the_lander)),
-            _rule("Sinking", sinking_too_fast, Fire("Brake", lambda obs: [THROTTLE, 0.0])),
-            Fire("Coast", lambda obs: [-1.0, 0.0]),
+            _rule("Touched down", legs_down, Fire("Engines off", engines(engines_off))),
+            _rule("Tipping", tipping, Fire("Right the lander", engines(right_the_lander))),
+            _rule("Sinking", sinking_too_fast, Fire("Brake", engines(brake))),
+            Fire("Coast", engines(engines_off)),
         ],
     )
+
+
+def lander() -> py_trees.behaviour.Behaviour:
+    """The tree above (graft calls it once per process and ticks it once per observation)."""
+    return _tree(lambda command: command)
+
+
+def discrete_action(command: list[float]) -> int:
+    """LunarLander's discrete action for a command [main, lateral]: 2 fires the main engine,
+    1 and 3 the side engines that lateral < -0.5 and > 0.5 fire, 0 nothing (gymnasium's
+    discrete engines are the continuous ones at full power)."""
+    main, lateral = command
+    if main > 0.0:
+        return 2
+    if abs(lateral) > 0.5:
+        return 1 if lateral < 0.0 else 3
+    return 0
+
+
+def lander_discrete() -> py_trees.behaviour.Behaviour:
+    """The same tree for LunarLander's discrete actions (``continuous: false``)."""
+    return _tree(lambda command: lambda obs: discrete_action(command(obs)))
