@@ -23,7 +23,6 @@ import numpy as np
 from service.replay.client import ReplayClient
 from service.run.replay_host.process import ReplayProcess
 
-
 PREFETCH = (8, 32)
 """Sample streams measured: batches each keeps in flight (`prefetch`, the learner's knob;
 half of them per response). A window of 8 batches is 2 ms of sampling at 1M items/s, so
