@@ -4,7 +4,7 @@
 # bench/learner.py on the GPU (eager, compiled, CUDA graphs) and a short pendulum-td3 with
 # `learner.device=cuda`. Figures and logs go to $OUT (default runs/gpu), 8 files at most.
 #
-#     deploy/gpu/pack.sh                   # here: the wheels and Ray (40 MB)
+#     deploy/gpu/pack.sh                   # here: the wheels and Ray (35 MB)
 #     bash deploy/gpu/check.sh             # there, from the repo root (about 6 minutes)
 set -uo pipefail
 cd "$(dirname "$0")/../.."

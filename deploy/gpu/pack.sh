@@ -5,7 +5,7 @@
 # page, 28 MB xz). The machine's image brings torch with CUDA, numpy, grpcio's peers,
 # matplotlib, tensorboard and pytest (/work/.library/device/KINDS.md lists them).
 #
-#     deploy/gpu/pack.sh [FOLDER]     # default .gpu (git-ignored), 40 MB in all
+#     deploy/gpu/pack.sh [FOLDER]     # default .gpu (git-ignored), 35 MB in all
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 out=${1:-.gpu}
