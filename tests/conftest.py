@@ -25,7 +25,7 @@ import ray
 import torch
 
 from service.replay.client import ReplayClient
-from service.run.orchestration.ray_session import LOCAL_STARTS, start_retrying
+from service.run.orchestration.ray_session import LOCAL_STARTS, start_local, start_retrying
 from service.run.replay_host.process import ReplayProcess
 
 TESTS = Path(__file__).resolve().parent
@@ -155,11 +155,6 @@ def replay_client(replay_server) -> ReplayClient:
 def ray_local():
     """One real local Ray instance for the whole test session (started again, as `graft
     train` does, if its GCS does not answer in time on a loaded machine)."""
-    start_retrying(
-        lambda: ray.init(
-            num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False
-        ),
-        tries=LOCAL_STARTS,
-    )
+    start_retrying(lambda: start_local(num_cpus=2), tries=LOCAL_STARTS)
     yield
     ray.shutdown()

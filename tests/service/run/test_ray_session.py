@@ -1,8 +1,11 @@
-"""Starting a local Ray instance again when its first start fails under load."""
+"""Starting a local Ray instance (again when its first start fails under load), without the
+processes graft does not use."""
 
 from __future__ import annotations
 
 import pytest
+import ray
+from ray._private import ray_constants
 from ray.exceptions import RaySystemError
 
 from service.run.orchestration.ray_session import start_retrying
@@ -44,3 +47,13 @@ def test_other_errors_are_not_retried() -> None:
 
     with pytest.raises(ValueError):
         start_retrying(start, tries=3, stop=lambda: None)
+
+
+def test_a_local_instance_runs_without_a_log_monitor(ray_local) -> None:
+    # ray_local starts it as graft train does (start_local): no worker output reaches the
+    # driver, so nothing tails the log files, and tasks still run.
+    node = ray._private.worker._global_node
+    live = {kind for kind, _ in node.live_processes()}
+    assert ray_constants.PROCESS_TYPE_RAYLET in live
+    assert ray_constants.PROCESS_TYPE_LOG_MONITOR not in live
+    assert ray.get(ray.remote(lambda: 7).remote()) == 7
