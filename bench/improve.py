@@ -77,8 +77,10 @@ QUICK = {
     "td3.frozen_actor_updates": 20,
     "dqn.batch_size": 32,
     "dqn.burn_in_updates": 20,
+    "selection.episodes": 2,
 }
-"""--quick: a smoke run of the whole pipeline in a minute or two (not a result)."""
+"""--quick: a smoke run of the whole pipeline in a minute or two (not a result); its
+final selection plays 2 episodes each for the policy and the tree, not the recipe's 30."""
 
 
 def final_seed(seed: int) -> int:
