@@ -38,17 +38,26 @@ def connect_ray(address: str) -> bool:
         return False
 
 
+IDLE_WORKERS_KEPT = 0
+"""Idle worker processes a local instance keeps (Ray's `num_workers_soft_limit`; Ray's
+default is one per CPU). An idle Ray worker costs about 1 % of a core (0.66 s of CPU a
+minute measured here); graft's actors each start their own worker anyway, so past a
+second idle, Ray ends any that no task or actor took."""
+
+
 def start_local(num_cpus: Optional[int] = None) -> None:
     """A new local Ray instance for this driver, without the parts it would not use: the
-    dashboard, and the log monitor. The log monitor tails every worker's log file ten times
-    a second to forward new lines to drivers (about 1 % of a core on an idle instance), and
-    this driver takes none (log_to_driver=False); the files stay in Ray's session folder."""
+    dashboard, idle worker processes (`IDLE_WORKERS_KEPT`), and the log monitor. The log
+    monitor tails every worker's log file ten times a second to forward new lines to
+    drivers, and this driver takes none (log_to_driver=False); the files stay in Ray's
+    session folder. `python bench/ray_idle.py` measures what an idle instance costs."""
     ray.init(
         address="local",
         num_cpus=num_cpus,
         include_dashboard=False,
         log_to_driver=False,
         configure_logging=False,
+        _system_config={"num_workers_soft_limit": IDLE_WORKERS_KEPT},
     )
     node = ray._private.worker._global_node
     if node is not None:

@@ -3,6 +3,8 @@ processes graft does not use."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
 import ray
 from ray._private import ray_constants
@@ -57,3 +59,27 @@ def test_a_local_instance_runs_without_a_log_monitor(ray_local) -> None:
     assert ray_constants.PROCESS_TYPE_RAYLET in live
     assert ray_constants.PROCESS_TYPE_LOG_MONITOR not in live
     assert ray.get(ray.remote(lambda: 7).remote()) == 7
+
+
+def test_a_local_instance_keeps_no_idle_worker(ray_local) -> None:
+    # Its workers are ended a second after their task (Ray keeps one per CPU by default,
+    # each costing about 1 % of a core while it waits).
+    ray.get([ray.remote(lambda: 7).remote() for _ in range(2)])
+    deadline = time.monotonic() + 30.0
+    while _idle_workers() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _idle_workers() == []
+
+
+def _idle_workers() -> list[int]:
+    """Worker processes of this session's instance waiting for work."""
+    import psutil  # Ray's vendored copy, importable once Ray is
+
+    idle = []
+    for child in psutil.Process().children(recursive=True):
+        try:
+            if child.cmdline()[:1] == ["ray::IDLE"]:
+                idle.append(child.pid)
+        except psutil.Error:
+            pass
+    return idle
