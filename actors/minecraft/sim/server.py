@@ -371,8 +371,11 @@ class WorldServer:
         P.send(conn, *out)
 
 
-def ideal_world_server(**kwargs: object) -> WorldServer:
+def ideal_world_server(
+    host: str = "127.0.0.1", port: int = P.DEFAULT_PORT, *, seed: int = 0,
+    ms_per_tick: int = 50, limits: Limits = DEFAULT_LIMITS,
+) -> WorldServer:  # fmt: skip
     """A world server with graft's ideal pacing (``--ideal``: no loading or ending seconds),
     for an environment's ``world_server`` import string
-    (``actors.minecraft.sim.server:ideal_world_server``)."""
-    return WorldServer(timing=IDEAL, **kwargs)  # type: ignore[arg-type]
+    (``actors.minecraft.sim.server:ideal_world_server``); otherwise `WorldServer`'s."""
+    return WorldServer(host, port, seed=seed, ms_per_tick=ms_per_tick, timing=IDEAL, limits=limits)
