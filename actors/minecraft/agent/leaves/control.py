@@ -16,6 +16,7 @@ from actors.minecraft.agent.leaves.percept import Cell, Percept
 TURN_DEGS_PER_TICK = 9.0  # turnSpeedDegs 180 at turn 1, 20 ticks/s
 WALK_PER_TICK = 4.317 / 20.0
 EYE = 1.62
+ITEM_MARGIN = 0.5  # blocks: an item this close to a block's box lies on it
 
 
 def steer(p: Percept, cell: Cell, cmd: Commands) -> float:
@@ -80,3 +81,17 @@ def looking_at(p: Percept, cell: Cell) -> bool:
         and bool(los.get("inRange"))
         and (los.get("blockX"), los.get("blockY"), los.get("blockZ")) == cell
     )
+
+
+def item_on(p: Percept, cell: Cell) -> bool:
+    """The crosshair's ray stops at a dropped item lying on or in ``cell`` (within
+    ``ITEM_MARGIN`` of its box). Malmo's ray observation reports items, but hands reach
+    through them: aimed at ``cell``'s face, an attack still digs ``cell``."""
+    los = p.los
+    if los.get("hitType") != "item":
+        return False
+    try:
+        at = (float(los["x"]), float(los["y"]), float(los["z"]))
+    except (KeyError, TypeError, ValueError):
+        return False
+    return all(c - ITEM_MARGIN <= v <= c + 1 + ITEM_MARGIN for v, c in zip(at, cell))

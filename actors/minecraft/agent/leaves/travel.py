@@ -28,6 +28,7 @@ from actors.minecraft.agent.leaves.percept import RADIUS, SIDE, Cell, Percept
 
 STUCK_TICKS = 40
 AIRTIME_TICKS = 12  # a jump's time in the air
+AIMED_DEGS = 3.0  # aim error under which the crosshair is on the planned face
 
 
 class AtDestination(Leaf):
@@ -121,12 +122,12 @@ def break_block(p: Percept, cell: Cell, ctx_commands, memory: dict) -> Status:
         cmd.attack = False
         return Status.RUNNING
     err = control.aim(p, control.face_point(p, cell), cmd)
-    if control.looking_at(p, cell):
+    if control.looking_at(p, cell) or (err < AIMED_DEGS and control.item_on(p, cell)):
         cmd.attack = True
         memory["blocked"] = 0
         return Status.RUNNING
     cmd.attack = False
-    if err < 3.0:
+    if err < AIMED_DEGS:
         # Aimed but something else is hit: break it if that is safe, else give up soon.
         los = p.los
         other = (los.get("blockX"), los.get("blockY"), los.get("blockZ"))
