@@ -94,4 +94,4 @@ def item_on(p: Percept, cell: Cell) -> bool:
         at = (float(los["x"]), float(los["y"]), float(los["z"]))
     except (KeyError, TypeError, ValueError):
         return False
-    return all(c - ITEM_MARGIN <= v <= c + 1 + ITEM_MARGIN for v, c in zip(at, cell))
+    return all(c - ITEM_MARGIN <= v <= c + 1 + ITEM_MARGIN for v, c in zip(at, cell, strict=True))
