@@ -144,6 +144,14 @@ def read_metric(csv_path: Path, key: str) -> tuple[list[int], list[float]]:
     return steps, values
 
 
+def read_evaluations(csv_path: Path) -> list[tuple[int, float, float]]:
+    """(env_steps, mean, std) of each evaluation in a metrics CSV, paired by env steps: a
+    run stopped between an evaluation's two rows logged its mean alone, which is left out."""
+    steps, means = read_metric(csv_path, "eval/return_mean")
+    std_at = dict(zip(*read_metric(csv_path, "eval/return_std"), strict=True))
+    return [(x, m, std_at[x]) for x, m in zip(steps, means, strict=True) if x in std_at]
+
+
 def plot_learning_curve(
     csv_path: Path,
     out_png: Path,
@@ -157,14 +165,13 @@ def plot_learning_curve(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    steps, mean = read_metric(csv_path, "eval/return_mean")
-    _, std = read_metric(csv_path, "eval/return_std")
+    evaluations = read_evaluations(csv_path)
+    steps = [x for x, _, _ in evaluations]
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(steps, mean, label="evaluation return", color="tab:blue")
-    if std:
-        low = [m - s for m, s in zip(mean, std, strict=True)]
-        high = [m + s for m, s in zip(mean, std, strict=True)]
-        ax.fill_between(steps, low, high, alpha=0.2, color="tab:blue")
+    ax.plot(steps, [m for _, m, _ in evaluations], label="evaluation return", color="tab:blue")
+    low = [m - s for _, m, s in evaluations]
+    high = [m + s for _, m, s in evaluations]
+    ax.fill_between(steps, low, high, alpha=0.2, color="tab:blue")
     for name, level in (reference or {}).items():
         ax.axhline(level, linestyle="--", color="tab:green", label=name)
     ax.set_xlabel("environment steps")

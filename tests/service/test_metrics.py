@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.metrics import MetricsLogger, PolicyLag, read_metric
+from service.metrics import (
+    MetricsLogger,
+    PolicyLag,
+    plot_learning_curve,
+    read_evaluations,
+    read_metric,
+)
 
 
 def test_policy_lag_counts_versions_published_before_each_item_was_acted() -> None:
@@ -54,3 +60,16 @@ def test_a_run_resumed_after_a_sigkill_appends_to_a_readable_metrics_csv(tmp_pat
     logger.close()
     steps, values = read_metric(tmp_path / "metrics.csv", "losses/critic")
     assert steps == ([10, 20] if left else [20]) and values == ([0.5, 0.25] if left else [0.25])
+
+
+def test_an_evaluation_cut_between_its_rows_is_left_out_of_the_curve(tmp_path) -> None:
+    """A run stopped (Ctrl-C, SIGTERM) between an evaluation's mean and std rows, then
+    resumed: the curve pairs each mean with its own std and draws; the lone mean is left out."""
+    logger = MetricsLogger(tmp_path)
+    logger.log({"eval/return_mean": -5.0, "eval/return_std": 1.0}, env_steps=100, updates=10)
+    logger.log({"eval/return_mean": -4.0}, env_steps=200, updates=20)
+    logger.log({"eval/return_mean": -3.0, "eval/return_std": 0.5}, env_steps=300, updates=30)
+    logger.close()
+    assert read_evaluations(tmp_path / "metrics.csv") == [(100, -5.0, 1.0), (300, -3.0, 0.5)]
+    plot_learning_curve(tmp_path / "metrics.csv", tmp_path / "curve.png", title="t")
+    assert (tmp_path / "curve.png").stat().st_size > 0

@@ -185,16 +185,14 @@ def _slug(variant: Variant) -> str:
 
 def rows_from_runs(name: str, folder: Path) -> list[dict[str, Any]]:
     """Evaluation rows rebuilt from the run folders' metrics.csv (an interrupted experiment)."""
-    from service.metrics import read_metric
+    from service.metrics import read_evaluations
 
     rows: list[dict[str, Any]] = []
     for variant in FIGURES[name].variants:
         for run in sorted(folder.glob(f"{_slug(variant)}-s*")):
             if not (run / "summary.json").exists():
                 continue  # unfinished
-            steps, means = read_metric(run / "metrics.csv", "eval/return_mean")
-            _, stds = read_metric(run / "metrics.csv", "eval/return_std")
-            for step, mean, std in zip(steps, means, stds, strict=True):
+            for step, mean, std in read_evaluations(run / "metrics.csv"):
                 rows.append(
                     {
                         "experiment": name,
