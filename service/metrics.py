@@ -39,16 +39,24 @@ class MetricsLogger:
             self._tb = SummaryWriter(str(run_dir / "tensorboard"))
 
     def log(self, scalars: Mapping[str, float], *, env_steps: int, updates: int) -> None:
+        """One call's rows go to each file in one `writerows`, so a signal (Ctrl-C, SIGTERM
+        raise KeyboardInterrupt between bytecodes) cannot write some of them alone."""
         wall = round(time.monotonic() - self._start, 3)
+        rows: list[tuple[Any, ...]] = []
+        timing: list[tuple[Any, ...]] = []
         for key, value in scalars.items():
             row = (env_steps, updates, key, f"{float(value):.6g}")
             if self._timing is None:
-                self._csv.writerow((wall, *row))
+                rows.append((wall, *row))
             elif key.startswith(self.TIMING_PREFIX):
-                self._timing[1].writerow((wall, *row))
+                timing.append((wall, *row))
             else:
-                self._csv.writerow(row)
-            if self._tb is not None:
+                rows.append(row)
+        self._csv.writerows(rows)
+        if self._timing is not None:
+            self._timing[1].writerows(timing)
+        if self._tb is not None:
+            for key, value in scalars.items():
                 self._tb.add_scalar(key, float(value), env_steps)
         self._file.flush()  # so a running job can be followed (tail, plots)
         if self._timing is not None:
