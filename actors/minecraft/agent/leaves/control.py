@@ -17,6 +17,7 @@ TURN_DEGS_PER_TICK = 9.0  # turnSpeedDegs 180 at turn 1, 20 ticks/s
 WALK_PER_TICK = 4.317 / 20.0
 EYE = 1.62
 ITEM_MARGIN = 0.5  # blocks: an item this close to a block's box lies on it
+BLOCK_REACH = 4.5  # blocks from the eye: a survival player's reach
 
 
 def steer(p: Percept, cell: Cell, cmd: Commands) -> float:
@@ -85,10 +86,13 @@ def looking_at(p: Percept, cell: Cell) -> bool:
 
 def item_on(p: Percept, cell: Cell) -> bool:
     """The crosshair's ray stops at a dropped item lying on or in ``cell`` (within
-    ``ITEM_MARGIN`` of its box). Malmo's ray observation reports items, but hands reach
-    through them: aimed at ``cell``'s face, an attack still digs ``cell``."""
+    ``ITEM_MARGIN`` of its box), and ``cell``'s face is within reach. Malmo's ray
+    observation reports items, but hands reach through them: aimed at that face, an
+    attack still digs ``cell``."""
     los = p.los
     if los.get("hitType") != "item":
+        return False
+    if math.dist((p.x, p.y + EYE, p.z), face_point(p, cell)) > BLOCK_REACH:
         return False
     try:
         at = (float(los["x"]), float(los["y"]), float(los["z"]))

@@ -240,17 +240,23 @@ def test_a_slow_client_aims_over_its_hold(hold: int) -> None:
     assert cmd.move == pytest.approx(1.0 if hold == 1 else 1.0 / (control.WALK_PER_TICK * 6))
 
 
-@pytest.mark.parametrize("item_x, attacks", [(0.5, True), (3.5, False)])
-def test_digging_reaches_through_an_item_lying_on_the_block(item_x: float, attacks: bool) -> None:
+@pytest.mark.parametrize(
+    "depth, item_x, attacks",
+    [(1, 0.5, True), (1, 3.5, False), (6, 0.5, False)],
+    ids=["on-the-block", "elsewhere", "out-of-reach"],
+)
+def test_digging_reaches_through_an_item_lying_on_the_block(
+    depth: int, item_x: float, attacks: bool
+) -> None:
     """Malmo's ray observation stops at a dropped item, hands do not: aimed straight down at
     the block underfoot with the last block's drop lying on it, the tree keeps digging;
-    an item lying anywhere else in the ray still stops it."""
+    an item lying anywhere else in the ray, or on a block out of reach, still stops it."""
     from actors.minecraft.agent.leaves.context import Commands
     from actors.minecraft.agent.leaves.travel import break_block
 
-    los = {"hitType": "item", "type": "cobblestone", "x": item_x, "y": 64.0, "z": 0.5}
+    top = AGENT[1] - depth + 1
+    los = {"hitType": "item", "type": "cobblestone", "x": item_x, "y": float(top), "z": 0.5}
     p = scene(inventory={"stone_pickaxe": 1}, yaw=0.0, pitch=90.0, los=los)
     cmd = Commands()
-    below = (AGENT[0], AGENT[1] - 1, AGENT[2])
-    assert break_block(p, below, cmd, {}) == Status.RUNNING
+    assert break_block(p, (AGENT[0], AGENT[1] - depth, AGENT[2]), cmd, {}) == Status.RUNNING
     assert cmd.attack is attacks
