@@ -155,9 +155,15 @@ def read_metric(csv_path: Path, key: str) -> tuple[list[int], list[float]]:
 def read_evaluations(csv_path: Path) -> list[tuple[int, float, float]]:
     """(env_steps, mean, std) of each evaluation in a metrics CSV, paired by env steps: a
     run stopped between an evaluation's two rows logged its mean alone, which is left out."""
-    steps, means = read_metric(csv_path, "eval/return_mean")
-    std_at = dict(zip(*read_metric(csv_path, "eval/return_std"), strict=True))
-    return [(x, m, std_at[x]) for x, m in zip(steps, means, strict=True) if x in std_at]
+    means: list[tuple[int, float]] = []
+    std_at: dict[int, float] = {}
+    with Path(csv_path).open() as f:
+        for row in csv.DictReader(f):
+            if row["key"] == "eval/return_mean":
+                means.append((int(row["env_steps"]), float(row["value"])))
+            elif row["key"] == "eval/return_std":
+                std_at[int(row["env_steps"])] = float(row["value"])
+    return [(x, m, std_at[x]) for x, m in means if x in std_at]
 
 
 def plot_learning_curve(
