@@ -22,7 +22,7 @@ from py_trees.common import Status
 from actors.minecraft import blocks as B
 from actors.minecraft.agent import astar
 from actors.minecraft.agent.leaves import control
-from actors.minecraft.agent.leaves.context import Leaf
+from actors.minecraft.agent.leaves.context import Commands, Leaf
 from actors.minecraft.agent.leaves.items import hold, tool_for
 from actors.minecraft.agent.leaves.percept import RADIUS, SIDE, Cell, Percept
 
@@ -103,13 +103,12 @@ class NextIsDestroy(Leaf):
         return Status.SUCCESS if step is not None and step[0] == "destroy" else Status.FAILURE
 
 
-def break_block(p: Percept, cell: Cell, ctx_commands, memory: dict) -> Status:
+def break_block(p: Percept, cell: Cell, cmd: Commands, memory: dict) -> Status:
     """Aim at ``cell`` and hold attack while the crosshair is on it.
 
     RUNNING while the block stands, SUCCESS once it is gone, FAILURE when it cannot be
     broken from here (out of reach, or something unsafe is in the way for too long).
     """
-    cmd = ctx_commands
     block = p.block(cell)
     if block is None:
         return Status.FAILURE
