@@ -9,14 +9,15 @@ reads observations only).
 
     python bench/diamond.py [--worlds 20] [--first-seed 0] [--procs 2]
         [--png diamond_time.png] [--max-ticks 24000] [--ticks-per-step 1]
-        [--controller RUN_DIR ...]
+        [--controller RUN_DIR ...] [--travel-while ACTIVITY ...]
 
 ``--ticks-per-step k``: a slow client, deciding every k-th tick and holding its commands
 in between. ``--controller RUN_DIR`` (repeatable, one per leaf: a travel run corrects
 "Step to cell", a drops run decides "Pick up drops"; ``service.run.trained.
 load_corrections``): every world is run twice, the tree alone and the tree with the
 trained corrections, and the two are compared world by world (a sign test on the time to
-diamond, a world without one counting as the time limit).
+diamond, a world without one counting as the time limit). ``--travel-while searching``
+(repeatable) keeps the travel correction to the walks of those activities.
 """
 
 from __future__ import annotations
@@ -45,7 +46,9 @@ from actors.minecraft.sim.server import WorldServer  # noqa: E402
 
 TIME_LIMIT_TICKS = 24_000
 TREE, CORRECTED = "tree alone", "tree + corrections"
-_loaded: dict[tuple[str, ...], Corrections] = {}
+Agent = tuple[tuple[str, ...], tuple[str, ...]]
+"""The runs correcting the tree and the activities the travel correction walks in."""
+_loaded: dict[Agent, Corrections] = {}
 
 
 def _mission(seed: int) -> str:
@@ -53,24 +56,25 @@ def _mission(seed: int) -> str:
     return obtain_diamond(seed=seed, pixels=False)
 
 
-def corrections_of(runs: tuple[str, ...]) -> Corrections:
-    """The trained corrections of ``runs``, loaded once per process."""
-    if runs not in _loaded:
+def corrections_of(agent: Agent) -> Corrections:
+    """The trained corrections of an agent's runs, loaded once per process."""
+    if agent not in _loaded:
         from service.run.trained import load_corrections
 
-        _loaded[runs] = load_corrections([Path(r) for r in runs])
-    return _loaded[runs]
+        runs, travel_while = agent
+        _loaded[agent] = load_corrections([Path(r) for r in runs], travel_while)
+    return _loaded[agent]
 
 
 def run_world(
     seed: int,
     max_ticks: int = TIME_LIMIT_TICKS + 5,
     ticks_per_step: int = 1,
-    controllers: tuple[str, ...] = (),
+    agent: Agent = ((), ()),
 ) -> tuple[EpisodeResult, float, LeafTimes]:
     """One world: a server on a free port, the tree (with the corrections of the
-    ``controllers`` runs) through the client, profiled."""
-    corrections = corrections_of(controllers) if controllers else None
+    ``agent``'s runs) through the client, profiled."""
+    corrections = corrections_of(agent) if agent[0] else None
     t0 = time.perf_counter()
     profile = TimeProfile()
     with WorldServer(port=0, seed=seed) as server:
@@ -86,7 +90,7 @@ def run_world(
     return result, time.perf_counter() - t0, profile.summary()
 
 
-Job = tuple[int, int, int, tuple[str, ...]]
+Job = tuple[int, int, int, Agent]
 
 
 def _run_world(job: Job) -> tuple[Job, EpisodeResult, float, LeafTimes]:
@@ -202,17 +206,23 @@ def main(argv: list[str] | None = None) -> int:
                     help="ticks each decision is held (a slow client; 1: every tick)")  # fmt: skip
     ap.add_argument("--controller", action="append", default=[], metavar="RUN_DIR",
                     help="a run correcting the leaf it trained for (repeatable)")  # fmt: skip
+    ap.add_argument("--travel-while", action="append", default=[], metavar="ACTIVITY",
+                    help="the travel correction walks only in this activity's walks, "
+                         "e.g. searching (repeatable; default: every walk)")  # fmt: skip
     args = ap.parse_args(argv)
     if min(args.worlds, args.procs, args.max_ticks, args.ticks_per_step) < 1:
         ap.error("--worlds, --procs, --max-ticks and --ticks-per-step must be at least 1")
     controllers = tuple(args.controller)
+    corrected: Agent = (controllers, tuple(args.travel_while))
+    if args.travel_while and not controllers:
+        ap.error("--travel-while needs a travel run (--controller)")
     if controllers:
         try:
-            corrections_of(controllers)  # a wrong folder fails here, in one line
+            corrections_of(corrected)  # a wrong folder fails here, in one line
         except (ValueError, FileNotFoundError) as error:
             ap.error(str(error))
     seeds = list(range(args.first_seed, args.first_seed + args.worlds))
-    agents = {TREE: ()} | ({CORRECTED: controllers} if controllers else {})
+    agents: dict[str, Agent] = {TREE: ((), ())} | ({CORRECTED: corrected} if controllers else {})
     # World by world, the agents of one world together: pairs complete as the run goes.
     jobs = [(s, args.max_ticks, args.ticks_per_step, c) for s in seeds for c in agents.values()]
     t0 = time.perf_counter()

@@ -129,13 +129,19 @@ def _view_tree(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return 2
     corrections = None
+    if args.travel_while and not args.controller:
+        print("graft minecraft view: --travel-while needs a travel run (--controller)",
+              file=sys.stderr)  # fmt: skip
+        return 2
     if args.controller:
         if args.load_corrections is None:
             print("graft minecraft view: --controller needs graft's service (run it as "
                   "`graft minecraft view`)", file=sys.stderr)  # fmt: skip
             return 2
         try:
-            corrections = args.load_corrections([Path(c) for c in args.controller])
+            corrections = args.load_corrections(
+                [Path(c) for c in args.controller], args.travel_while
+            )
         except (ValueError, FileNotFoundError) as error:
             print(f"graft minecraft view: {error}", file=sys.stderr)
             return 2
@@ -167,7 +173,7 @@ def _tree(args: argparse.Namespace) -> int:
 
 def add_minecraft_commands(
     subparsers: argparse._SubParsersAction,
-    load_corrections: Optional[Callable[[list[Path]], Corrections]] = None,
+    load_corrections: Optional[Callable[[list[Path], list[str]], Corrections]] = None,
 ) -> None:
     """Register ``minecraft serve``, ``view`` and ``tree`` on a subparsers object.
 
@@ -256,6 +262,11 @@ def add_minecraft_commands(
     view.add_argument(
         "--controller", action="append", default=[], metavar="RUN_DIR",
         help="GIF: a trained run correcting the leaf it trained for (repeatable)",
+    )  # fmt: skip
+    view.add_argument(
+        "--travel-while", action="append", default=[], metavar="ACTIVITY",
+        help="GIF: the travel correction walks only in this activity's walks, e.g. "
+             "searching (repeatable; default: every walk)",
     )  # fmt: skip
     view.set_defaults(func=_view, load_corrections=load_corrections)
     tree = sub.add_parser("tree", help="print the obtain-diamond behaviour tree, save a PNG")

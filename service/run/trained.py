@@ -3,6 +3,7 @@ config from ``RUN/config.yaml`` and a greedy behaviour from one of ``RUN/checkpo
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -59,16 +60,22 @@ CORRECTED_LEAVES = {
 """The obtain-diamond tree's leaves a run can correct, by the environment it trained on."""
 
 
-def load_corrections(runs: list[Path]) -> Any:
+def load_corrections(runs: list[Path], travel_while: Sequence[str] = ()) -> Any:
     """The greedy policies of trained runs, each at the tree's leaf its task trains
     (``actors.minecraft.agent.corrections.Corrections``): a travel run corrects "Step to
-    cell", a drops run decides "Pick up drops".
+    cell" (only in the walks of the ``travel_while`` activities when some are given, for
+    example "searching"), a drops run decides "Pick up drops".
 
     Raises:
-        ValueError: a run of another task, or two runs for one leaf.
+        ValueError: a run of another task, two runs for one leaf, or an unknown activity.
         FileNotFoundError: no such run folder or checkpoint.
     """
     from actors.minecraft.agent.corrections import Corrections
+    from actors.minecraft.agent.tree_profile import ACTIVITIES
+
+    unknown = sorted(set(travel_while) - set(ACTIVITIES))
+    if unknown:
+        raise ValueError(f"unknown activity {unknown[0]!r}: one of {', '.join(ACTIVITIES)}")
 
     found: dict[str, Any] = {}
     for run in runs:
@@ -82,6 +89,10 @@ def load_corrections(runs: list[Path]) -> Any:
         if leaf in found:
             raise ValueError(f"{run}: a second run for the {leaf} leaf")
         found[leaf] = _one_at_a_time(behaviour.greedy)
+    if travel_while:
+        if "travel" not in found:
+            raise ValueError("activities for the travel correction, but no travel run")
+        found["travel_activities"] = frozenset(travel_while)
     return Corrections(**found)
 
 

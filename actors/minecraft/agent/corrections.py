@@ -26,6 +26,7 @@ from actors.minecraft.agent.leaves.context import Context
 from actors.minecraft.agent.leaves.percept import ItemSeen, Percept
 from actors.minecraft.agent.leaves.travel import STUCK_TICKS, StepTo
 from actors.minecraft.agent.travel_control import JUMP_OFF, JUMP_ON, observation
+from actors.minecraft.agent.tree_profile import classify
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """One observation -> the action (travel: [4] floats; drops: an index)."""
@@ -73,10 +74,17 @@ def drop_observation(p: Percept, item: ItemSeen) -> np.ndarray:
 
 
 class TravelCorrection:
-    """The travel correction at "Step to cell": call ``apply`` after each tree tick."""
+    """The travel correction at "Step to cell": call ``apply`` after each tree tick.
 
-    def __init__(self, policy: Policy) -> None:
-        self.policy = policy
+    Args:
+        policy: obs -> [move, strafe, turn, jump].
+        activities: the activities (``tree_profile.ACTIVITIES``) whose walks it corrects,
+            for example ("searching",): the walks of "Explore" across open terrain, which
+            are most like the travel task's; None: every walk.
+    """
+
+    def __init__(self, policy: Policy, activities: Optional[frozenset[str]] = None) -> None:
+        self.policy, self.activities = policy, activities
         self._previous: Optional[tuple[float, float, float]] = None
         self.last: Optional[np.ndarray] = None
         """The correction π(s) = a − μ(s) applied at the last tick (None: not walking)."""
@@ -87,6 +95,8 @@ class TravelCorrection:
         previous, self._previous = self._previous, (p.x, p.y, p.z)
         self.last = None
         if not isinstance(tip, StepTo) or ctx.plan_step is None:
+            return
+        if self.activities is not None and classify(tip).activity not in self.activities:
             return
         mu = np.array([cmd.move, cmd.strafe, cmd.turn, JUMP_ON if cmd.jump else JUMP_OFF])
         waypoint = ctx.plan_step[1]
@@ -113,10 +123,13 @@ class Corrections:
     Attributes:
         travel: obs -> [move, strafe, turn, jump] (μ + clip(π), the trained behaviour).
         drops: obs -> 0 (chase) or 1 (leave).
+        travel_activities: the activities whose walks ``travel`` corrects (None: every
+            walk; ``TravelCorrection``).
     """
 
     travel: Optional[Policy] = None
     drops: Optional[Policy] = None
+    travel_activities: Optional[frozenset[str]] = None
 
     def __bool__(self) -> bool:
         return self.travel is not None or self.drops is not None

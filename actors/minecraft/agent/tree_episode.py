@@ -106,7 +106,8 @@ class TreeEpisode:
         ctx.commands.hold = ticks_per_step  # the leaves' controllers size commands to it
         self.corrections = corrections or Corrections()
         self.gate_drops = gate_drops or self.corrections.drops is not None
-        self.travel = TravelCorrection(self.corrections.travel) if self.corrections.travel else None
+        travel, where = self.corrections.travel, self.corrections.travel_activities
+        self.travel = TravelCorrection(travel, where) if travel else None
         self.decided: dict[str, int] = {}
         self.last_choice = ""  # the last drop decision, for captions ("leave cobblestone")
         self.last_choice_tick = -1

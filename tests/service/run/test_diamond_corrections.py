@@ -55,6 +55,13 @@ def test_each_run_corrects_the_leaf_it_trained_for(runs: dict[str, Path]) -> Non
         load_corrections([runs["pendulum"]])
     with pytest.raises(ValueError, match="a second run for the travel leaf"):
         load_corrections([runs["travel"], runs["travel"]])
+    assert travel.travel_activities is None  # every walk
+    searching = load_corrections([runs["travel"]], ["searching"])
+    assert searching.travel_activities == {"searching"}
+    with pytest.raises(ValueError, match="unknown activity 'walking': one of travel, "):
+        load_corrections([runs["travel"]], ["walking"])
+    with pytest.raises(ValueError, match="but no travel run"):
+        load_corrections([runs["drops"]], ["searching"])
 
 
 @pytest.mark.service  # world servers
@@ -65,7 +72,8 @@ def test_a_short_world_with_controllers_beside_the_tree_alone(
     out = subprocess.run(
         [sys.executable, str(ROOT / "bench" / "diamond.py"), "--worlds", "1",
          "--first-seed", "4", "--procs", "1", "--max-ticks", "400", "--png", str(png),
-         "--controller", str(runs["travel"]), "--controller", str(runs["drops"])],
+         "--controller", str(runs["travel"]), "--controller", str(runs["drops"]),
+         "--travel-while", "searching"],
         capture_output=True, text=True, timeout=300, cwd=ROOT,
     ).stdout  # fmt: skip
     tree = out.split("### tree alone")[1].split("### tree + corrections")[0]

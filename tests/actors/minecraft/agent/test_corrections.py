@@ -101,3 +101,36 @@ def test_drop_nearby_leaves_what_a_correction_left(left: set[str]) -> None:
     leaf.tick_once()  # type: ignore[attr-defined]
     chased = (11, 20, 30) if not left else (12, 20, 30)
     assert chased in ctx.goals
+
+
+def _walking_under(purpose: str) -> tuple[object, Context]:
+    """A "Step to cell" inside a travel sub-tree held by ``purpose`` (its activity: the
+    walks of "Explore" are searching, the others travel)."""
+    step, ctx = _leaf_ctx(StepTo)
+    travel = py_trees.composites.Selector("Travel", memory=False, children=[step])
+    py_trees.composites.Sequence(purpose, memory=False, children=[travel])
+    ctx.percept = _percept()
+    ctx.plan_step = ("move", (11, 20, 30))
+    ctx.goals = frozenset({(14, 20, 30)})
+    ctx.commands.move = 0.8
+    return step, ctx
+
+
+def test_travel_correction_kept_to_some_activities_leaves_the_other_walks_alone() -> None:
+    seen: list[np.ndarray] = []
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        seen.append(obs)
+        return np.array([0.25, 0.0, 0.0, -1.0])
+
+    correction = TravelCorrection(policy, activities=frozenset({"searching"}))
+    step, ctx = _walking_under("Mine log")
+    correction.apply(step, ctx, elapsed=1)
+    assert not seen and ctx.commands.move == 0.8 and correction.last is None
+    step, ctx = _walking_under("Explore")
+    correction.apply(step, ctx, elapsed=1)
+    assert len(seen) == 1 and ctx.commands.move == 0.25 and correction.last is not None
+    everywhere = TravelCorrection(policy)
+    step, ctx = _walking_under("Mine log")
+    everywhere.apply(step, ctx, elapsed=1)
+    assert len(seen) == 2 and ctx.commands.move == 0.25
