@@ -214,9 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--worlds, --procs, --max-ticks and --ticks-per-step must be at least 1")
     controllers = tuple(args.controller)
     corrected: Agent = (controllers, tuple(args.travel_while))
-    if args.travel_while and not controllers:
-        ap.error("--travel-while needs a travel run (--controller)")
-    if controllers:
+    if controllers or args.travel_while:
         try:
             corrections_of(corrected)  # a wrong folder fails here, in one line
         except (ValueError, FileNotFoundError) as error:

@@ -129,11 +129,7 @@ def _view_tree(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return 2
     corrections = None
-    if args.travel_while and not args.controller:
-        print("graft minecraft view: --travel-while needs a travel run (--controller)",
-              file=sys.stderr)  # fmt: skip
-        return 2
-    if args.controller:
+    if args.controller or args.travel_while:
         if args.load_corrections is None:
             print("graft minecraft view: --controller needs graft's service (run it as "
                   "`graft minecraft view`)", file=sys.stderr)  # fmt: skip

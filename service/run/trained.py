@@ -91,7 +91,7 @@ def load_corrections(runs: list[Path], travel_while: Sequence[str] = ()) -> Any:
         found[leaf] = _one_at_a_time(behaviour.greedy)
     if travel_while:
         if "travel" not in found:
-            raise ValueError("activities for the travel correction, but no travel run")
+            raise ValueError(f"travel activities {sorted(travel_while)} given, but no travel run")
         found["travel_activities"] = frozenset(travel_while)
     return Corrections(**found)
 

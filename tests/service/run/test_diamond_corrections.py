@@ -60,7 +60,9 @@ def test_each_run_corrects_the_leaf_it_trained_for(runs: dict[str, Path]) -> Non
     assert searching.travel_activities == {"searching"}
     with pytest.raises(ValueError, match="unknown activity 'walking': one of travel, "):
         load_corrections([runs["travel"]], ["walking"])
-    with pytest.raises(ValueError, match="but no travel run"):
+    with pytest.raises(
+        ValueError, match=r"travel activities \['searching'\] given, but no travel run"
+    ):
         load_corrections([runs["drops"]], ["searching"])
 
 
