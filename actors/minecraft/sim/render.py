@@ -8,8 +8,14 @@ Rows are returned bottom-up, the OpenGL order in which Malmo sends frames (malmo
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import math
+import os
+import tempfile
+from collections.abc import Iterator
 from functools import lru_cache
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -86,7 +92,35 @@ _STEPS = int(MAX_DIST * 1.8) + 3  # cells a ray may cross within MAX_DIST (3 axe
 
 def warm_up() -> None:
     """Compiles the frame's kernels (or loads them from numba's cache), so a world
-    server's first frame does not wait for the compiler."""
+    server's first frame does not wait for the compiler.
+
+    One process compiles at a time. World servers started together on a fresh install (a
+    fleet of clients, the test suite) would each spend seconds of CPU compiling the same
+    kernels; behind the lock the first writes numba's cache and the others load it
+    (`python bench/render_compile.py` measures both)."""
+    if _draw.signatures:  # compiled in this process already
+        return
+    with _compile_lock():
+        compile_kernels()
+
+
+@contextlib.contextmanager
+def _compile_lock() -> Iterator[None]:
+    """An exclusive lock, per user, over compiling the kernels (none if the file cannot be
+    opened: then each process compiles alone, as without the lock)."""
+    path = Path(tempfile.gettempdir()) / f"graft-render-compile-{os.getuid()}.lock"
+    try:
+        file = path.open("a")
+    except OSError:
+        yield
+        return
+    with file:  # closing the file releases the lock
+        fcntl.flock(file, fcntl.LOCK_EX)
+        yield
+
+
+def compile_kernels() -> None:
+    """Draws a 1-pixel frame: numba compiles the kernels, or loads them from its cache."""
     blocks = np.zeros((2, 2, 2), dtype=np.uint8)
     v = np.zeros(3)
     grid = np.zeros(1)

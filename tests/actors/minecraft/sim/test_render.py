@@ -3,13 +3,21 @@ render in their own thread) show each one's own world."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
+from pathlib import Path
+
+import pytest
 
 from actors.minecraft.malmo.mission import parse_mission
 from actors.minecraft.malmo.mission_xml import mission_xml
+from actors.minecraft.sim import render as render_module
 from actors.minecraft.sim.render import render
 from actors.minecraft.sim.world import World
 from tests.actors.minecraft.conftest import FLAT, GROUND
+
+REPO = Path(__file__).resolve().parents[4]
 
 
 def _world(block: str) -> World:
@@ -35,3 +43,23 @@ def test_frames_rendered_in_parallel_threads_show_their_own_world() -> None:
     for t in threads:
         t.join()
     assert wrong == []
+
+
+@pytest.mark.service  # a child process
+def test_world_servers_compile_the_frame_kernels_one_at_a_time() -> None:
+    # A second process waits while the first holds the compile lock (the first writes
+    # numba's cache; the second then loads it instead of compiling too).
+    code = (
+        "from actors.minecraft.sim import render; print('imported', flush=True); "
+        "render.warm_up(); print('compiled', flush=True)"
+    )
+    with render_module._compile_lock():
+        child = subprocess.Popen(
+            [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, cwd=REPO
+        )
+        assert child.stdout is not None
+        assert child.stdout.readline() == "imported\n"
+        with pytest.raises(subprocess.TimeoutExpired):
+            child.wait(timeout=1.0)  # held at the lock
+    assert child.stdout.readline() == "compiled\n"
+    assert child.wait(timeout=120) == 0
