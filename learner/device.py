@@ -103,10 +103,21 @@ def adam(
     return torch.optim.Adam(params, lr=lr, fused=True if device.type == "cuda" else None)
 
 
+VALID = "_valid"
+"""The one service column a learner reads: which steps of sampled windows [B, k] are their
+episode's (after an episode's end, replay repeats its last step to fill the window)."""
+
+
+def learned_from(column: str) -> bool:
+    """Data columns and `VALID`; the other service columns (`_key`, `_weight`, ...) stay
+    behind."""
+    return not column.startswith("_") or column == VALID
+
+
 def pinned_tensors(batch: Columns) -> TensorBatch:
-    """Data columns copied once into pinned (page-locked) host memory, from which a
-    non-blocking copy to the GPU runs while the GPU computes; service columns stay behind."""
-    return {k: torch.tensor(v, pin_memory=True) for k, v in batch.items() if not k.startswith("_")}
+    """The learned-from columns copied once into pinned (page-locked) host memory, from
+    which a non-blocking copy to the GPU runs while the GPU computes."""
+    return {k: torch.tensor(v, pin_memory=True) for k, v in batch.items() if learned_from(k)}
 
 
 class BatchFeed:

@@ -33,7 +33,7 @@ import torch
 
 from learner.agent import Phase
 from learner.checkpoint import save_checkpoint
-from learner.device import CPU, BatchFeed
+from learner.device import CPU, BatchFeed, learned_from
 from learner.selection import SelectionConfig, tree_wins
 from service.core import (
     Algorithm,
@@ -54,12 +54,12 @@ STALL_CHECK_S = 10.0
 
 
 def to_tensors(batch: Columns) -> TensorBatch:
-    """Service columns (`_key`, ...) stay behind; data columns become tensors.
+    """The learned-from columns (`learned_from`) become tensors; `_key`, ... stay behind.
 
     Decoded columns are read-only views of the received bytes, which torch cannot
     wrap safely, so each is copied once (microseconds for a batch).
     """
-    return {k: torch.tensor(v) for k, v in batch.items() if not k.startswith("_")}
+    return {k: torch.tensor(v) for k, v in batch.items() if learned_from(k)}
 
 
 @dataclass

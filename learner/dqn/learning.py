@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from learner.device import CPU, CompileMode, adam, compile_networks
+from learner.device import CPU, VALID, CompileMode, adam, compile_networks
 from learner.dqn.config import DQNConfig
 from learner.dqn.networks import make_q_network
 from learner.selection import with_tree_only
@@ -63,24 +63,34 @@ def large_margin_loss(q: torch.Tensor, expert_action: torch.Tensor, margin: floa
 
 
 def window_returns(
-    rewards: torch.Tensor, terminated: torch.Tensor, gamma: float
+    rewards: torch.Tensor,
+    terminated: torch.Tensor,
+    gamma: float,
+    valid: Optional[torch.Tensor] = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """n-step returns to the window's end from every step of windows [B, n].
 
-    R_j = Σ_{i=j}^{n−1} γ^{i−j} r_i and D_j = γ^{n−j} (1 − d_{n−1}): step j bootstraps from
-    the state after the window's last step. A window never crosses an episode end, so only
-    its last step can be terminal; training every step (not only the first) reaches the
-    last n − 1 steps of an episode, which never start a full window.
+    R_j = Σ_{i=j}^{m−1} γ^{i−j} r_i and D_j = γ^{m−j} (1 − d_{m−1}), where m is the number of
+    the window's steps that are its episode's (`valid`, a prefix; all n without it): step j
+    bootstraps from the state after the episode's last step in the window. A window never
+    crosses an episode end, so only that step can be terminal. Training every step (not only
+    the first) reaches every step of an episode; after an episode's end, replay repeats its
+    last step to fill the window, and those steps are no one's (R = 0 there).
 
     Returns:
         (R, D), both [B, n], for `double_q_target`.
     """
     n = rewards.shape[1]
+    if valid is not None:
+        rewards = rewards * valid
     returns = torch.empty_like(rewards)
     returns[:, n - 1] = rewards[:, n - 1]
     for j in range(n - 2, -1, -1):
         returns[:, j] = rewards[:, j] + gamma * returns[:, j + 1]
-    steps_left = torch.arange(n, 0, -1, dtype=rewards.dtype, device=rewards.device)
+    if valid is None:
+        steps_left = torch.arange(n, 0, -1, dtype=rewards.dtype, device=rewards.device)
+    else:  # the episode's steps from j to the window's end
+        steps_left = valid.to(rewards.dtype).flip(1).cumsum(1).flip(1)
     alive = 1.0 - terminated[:, -1:].to(rewards.dtype)
     return returns, gamma**steps_left * alive
 
@@ -194,7 +204,10 @@ class DQNLearner:
                 batch["reward"], discount, batch["next_obs"], online=self.q, target=self.target_q
             )
             return self.fit(batch["obs"], batch["action"], y, expert_action=expert)
-        returns, discounts = window_returns(batch["reward"], batch["terminated"], self._gamma)
+        valid = batch.get(VALID)
+        returns, discounts = window_returns(
+            batch["reward"], batch["terminated"], self._gamma, valid
+        )
         b, n = returns.shape
         bootstrap = double_q_target(
             torch.zeros(b, device=self.device),
@@ -204,11 +217,13 @@ class DQNLearner:
             target=self.target_q,
         )
         y = returns + discounts * bootstrap.unsqueeze(1)
+        # The episode's steps only: padding after its end repeats its last step.
+        steps = torch.ones(b, n, dtype=torch.bool, device=self.device) if valid is None else valid
         return self.fit(
-            batch["obs"].flatten(0, 1),
-            batch["action"].flatten(),
-            y.flatten(),
-            expert_action=None if expert is None else expert.flatten(),
+            batch["obs"][steps],
+            batch["action"][steps],
+            y[steps],
+            expert_action=None if expert is None else expert[steps],
         )
 
     def fit(

@@ -25,6 +25,7 @@ import torch
 
 from actors.behaviours.options import RL
 from learner.backbone.networks import backbone_input
+from learner.device import VALID
 from learner.dqn.learning import DQNLearner, double_q_target
 from learner.options.targets import importance_ratio, k_step_return, retrace_targets, retrace_traces
 from learner.td3.learning import TD3Learner
@@ -79,20 +80,23 @@ class OptionsLearner:
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
         self.num_updates += 1
         metrics: dict[str, float] = {}
+        # Windows from older clients, or made by hand, may come without `VALID`: then every
+        # step is the episode's.
+        valid = batch.setdefault(VALID, torch.ones_like(batch["reward"], dtype=torch.bool))
         starts = batch["option_step"][:, 0] == 0
         if starts.any():
             metrics.update(self._update_options({c: v[starts] for c, v in batch.items()}))
-        rl_rows = batch["option"] == RL
+        rl_rows = (batch["option"] == RL) & valid
         if self.intra_option:
             metrics.update(self._update_rl_intra(batch))
         elif rl_rows.any():
             metrics.update(self._update_rl(batch, rl_rows))
-        metrics["options/rl_fraction_sampled"] = float(rl_rows.float().mean())
+        metrics["options/rl_fraction_sampled"] = float(rl_rows.sum() / valid.sum())
         return metrics
 
     def _update_options(self, w: dict[str, torch.Tensor]) -> dict[str, float]:
         """Eq. (13) with Double Q-learning, on windows that start an option."""
-        returns, discount = k_step_return(w["reward"], w["terminated"], self.gamma)
+        returns, discount = k_step_return(w["reward"], w["terminated"], self.gamma, w[VALID])
         y = double_q_target(
             returns,
             discount,
@@ -133,7 +137,10 @@ class OptionsLearner:
         next_q = torch.cat([torch.min(q1, q2), torch.zeros_like(q1[:, :1])], dim=1)
         # ρ on the UNCLIPPED sampled action, π a Gaussian around the current actor.
         ratio = importance_ratio(w["action"], rl.actor(obs), self.std, w["log_prob"])
+        # A trace runs on inside one RL option and stops at the episode's last step.
         same_option = (option == RL) & (w["option_step"] != 0)
+        if VALID in w:
+            same_option &= w[VALID]
         traces = torch.where(same_option, retrace_traces(ratio, self.lam), 0.0)
         next_traces = torch.cat([traces[:, 1:], torch.zeros_like(traces[:, :1])], dim=1)
         return retrace_targets(w["reward"], discounts, next_values, next_q, next_traces)
@@ -153,17 +160,17 @@ class OptionsLearner:
         """TD3 on every transition (s_t, c_t, r_t, s_{t+1}) inside the windows.
 
         s_{t+1} is the next step's row (with μ(s_{t+1}) when residual), so each window
-        gives its first k − 1 steps; a window never crosses an episode end, so none of
-        them is terminal.
+        gives the steps whose next step is its episode's too: none of them is terminal.
         """
         v = self.residual_view(w)
         x = v["rl_obs"]
+        pairs = w[VALID][:, 1:]  # step t's successor is the episode's
         flat = {
-            "obs": x[:, :-1].flatten(0, 1),
-            "next_obs": x[:, 1:].flatten(0, 1),
-            "action": v["action"][:, :-1].flatten(0, 1),
-            "reward": w["reward"][:, :-1].flatten(0, 1),
-            "terminated": w["terminated"][:, :-1].flatten(0, 1),
+            "obs": x[:, :-1][pairs],
+            "next_obs": x[:, 1:][pairs],
+            "action": v["action"][:, :-1][pairs],
+            "reward": w["reward"][:, :-1][pairs],
+            "terminated": w["terminated"][:, :-1][pairs],
         }
         return self.rl.update(flat)
 

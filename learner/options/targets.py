@@ -1,13 +1,15 @@
 """The targets of the hierarchical method: eq. (13) for options, eq. (14) Retrace for the RL option.
 
 Window tensors are [B, k]: step t of a window sampled from replay, which never crosses an
-episode end (it may end on one). `discounts[:, t]` is γ(1 − terminated_t): truncation is not
+episode end (it may end on one; one that ends early repeats its last step after it, and
+`valid` marks the episode's steps). `discounts[:, t]` is γ(1 − terminated_t): truncation is not
 termination, a time-limit cut still bootstraps.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 import torch
 
@@ -68,17 +70,26 @@ def retrace_targets(
 
 
 def k_step_return(
-    rewards: torch.Tensor, terminated: torch.Tensor, gamma: float
+    rewards: torch.Tensor,
+    terminated: torch.Tensor,
+    gamma: float,
+    valid: Optional[torch.Tensor] = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The first half of eq. (13): (Σ_i γ^i r_i, γ^k (1 − d)) for windows [B, k].
+    """The first half of eq. (13): (Σ_{i<m} γ^i r_i, γ^m (1 − d)) for windows [B, k], where m
+    is the number of the window's steps that are its episode's (`valid`, a prefix; all k
+    without it) and d whether the last of them is terminal.
 
-    A window never crosses an episode end, so only its last step can be terminal.
+    A window never crosses an episode end; one that reaches it early (an option cut short
+    by its episode's end) repeats its last step after it, and those steps count for nothing.
 
     Returns:
         (returns [B], bootstrap discount [B]) for `double_q_target`.
     """
     k = rewards.shape[1]
     powers = gamma ** torch.arange(k, dtype=rewards.dtype, device=rewards.device)
-    returns = (rewards * powers).sum(dim=1)
-    discount = gamma**k * (1.0 - terminated[:, -1].to(rewards.dtype))
-    return returns, discount
+    if valid is None:
+        returns = (rewards * powers).sum(dim=1)
+        return returns, gamma**k * (1.0 - terminated[:, -1].to(rewards.dtype))
+    returns = (rewards * powers * valid).sum(dim=1)
+    steps = valid.to(rewards.dtype).sum(dim=1)
+    return returns, gamma**steps * (1.0 - terminated[:, -1].to(rewards.dtype))

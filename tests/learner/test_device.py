@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from learner.checkpoint import load_checkpoint, save_checkpoint
-from learner.device import CPU, BatchFeed, resolve_compile, resolve_device
+from learner.device import CPU, BatchFeed, learned_from, resolve_compile, resolve_device
 from learner.device_spec import check_compile_mode, check_device_spec
 from learner.loop import to_tensors
 from learner.td3.learning import TD3Learner
@@ -234,3 +234,17 @@ def test_a_compiled_update_equals_the_eager_one(device: str, mode: str) -> None:
     for a, b in zip(eager_metrics, compiled_metrics, strict=True):
         assert a.keys() == b.keys()
         assert all(abs(a[k] - b[k]) <= COMPILED_TOLERANCE * max(1, abs(a[k])) for k in a)
+
+
+def test_the_learner_takes_the_data_columns_and_which_window_steps_are_valid():
+    columns = {
+        "obs": np.zeros((2, 3, 1), np.float32),
+        "_key": np.zeros((2, 3), np.uint64),
+        "_weight": np.ones(2, np.float32),
+        "_valid": np.array([[True, True, False], [True, True, True]]),
+    }
+    tensors = to_tensors(columns)
+    assert set(tensors) == {"obs", "_valid"}
+    assert tensors["_valid"].tolist() == [[True, True, False], [True, True, True]]
+    # The pinned copies a GPU learner takes choose by the same rule.
+    assert [c for c in columns if learned_from(c)] == ["obs", "_valid"]

@@ -310,6 +310,52 @@ def test_window_returns_to_the_windows_end_from_every_step(terminated, discounts
     torch.testing.assert_close(discount, torch.tensor([discounts]))
 
 
+@pytest.mark.parametrize(
+    "terminated, discounts",
+    [
+        ([0.0, 0.0, 0.0], [0.25, 0.5]),  # a time-limit cut: γ^(m − j) from the last real step
+        ([0.0, 1.0, 1.0], [0.0, 0.0]),  # the episode ended in a terminal state
+    ],
+)
+def test_window_returns_stop_at_the_episodes_end_in_a_padded_window(terminated, discounts):
+    from learner.dqn.learning import window_returns
+
+    # Two steps of the episode, then its last step repeated (reward and all).
+    rewards = torch.tensor([[1.0, 2.0, 2.0]])
+    valid = torch.tensor([[True, True, False]])
+    returns, discount = window_returns(rewards, torch.tensor([terminated]).bool(), 0.5, valid)
+    # R_0 = 1 + 0.5·2, R_1 = 2; the padding's own values are never used.
+    torch.testing.assert_close(returns[:, :2], torch.tensor([[2.0, 2.0]]))
+    torch.testing.assert_close(discount[:, :2], torch.tensor([discounts]))
+
+
+def test_a_padded_window_trains_as_the_episodes_steps_alone():
+    from learner.dqn.config import DQNConfig
+    from learner.dqn.learning import DQNLearner
+
+    config = DQNConfig(hidden_sizes=(8,), target_update_every=2)
+    short, padded = (DQNLearner(2, 2, config=config, seed=0) for _ in range(2))
+    rng = torch.Generator().manual_seed(0)
+    for _ in range(3):
+        window = {  # 4 windows of the 2 steps that end their episodes (some terminal)
+            "obs": torch.randn(4, 2, 2, generator=rng),
+            "action": torch.randint(0, 2, (4, 2), generator=rng),
+            "reward": torch.randn(4, 2, generator=rng),
+            "terminated": torch.cat(
+                [torch.zeros(4, 1, dtype=torch.bool), torch.rand(4, 1, generator=rng) < 0.5], 1
+            ),
+            "next_obs": torch.randn(4, 2, 2, generator=rng),
+        }
+        # The same windows as replay serves them to a learner of 3-step windows.
+        filled = {k: torch.cat([v, v[:, -1:]], 1) for k, v in window.items()}
+        filled["_valid"] = torch.tensor([[True, True, False]]).repeat(4, 1)
+        a = short.update(window)
+        b = padded.update(filled)
+        assert a["losses/q"] == pytest.approx(b["losses/q"], rel=1e-6)
+    for p, q in zip(short.q.parameters(), padded.q.parameters(), strict=True):
+        torch.testing.assert_close(p, q)
+
+
 def test_windows_of_one_step_train_exactly_as_single_transitions():
     from learner.dqn.config import DQNConfig
     from learner.dqn.learning import DQNLearner

@@ -47,6 +47,29 @@ def test_eq13_k_step_option_target(terminated, expected):
     torch.testing.assert_close(y, torch.tensor([expected]))
 
 
+@pytest.mark.parametrize(
+    "terminated, expected",
+    [
+        # An option cut short by a time limit after 2 steps: 1 + 0.5·2 = 2, then γ^2 = 0.25.
+        (False, 2.0 + 0.25 * 8.0),
+        (True, 2.0),  # ... or by a terminal state
+    ],
+)
+def test_eq13_target_of_an_option_cut_short_by_its_episodes_end(terminated, expected):
+    rewards = torch.tensor([[1.0, 2.0, 2.0]])  # the last step repeated after the end
+    done = torch.tensor([[False, terminated, terminated]])
+    valid = torch.tensor([[True, True, False]])
+    returns, discount = k_step_return(rewards, done, gamma=0.5, valid=valid)
+    y = double_q_target(
+        returns,
+        discount,
+        torch.zeros(1, 3),
+        online=Table([[2.0, 1.0]]),
+        target=Table([[8.0, 99.0]]),
+    )
+    torch.testing.assert_close(y, torch.tensor([expected]))
+
+
 # --- Retrace, eq. (14) ----------------------------------------------------------------
 
 
@@ -143,6 +166,16 @@ def test_options_retrace_uses_option_values_and_cuts_traces_at_option_boundaries
     # Q2 = 3 + 0.9·Q_Ω(s3, RL) = 21;  Q1 = 2 + 0.9·max_o Q_Ω(s2, o) = 29 (option ended, c2 = 0);
     # Q0 = 1 + 0.9·(Q_Ω(s1, RL) + c1·(Q1 − Q'(s1, a1))) = 1 + 0.9·(20 + 29 − 5) = 40.6
     torch.testing.assert_close(q_ret, torch.tensor([[40.6, 29.0, 21.0]]))
+
+    # The episode ended (a time limit) after step 1: replay repeats step 1 to fill the
+    # window. Its trace would be c = 1 (the copy sits inside the option); the episode's last
+    # step takes none: Q1 = 2 + 0.9·V(s2) = 2 + 0.9·Q_Ω(s2, RL) = 20 (the option goes on).
+    window["option_step"] = torch.tensor([[0, 1, 1]])
+    window["reward"] = torch.tensor([[1.0, 2.0, 2.0]])
+    window["log_prob"] = torch.tensor([[0.0, log_pi, log_pi]])
+    window["_valid"] = torch.tensor([[True, True, False]])
+    # Q0 = 1 + 0.9·(20 + c1·(Q1 − 5)) = 1 + 0.9·(20 + 15) = 32.5
+    torch.testing.assert_close(learner.retrace(window)[:, :2], torch.tensor([[32.5, 20.0]]))
 
 
 # --- the options behaviour ------------------------------------------------------------

@@ -2,7 +2,10 @@
 and the k-step windows drawn along those links.
 
 A step that is `terminated` or `truncated` has no successor, so a window never crosses
-an episode boundary. A single transition is simply the k=1 window.
+an episode boundary. A window that reaches its episode's end before k steps is complete
+all the same: its last step is repeated to fill it (`_valid` says which steps are the
+episode's), so the last k − 1 steps of an episode, and episodes shorter than k, start
+windows too. A single transition is simply the k=1 window.
 """
 
 from __future__ import annotations
@@ -13,6 +16,9 @@ import numpy as np
 
 from service.replay.server.samplers import Sampler, Slots
 from service.replay.server.slots import EMPTY
+
+ENDED = EMPTY - 1
+"""`next_key` of a step that ended its episode: it has no successor, and will get none."""
 
 
 class EpisodeLinks:
@@ -31,7 +37,7 @@ class EpisodeLinks:
         self, keys: np.ndarray, rows: np.ndarray, stream: np.ndarray, ended: np.ndarray, writer: str
     ) -> None:
         """Points each step at its successor in the same (writer, stream) episode."""
-        self.next_key[rows] = EMPTY
+        self.next_key[rows] = np.where(ended, ENDED, EMPTY)
         for s in np.unique(stream).tolist():
             at = np.flatnonzero(stream == s)
             linked = ~ended[at[:-1]]
@@ -44,19 +50,21 @@ class EpisodeLinks:
             self.streams[(writer, s)] = (int(keys[at[-1]]), bool(ended[at[-1]]))
 
     def windows(self, start_rows: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Rows [B, k] of the windows starting at `start_rows`, and which are complete."""
+        """Rows [B, k] of the windows starting at `start_rows`, and which are complete: k
+        steps of one episode, or its steps to its end with the last one repeated after it.
+        A window whose next step is not stored (not inserted yet, or evicted) is not."""
         window = np.empty((len(start_rows), k), dtype=np.int64)
         window[:, 0] = start_rows
         complete = np.ones(len(start_rows), dtype=bool)
+        ended = np.zeros(len(start_rows), dtype=bool)  # the episode ended inside the window
         for j in range(1, k):
             successor = self.next_key[window[:, j - 1]]
-            complete &= successor != EMPTY
-            alive = np.zeros(len(start_rows), dtype=bool)
-            alive[complete] = self._slots.live(successor[complete])
-            complete &= alive
-            window[:, j] = np.where(
-                complete, self._slots.rows_of(np.where(complete, successor, 0)), 0
-            )
+            ended |= successor == ENDED
+            follows = complete & ~ended & (successor != EMPTY)
+            follows[follows] = self._slots.live(successor[follows])
+            complete &= ended | follows
+            window[:, j] = window[:, j - 1]  # padding after the episode's end
+            window[follows, j] = self._slots.rows_of(successor[follows])
         return window, complete
 
     def draw(

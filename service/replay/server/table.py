@@ -393,7 +393,9 @@ class Table:
         while the rate limiter says wait.
 
         Returns the data columns (shaped [B, ...] or [B, k, ...]) plus `_key`, the
-        sampling `_probability` of each (start) item, and its importance `_weight`.
+        sampling `_probability` of each (start) item, and its importance `_weight`; for
+        windows, `_valid` [B, k]: which steps are the episode's (after an episode's end its
+        last step is repeated).
         """
         k = sequence_length
         self.check_sample(batch_size, k)
@@ -418,6 +420,10 @@ class Table:
         if k > 1:
             out = {c: a.reshape(len(window_rows), k, *a.shape[1:]) for c, a in out.items()}
             keys = keys.reshape(len(window_rows), k)
+            # A step repeating the one before is padding after its episode's end.
+            valid = np.ones(window_rows.shape, dtype=bool)
+            valid[:, 1:] = window_rows[:, 1:] != window_rows[:, :-1]
+            out["_valid"] = valid
         out["_key"] = keys
         return out
 

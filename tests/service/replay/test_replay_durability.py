@@ -41,6 +41,28 @@ def test_checkpoint_restore_round_trip(tmp_path):
     assert not list(tmp_path.glob(".*.tmp")), "a temporary checkpoint file was left behind"
 
 
+def test_episode_ends_are_kept_by_checkpoints_and_the_log(tmp_path):
+    # An ended episode of 2 steps in the checkpoint, another in the log after it: after a
+    # restart both still give windows of 3 that repeat their last step.
+    table = [
+        {"name": "w", "max_size": 100, "max_sequence_length": 3, "signature": SCALAR_SIGNATURE}
+    ]
+    extra = ["--checkpoint-dir", str(tmp_path)]
+    with ReplayProcess(table, extra_args=extra) as server:
+        client = ReplayClient(server.address)
+        client.insert("w", scalar_batch([0, 1], ends=[False, True]))
+        client.checkpoint()
+        client.insert("w", scalar_batch([10, 11], ends=[False, True]))
+        client.close()
+        server.kill()  # no final checkpoint: the second episode comes back from the log
+    with ReplayProcess(table, extra_args=extra) as server:
+        client = ReplayClient(server.address)
+        sample = client.sample("w", 200, sequence_length=3, timeout=5)
+        client.close()
+    windows = {tuple(w) for w in sample["x"].tolist()}
+    assert windows == {(0, 1, 1), (1, 1, 1), (10, 11, 11), (11, 11, 11)}
+
+
 def test_graceful_stop_writes_a_final_checkpoint(tmp_path):
     with durable_server(tmp_path) as server:
         ReplayClient(server.address).insert("log", scalar_batch(range(10)))

@@ -36,6 +36,12 @@ TABLES = [
         "signature": {**SCALAR_SIGNATURE, "episode": {"dtype": "int64", "shape": []}},
     },
     {
+        "name": "open_windows",
+        "max_size": 100,
+        "max_sequence_length": 3,
+        "signature": SCALAR_SIGNATURE,
+    },
+    {
         "name": "queue",
         "max_size": 10,
         "sampler": "fifo",
@@ -123,7 +129,7 @@ def test_lifo_remover_evicts_the_newest(client):
     np.testing.assert_array_equal(read_all(client, "lifo_remover"), [0, 1, 2, 3, 100])
 
 
-def test_windows_never_cross_episode_ends(client):
+def test_windows_follow_one_episode_and_repeat_its_last_step_after_its_end(client):
     # Two interleaved streams (as one actor's two environments), episodes of varied length.
     rng = np.random.default_rng(0)
     per_stream: list[list[tuple[int, int, int, bool]]] = [[], []]
@@ -145,13 +151,38 @@ def test_windows_never_cross_episode_ends(client):
     for half in (slice(0, len(step) // 2), slice(len(step) // 2, None)):  # links span inserts
         client.insert("windows", {k: v[half] for k, v in batch.items()})
     sample = client.sample("windows", 2000, sequence_length=4)
-    assert sample["x"].shape == (2000, 4)
+    valid = sample["_valid"]
+    assert sample["x"].shape == valid.shape == (2000, 4)
     assert (sample["episode"] == sample["episode"][:, :1]).all()  # one episode per window
-    np.testing.assert_array_equal(np.diff(sample["x"], axis=1), 1)  # consecutive steps
-    assert not sample["terminated"][:, :3].any()  # an episode end can only close a window
-    assert sample["terminated"][:, 3].any()
+    moves = np.diff(sample["x"], axis=1)
+    np.testing.assert_array_equal(moves[valid[:, 1:]], 1)  # the episode's steps, in order
+    np.testing.assert_array_equal(moves[~valid[:, 1:]], 0)  # then its last step, repeated
+    assert valid[:, 0].all() and (valid[:, :-1] >= valid[:, 1:]).all()  # a prefix
+    last = valid.sum(axis=1) - 1
+    ends = sample["terminated"][np.arange(len(last)), last]
+    assert ends[~valid[:, -1]].all()  # padding only after an episode's end
+    assert not (sample["terminated"][:, :-1] & valid[:, 1:]).any()  # no end inside a window
+    # Every step starts windows: the last 3 of each episode, and episodes of 1-3 steps, too.
+    assert {(s, x) for s, x in zip(stream, step, strict=True)} == {
+        (e // 1000, x) for e, x in zip(sample["episode"][:, 0], sample["x"][:, 0], strict=True)
+    }
     with pytest.raises(InvalidArgument, match="outside \\[1, 4\\]"):
         client.sample("windows", 1, sequence_length=5)
+
+
+def test_a_window_waits_for_the_next_step_of_an_episode_that_goes_on(client):
+    client.insert("open_windows", scalar_batch([0, 1]))  # an episode two steps in
+    with pytest.raises(DeadlineExceeded):
+        client.sample("open_windows", 1, sequence_length=3, timeout=0.3)
+    client.insert("open_windows", scalar_batch([2], ends=[True]))  # its third step ends it
+    sample = client.sample("open_windows", 300, sequence_length=3, timeout=5)
+    windows = zip(sample["x"], sample["_valid"], strict=True)
+    by_start = {int(w[0]): (w.tolist(), v.tolist()) for w, v in windows}
+    assert by_start == {
+        0: ([0, 1, 2], [True, True, True]),
+        1: ([1, 2, 2], [True, True, False]),
+        2: ([2, 2, 2], [True, False, False]),
+    }
 
 
 def test_sample_below_min_size_times_out_with_deadline_exceeded(client):
