@@ -1,13 +1,14 @@
 """Benchmark: the MountainCarContinuous example (examples/mountaincar) over several seeds.
 
-Plain TD3, the energy-pumping tree alone and backbone TD3 on that tree, at one fixed
-budget of env steps: per method, the seeds whose final policy reaches the flag in every
-final episode, the success rate over all final episodes (reaching the flag), the mean
-return, and the seeds whose every in-run evaluation (from the first) reached the flag.
+Plain TD3, the energy-pumping tree alone, backbone TD3 on that tree and the hierarchical
+options over it (the tree or TD3 every 10 steps), at one fixed budget of env steps: per
+method, the seeds whose final policy reaches the flag in every final episode, the success
+rate over all final episodes (reaching the flag), the mean return, and the seeds whose
+every in-run evaluation (from the first) reached the flag.
 Prints a table and writes a PNG of the evaluation returns over env steps.
 
     python bench/mountaincar.py [--seeds 5] [--env-steps 10000] [--episodes 20] [--parallel 2]
-        [--methods td3,backbone,backbone-narrow]
+        [--methods td3,backbone,backbone-narrow,options]
     python bench/mountaincar.py --quick    # a smoke run: 1 seed, tiny budgets
 
 The example package must be installed (``pip install -e examples/mountaincar``).
@@ -34,9 +35,17 @@ TRAINED = {
     "td3": "plain TD3",
     "backbone": "backbone TD3",
     "backbone-narrow": "backbone TD3, correction within ±0.7",
+    "options": "options (the tree or TD3 every 10 steps)",
 }
 """Preset file stem -> the method's name in the table."""
-COLORS = {"td3": "tab:red", "backbone": "tab:blue", "backbone-narrow": "tab:purple"}
+DEFAULT_METHODS = ("td3", "backbone", "backbone-narrow")
+"""Run when --methods is not given (options: `--methods options`)."""
+COLORS = {
+    "td3": "tab:red",
+    "backbone": "tab:blue",
+    "backbone-narrow": "tab:purple",
+    "options": "tab:orange",
+}
 TREE = "tree alone"
 QUICK = {
     "learning_starts": 200,
@@ -175,8 +184,9 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     parser.add_argument("--parallel", type=int, default=2, help="runs at a time")
     parser.add_argument(
         "--methods",
-        default=",".join(TRAINED),
-        help=f"the trained methods, by preset (default: {','.join(TRAINED)})",
+        default=",".join(DEFAULT_METHODS),
+        help=f"the trained methods, by preset, of {','.join(TRAINED)} "
+        f"(default: {','.join(DEFAULT_METHODS)})",
     )
     parser.add_argument("--quick", action="store_true", help="1 seed, 600 env steps, 2 episodes")
     args = parser.parse_args(argv)

@@ -68,7 +68,8 @@ def device_name(device: torch.device) -> str:
 
 def resolve_compile(mode: str, device: torch.device) -> CompileMode:
     """The compile mode ``learner.compile`` means on `device`: ``auto`` compiles on CUDA and
-    stays eager on the CPU (where compiling TD3's small networks gains nothing, bench/learner.py).
+    stays eager on the CPU (where compiling TD3's small networks gains nothing,
+    bench/learner_updates.py).
 
     Raises:
         ValueError: ``cuda_graphs`` on a device that is not CUDA.

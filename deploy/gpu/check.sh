@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The GPU checks of graft, in one go, on a machine with CUDA and no network (the device
 # tool's H200, with `.gpu` from deploy/gpu/pack.sh carried): the CUDA tests,
-# bench/learner.py on the GPU (eager, compiled, CUDA graphs) and a short pendulum-td3 with
+# bench/learner_updates.py on the GPU (eager, compiled, CUDA graphs) and a short pendulum-td3 with
 # `learner.device=cuda`. Figures and logs go to $OUT (default runs/gpu), 8 files at most.
 #
 #     deploy/gpu/pack.sh                   # here: the wheels and Ray (35 MB)
@@ -33,7 +33,7 @@ step() {
 # Every device test (CUDA ones included), then the presets' smoke runs that record it.
 step tests 150 python3 -m pytest -q -p no:cacheprovider tests/learner/test_device.py \
   "tests/service/run/test_presets_smoke.py::test_preset_runs_through_the_service"
-step learner 200 python3 bench/learner.py --device cuda --compile off,compile,cuda_graphs \
+step learner 200 python3 bench/learner_updates.py --device cuda --compile off,compile,cuda_graphs \
   --compiled-learners td3 --seconds 5 --out "$out"
 step train 240 python3 -m service.run.cli train --preset pendulum-td3 --no-progress \
   --env-steps 20000 --set learner.device=cuda --set prefetch=16 --set eval_every=2000 \

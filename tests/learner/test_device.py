@@ -29,7 +29,7 @@ needs_cuda = pytest.mark.skipif(not CUDA, reason="needs a CUDA device; torch see
 DEVICES = ["cpu", pytest.param("cuda", marks=needs_cuda)]
 
 _spec = importlib.util.spec_from_file_location(
-    "bench_learner", Path(__file__).parents[2] / "bench" / "learner.py"
+    "bench_learner", Path(__file__).parents[2] / "bench" / "learner_updates.py"
 )
 assert _spec is not None and _spec.loader is not None
 bench = importlib.util.module_from_spec(_spec)

@@ -7,7 +7,7 @@ counts its updates for `--seconds`. Beside them, in the same process, the ceilin
 minimal TD3 step in plain torch at Pendulum shapes (batch 256, 256 x 256 networks), with
 no replay columns, counters or metrics. Writes ``learner.csv`` to `--out`; prints a table.
 
-    python bench/learner.py [--device cpu] [--seconds 10] [--compile off,compile]
+    python bench/learner_updates.py [--device cpu] [--seconds 10] [--compile off,compile]
         [--learners td3,ddqn] [--compiled-learners td3]
 """
 
