@@ -26,40 +26,24 @@ from tests.learner.helpers import FixedRows, Table
 
 
 @pytest.mark.parametrize(
-    "terminated, expected",
+    "rewards, done, valid, expected",
     [
         # Σ γ^i r_i = 1 + 0.5·2 + 0.25·4 = 3; γ^3 = 0.125; Q_target(s_3, argmax online = 0) = 8.
-        (False, 3.0 + 0.125 * 8.0),
-        (True, 3.0),  # the window ends on a terminal state: no bootstrap
+        ([1.0, 2.0, 4.0], [False, False, False], None, 3.0 + 0.125 * 8.0),
+        ([1.0, 2.0, 4.0], [False, False, True], None, 3.0),  # a terminal state: no bootstrap
+        # An option cut short by its episode's end after 2 steps, the last one repeated after
+        # it: 1 + 0.5·2 = 2, then γ^2 = 0.25 past a time limit, nothing past a terminal state.
+        ([1.0, 2.0, 2.0], [False, False, False], [True, True, False], 2.0 + 0.25 * 8.0),
+        ([1.0, 2.0, 2.0], [False, True, True], [True, True, False], 2.0),
     ],
 )
-def test_eq13_k_step_option_target(terminated, expected):
-    rewards = torch.tensor([[1.0, 2.0, 4.0]])
-    done = torch.tensor([[False, False, terminated]])
-    returns, discount = k_step_return(rewards, done, gamma=0.5)
-    y = double_q_target(
-        returns,
-        discount,
-        torch.zeros(1, 3),
-        online=Table([[2.0, 1.0]]),
-        target=Table([[8.0, 99.0]]),
+def test_eq13_k_step_option_target(rewards, done, valid, expected):
+    returns, discount = k_step_return(
+        torch.tensor([rewards]),
+        torch.tensor([done]),
+        gamma=0.5,
+        valid=None if valid is None else torch.tensor([valid]),
     )
-    torch.testing.assert_close(y, torch.tensor([expected]))
-
-
-@pytest.mark.parametrize(
-    "terminated, expected",
-    [
-        # An option cut short by a time limit after 2 steps: 1 + 0.5·2 = 2, then γ^2 = 0.25.
-        (False, 2.0 + 0.25 * 8.0),
-        (True, 2.0),  # ... or by a terminal state
-    ],
-)
-def test_eq13_target_of_an_option_cut_short_by_its_episodes_end(terminated, expected):
-    rewards = torch.tensor([[1.0, 2.0, 2.0]])  # the last step repeated after the end
-    done = torch.tensor([[False, terminated, terminated]])
-    valid = torch.tensor([[True, True, False]])
-    returns, discount = k_step_return(rewards, done, gamma=0.5, valid=valid)
     y = double_q_target(
         returns,
         discount,
