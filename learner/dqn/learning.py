@@ -189,9 +189,10 @@ class DQNLearner:
         Args:
             batch: ``obs`` [B, obs_dim], ``action`` [B] int64, ``reward`` [B],
                 ``terminated`` [B] bool, ``next_obs`` [B, obs_dim]; or windows of n
-                steps, every column [B, n, ...], for n-step returns. In the burn-in with
-                warmup: hardcoded, also ``backbone_action`` (μ(s), int64) of the same shape
-                as ``action``.
+                steps, every column [B, n, ...], for n-step returns, with ``_valid``
+                [B, n] (replay's: which steps are the episode's; all without it). In the
+                burn-in with warmup: hardcoded, also ``backbone_action`` (μ(s), int64) of
+                the same shape as ``action``.
         """
         batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
         expert = None

@@ -75,7 +75,9 @@ class OptionsLearner:
         self.num_updates = 0
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
-        """One step of each learner on a batch of windows [B, k, ...]."""
+        """One step of each learner on a batch of windows [B, k, ...] (and ``_valid``
+        [B, k], which steps are the episode's: replay repeats an episode's last step after
+        its end to fill a window)."""
         device = self.rl.device  # both learners live on it
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
         self.num_updates += 1
