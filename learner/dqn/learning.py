@@ -46,7 +46,21 @@ def double_q_target(
     return returns + discount * target(next_obs).gather(1, best).squeeze(1)
 
 
-def large_margin_loss(q: torch.Tensor, expert_action: torch.Tensor, margin: float) -> torch.Tensor:
+def mean_over(values: torch.Tensor, weight: Optional[torch.Tensor]) -> torch.Tensor:
+    """The mean of `values` [B], or over the rows `weight` [B] (0 or 1) keeps: the batch
+    keeps its shape, so compiled networks and CUDA graphs see one shape, and nothing waits
+    on the device to count rows."""
+    if weight is None:
+        return values.mean()
+    return (values * weight).sum() / weight.sum()
+
+
+def large_margin_loss(
+    q: torch.Tensor,
+    expert_action: torch.Tensor,
+    margin: float,
+    weight: Optional[torch.Tensor] = None,
+) -> torch.Tensor:
     """DQfD's supervised loss (Hester et al. 2018, eq. 2), as a mean over the batch:
     max_a [Q(s, a) + l(a_E, a)] − Q(s, a_E), l = margin where a ≠ a_E, else 0.
 
@@ -56,10 +70,11 @@ def large_margin_loss(q: torch.Tensor, expert_action: torch.Tensor, margin: floa
         q: Q(s, ·), [B, n].
         expert_action: a_E = μ(s), int64 [B].
         margin: l for every action other than a_E.
+        weight: the rows that count (`mean_over`); all when None.
     """
     chosen = expert_action.long().unsqueeze(1)
     penalty = torch.full_like(q, margin).scatter(1, chosen, 0.0)
-    return ((q + penalty).max(dim=1).values - q.gather(1, chosen).squeeze(1)).mean()
+    return mean_over((q + penalty).max(dim=1).values - q.gather(1, chosen).squeeze(1), weight)
 
 
 def window_returns(
@@ -218,13 +233,13 @@ class DQNLearner:
             target=self.target_q,
         )
         y = returns + discounts * bootstrap.unsqueeze(1)
-        # The episode's steps only: padding after its end repeats its last step.
-        steps = torch.ones(b, n, dtype=torch.bool, device=self.device) if valid is None else valid
         return self.fit(
-            batch["obs"][steps],
-            batch["action"][steps],
-            y[steps],
-            expert_action=None if expert is None else expert[steps],
+            batch["obs"].flatten(0, 1),
+            batch["action"].flatten(),
+            y.flatten(),
+            expert_action=None if expert is None else expert.flatten(),
+            # The episode's steps only: padding after its end repeats its last step.
+            weight=None if valid is None else valid.flatten().to(y.dtype),
         )
 
     def fit(
@@ -234,17 +249,22 @@ class DQNLearner:
         y: torch.Tensor,
         *,
         expert_action: Optional[torch.Tensor] = None,
+        weight: Optional[torch.Tensor] = None,
     ) -> dict[str, float]:
         """One Huber-loss step of Q(obs, action) towards a target y (plus the large-margin
-        loss towards `expert_action` when given); counts an update."""
+        loss towards `expert_action` when given), over the rows `weight` keeps (all when
+        None); counts an update."""
         q_all = self.q(obs)
         q = q_all.gather(1, action.long().unsqueeze(1)).squeeze(1)
-        loss = F.smooth_l1_loss(q, y)
+        if weight is None:
+            loss = F.smooth_l1_loss(q, y)
+        else:
+            loss = mean_over(F.smooth_l1_loss(q, y, reduction="none"), weight)
         margin_loss = None
         if expert_action is not None:
-            margin_loss = large_margin_loss(q_all, expert_action, self._margin)
+            margin_loss = large_margin_loss(q_all, expert_action, self._margin, weight)
             loss = loss + self._margin_weight() * margin_loss
-        scalars = [loss.detach(), q.detach().mean()]
+        scalars = [loss.detach(), mean_over(q.detach(), weight)]
         if margin_loss is not None:
             scalars.append(margin_loss.detach())
         self.optimizer.zero_grad(set_to_none=True)

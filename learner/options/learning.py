@@ -38,6 +38,14 @@ class RetraceTD3Learner(TD3Learner):
         return batch["retrace_target"]
 
 
+def episode_steps(windows: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Which steps of windows [B, k] are their episode's: replay's `VALID` (after an
+    episode's end it repeats the last step), or every step of windows without it (made by
+    hand, or from an older server)."""
+    valid = windows.get(VALID)
+    return torch.ones_like(windows["reward"], dtype=torch.bool) if valid is None else valid
+
+
 class OptionsLearner:
     """Q_Ω by Double DQN over k-step option windows; the RL option by TD3 + Retrace."""
 
@@ -82,9 +90,7 @@ class OptionsLearner:
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
         self.num_updates += 1
         metrics: dict[str, float] = {}
-        # Windows from older clients, or made by hand, may come without `VALID`: then every
-        # step is the episode's.
-        valid = batch.setdefault(VALID, torch.ones_like(batch["reward"], dtype=torch.bool))
+        valid = episode_steps(batch)
         starts = batch["option_step"][:, 0] == 0
         if starts.any():
             metrics.update(self._update_options({c: v[starts] for c, v in batch.items()}))
@@ -98,7 +104,9 @@ class OptionsLearner:
 
     def _update_options(self, w: dict[str, torch.Tensor]) -> dict[str, float]:
         """Eq. (13) with Double Q-learning, on windows that start an option."""
-        returns, discount = k_step_return(w["reward"], w["terminated"], self.gamma, w[VALID])
+        returns, discount = k_step_return(
+            w["reward"], w["terminated"], self.gamma, episode_steps(w)
+        )
         y = double_q_target(
             returns,
             discount,
@@ -140,9 +148,7 @@ class OptionsLearner:
         # ρ on the UNCLIPPED sampled action, π a Gaussian around the current actor.
         ratio = importance_ratio(w["action"], rl.actor(obs), self.std, w["log_prob"])
         # A trace runs on inside one RL option and stops at the episode's last step.
-        same_option = (option == RL) & (w["option_step"] != 0)
-        if VALID in w:
-            same_option &= w[VALID]
+        same_option = (option == RL) & (w["option_step"] != 0) & episode_steps(w)
         traces = torch.where(same_option, retrace_traces(ratio, self.lam), 0.0)
         next_traces = torch.cat([traces[:, 1:], torch.zeros_like(traces[:, :1])], dim=1)
         return retrace_targets(w["reward"], discounts, next_values, next_q, next_traces)
@@ -166,7 +172,7 @@ class OptionsLearner:
         """
         v = self.residual_view(w)
         x = v["rl_obs"]
-        pairs = w[VALID][:, 1:]  # step t's successor is the episode's
+        pairs = episode_steps(w)[:, 1:]  # step t's successor is the episode's
         flat = {
             "obs": x[:, :-1][pairs],
             "next_obs": x[:, 1:][pairs],

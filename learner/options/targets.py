@@ -87,9 +87,7 @@ def k_step_return(
     """
     k = rewards.shape[1]
     powers = gamma ** torch.arange(k, dtype=rewards.dtype, device=rewards.device)
-    if valid is None:
-        returns = (rewards * powers).sum(dim=1)
-        return returns, gamma**k * (1.0 - terminated[:, -1].to(rewards.dtype))
-    returns = (rewards * powers * valid).sum(dim=1)
-    steps = valid.to(rewards.dtype).sum(dim=1)
-    return returns, gamma**steps * (1.0 - terminated[:, -1].to(rewards.dtype))
+    weights = powers if valid is None else powers * valid
+    steps = k if valid is None else valid.to(rewards.dtype).sum(dim=1)
+    alive = 1.0 - terminated[:, -1].to(rewards.dtype)
+    return (rewards * weights).sum(dim=1), gamma**steps * alive

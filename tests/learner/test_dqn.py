@@ -166,6 +166,14 @@ def test_large_margin_loss_by_hand(q, expert, margin, expected):
     assert float(loss) == pytest.approx(expected)
 
 
+def test_large_margin_loss_over_the_rows_kept():
+    # Rows 1.8, 0 and 0.3 (see MARGIN_CASES); the middle one is padding: (1.8 + 0.3) / 2.
+    q = torch.tensor([[2.0, 1.0, 0.0], [1.0, 3.0, 0.0], [1.0, 1.5, 0.0]])
+    weight = torch.tensor([1.0, 0.0, 1.0])
+    loss = large_margin_loss(q, torch.tensor([1, 1, 1]), 0.8, weight)
+    assert float(loss) == pytest.approx(1.05)
+
+
 def _demo_batch(n: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
     """Demonstrations of μ(s) = 1 if s_1 > 0 else 0 on 2-feature states, reward 0."""
     obs = rng.normal(size=(n, 2)).astype(np.float32)
