@@ -31,6 +31,9 @@ from service.core import Behaviour, EvalTag, Evaluation, WeightArrays, Weights, 
 Policy = Callable[[np.ndarray], np.ndarray]
 """A batched policy: observations [B, *obs_shape] -> actions [B, *action_shape]."""
 
+ADOPT_S = 2.0
+"""How long `RemoteEvaluator` waits for a kept evaluator to take its run before it starts
+a new one (a kept evaluator may still be scoring its last run's final weights)."""
 EPISODE_METRICS = "episode_metrics"
 """``info`` key of the last step of an episode: the environment's own metrics, {name: float}."""
 
@@ -189,6 +192,11 @@ class Evaluator:
     """Runs `episodes` deterministic episodes of a behaviour's greedy policy (no exploration)."""
 
     def __init__(self, *, env: EnvSpec, behaviour: Behaviour, seed: int) -> None:
+        self.reset(env=env, behaviour=behaviour, seed=seed)
+
+    def reset(self, *, env: EnvSpec, behaviour: Behaviour, seed: int) -> None:
+        """Scores another run's policies from here on: its environment, behaviour and seed
+        (nothing of the last run stays: `evaluate` makes its environments each time)."""
         self.env, self.seed = env, seed
         self.behaviour = behaviour
 
@@ -231,18 +239,33 @@ class RemoteEvaluator:
         options: Optional[dict[str, Any]] = None,
         max_restarts: int = 0,
         on_restart: Optional[Callable[[str], None]] = None,
+        kept: Any = None,
     ) -> None:
+        """``kept``: an idle `Evaluator` actor of the same ``options`` (a finished run's,
+        `release`) to score with, reset to this ``env``, ``behaviour`` and ``seed``; a new
+        one starts instead if it is gone or still busy."""
         self._args = {"env": env, "behaviour": behaviour, "seed": seed}
         self._options = dict(options or {})
         self.max_restarts, self.restarts = max_restarts, 0
         self._on_restart = on_restart
         self._lock = threading.Lock()
         self._closed = False  # after close(), a dead evaluator is not replaced
-        self._actor = self._start()
+        self._actor = self._start() if kept is None else self._adopt(kept)
 
     def _start(self) -> Any:
         # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
         return Evaluator.options(**self._options).remote(**self._args)  # type: ignore[attr-defined]
+
+    def _adopt(self, kept: Any) -> Any:
+        reset = kept.reset.remote(**self._args)
+        try:
+            if ray.wait([reset], timeout=ADOPT_S)[0]:
+                ray.get(reset)
+                return kept
+        except RayActorError:  # it died while kept
+            return self._start()
+        ray.kill(kept)  # still scoring a finished run's last evaluation
+        return self._start()
 
     def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
         """Starts the episodes in the actor (sent as numpy arrays) and returns at once."""
@@ -280,9 +303,14 @@ class RemoteEvaluator:
 
     def close(self) -> None:
         """Ends the evaluator actor now (its CPU share is free at once for the next run)."""
+        ray.kill(self.release())
+
+    def release(self) -> Any:
+        """Stops using the evaluator actor (one that dies is not replaced any more) and
+        returns it, alive, for another run to adopt (``kept``)."""
         with self._lock:
             self._closed = True
-            ray.kill(self._actor)
+            return self._actor
 
     def _replace(self, dead: Any, error: Exception) -> None:
         """A new evaluator for `dead`, unless another evaluation already replaced it."""

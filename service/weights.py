@@ -149,6 +149,16 @@ class WeightBroadcaster(_Latest):
             ).remote(ray.get_runtime_context().current_actor)
         return self._relays[node_id, group]
 
+    async def reset(self, fanout: int) -> None:
+        """Starts over for another run: no version, not stopped, no subscribers, and the
+        relays of the last run ended."""
+        for relay in self._relays.values():
+            ray.kill(relay)
+        self._relays.clear()
+        self._attached.clear()
+        self._fanout = fanout
+        self._version, self._weights_ref, self._stopped = -1, [], False
+
     async def relays(self) -> list[BroadcasterHandle]:
         """The relays started so far (for measuring them)."""
         return list(self._relays.values())
@@ -316,11 +326,20 @@ class WeightSubscriber:
 class BroadcastPublisher:
     """The learner's `WeightPublisher`: starts a `WeightBroadcaster` and publishes to it."""
 
-    def __init__(self, *, fanout: int = FANOUT) -> None:
+    def __init__(self, *, fanout: int = FANOUT, kept: Optional[BroadcasterHandle] = None) -> None:
+        """``kept``: an idle broadcaster on this node (a finished run's, `release`) to
+        publish through, reset for this run; a new one starts instead if it is gone."""
+        if kept is not None:
+            try:
+                ray.get(kept.reset.remote(fanout))
+                self._broadcaster: BroadcasterHandle = kept
+                return
+            except ray.exceptions.RayActorError:  # it died while kept
+                pass
         # On the learner's node: a worker node lost with its actors must not take the
         # run's weights along. @ray.remote gives the class `.options` at run time.
         here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=False)
-        self._broadcaster: BroadcasterHandle = WeightBroadcaster.options(  # type: ignore[attr-defined]
+        self._broadcaster = WeightBroadcaster.options(  # type: ignore[attr-defined]
             scheduling_strategy=here
         ).remote(fanout)
 
@@ -348,3 +367,7 @@ class BroadcastPublisher:
         """Ends the broadcaster actor (and the relays it owns) now, not when Ray collects
         its last handle: a run that ends must give its CPU share back at once."""
         ray.kill(self._broadcaster)
+
+    def release(self) -> BroadcasterHandle:
+        """The broadcaster, alive, for another run to publish through (``kept``)."""
+        return self._broadcaster

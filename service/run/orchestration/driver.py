@@ -36,6 +36,7 @@ from service.metrics import MetricsLogger, plot_learning_curve
 from service.run.config import TrainConfig
 from service.run.orchestration.budget import StepBudget
 from service.run.orchestration.clients import actor_env, evaluator_env, world_clients
+from service.run.orchestration.kept import BROADCASTER, EVALUATOR, KEPT
 from service.run.orchestration.lockstep import ActorRing, deterministic, stalled
 from service.run.orchestration.preflight import check_cluster, check_fits_locally, check_run_dir
 from service.run.orchestration.progress import FaultLog, say_and_keep, watch
@@ -114,7 +115,7 @@ def train_here(
     supervisor: Optional[Supervisor] = None
     publisher: Optional[BroadcastPublisher] = None
     evaluator: Optional[RemoteEvaluator] = None
-    interrupted, release_sigint = False, _no_op
+    interrupted, finished, release_sigint = False, False, _no_op
     restore_torch = deterministic(config.seed) if config.reproducible else _no_op
     try:
         check_cluster(config, address)
@@ -135,16 +136,20 @@ def train_here(
         if checkpoint is not None:
             phases = resume_with(phases, state, config, restored, builder.batch_size)
         client = replay.sampler()
-        publisher = BroadcastPublisher()
+        node = ray.get_runtime_context().get_node_id()
+        publisher = BroadcastPublisher(kept=KEPT.take(BROADCASTER, node))
         notes: list[str] = []
         say = say_and_keep(notes, progress)
+        evaluator_options = config.evaluator.ray_options()
+        evaluator_key = repr(sorted(evaluator_options.items()))
         evaluator = RemoteEvaluator(
             env=evaluator_env(config, clients),
             behaviour=builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
-            options=config.evaluator.ray_options(),
+            options=evaluator_options,
             max_restarts=config.evaluator.max_restarts,
             on_restart=say,
+            kept=KEPT.take(EVALUATOR, evaluator_key),
         )
         resumed_env_steps = state.env_steps  # a restored table's env steps (resume_with)
 
@@ -180,7 +185,7 @@ def train_here(
             # On the learner's node, as the weight broadcaster: a worker node lost with
             # its actors must not take the budget along. @ray.remote gives the class
             # `.options` at run time; mypy sees the plain class.
-            here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), False)
+            here = NodeAffinitySchedulingStrategy(node, False)
             budget = StepBudget.options(scheduling_strategy=here).remote(  # type: ignore[attr-defined]
                 {s.table: s.steps for s in actor_segments(phases, 1)}
             )
@@ -295,15 +300,24 @@ def train_here(
             title=f"{config.preset} (seed {config.seed})",
             reference=REFERENCE_LEVELS.get(config.env_id),
         )
+        finished = True
     finally:
         if supervisor is not None:
             supervisor.stop()
         if actors is not None:
             actors.kill()
+        # A run that ended well on a Ray instance that stays hands its helpers on (kept.py).
+        keep = finished and not started_ray
         if evaluator is not None:
-            evaluator.close()
+            if keep:
+                KEPT.keep(EVALUATOR, evaluator_key, evaluator.release())
+            else:
+                evaluator.close()
         if publisher is not None:
-            publisher.close()
+            if keep:
+                KEPT.keep(BROADCASTER, node, publisher.release())
+            else:
+                publisher.close()
         if replay is not None:
             replay.stop()
         if started_ray:

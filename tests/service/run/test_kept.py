@@ -1,0 +1,119 @@
+"""A driver's runs on one Ray instance hand their weight broadcaster and evaluator on to the
+next run (service/run/orchestration/kept.py), on a real local Ray."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import ray
+import torch
+from ray.exceptions import RayActorError
+
+from actors.evaluator import RemoteEvaluator
+from service.run.config import load_preset
+from service.run.orchestration.kept import BROADCASTER, EVALUATOR, KEPT, KeptActors
+from service.run.orchestration.launcher import train
+from service.run.orchestration.roles import probe
+from service.weights import BroadcastPublisher
+
+pytestmark = pytest.mark.service
+
+TAG = {"env_steps": 0, "updates": 0, "wall_s": 0.0}
+
+
+@ray.remote(num_cpus=0)
+class _Idle:
+    def ping(self) -> str:
+        return "here"
+
+
+def _ended(actor, within_s: float = 30.0) -> bool:
+    """Whether `actor` is gone (a call fails) within `within_s`."""
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline:
+        try:
+            ray.get(actor.ping.remote(), timeout=within_s)
+        except RayActorError:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_a_second_run_publishes_and_evaluates_with_the_first_runs_helpers(ray_local, tmp_path):
+    config = load_preset(
+        "pendulum-td3",
+        env_steps=300,
+        learning_starts=100,
+        eval_every=100,
+        eval_episodes=1,
+        publish_every=20,
+        num_actors=1,
+        **{"td3.hidden_sizes": [16, 16], "td3.batch_size": 32},
+    )
+    first = train(config, run_dir=tmp_path / "first", progress=False)
+    helpers = {role: KEPT.held(role) for role in (BROADCASTER, EVALUATOR)}
+    assert None not in helpers.values()
+    second = train(config, run_dir=tmp_path / "second", progress=False)
+    for role, actor in helpers.items():  # the same actors, kept again for a third run
+        assert KEPT.held(role)._actor_id == actor._actor_id, role
+    # The second run published from version 0 again, its actors adopted it, and it was
+    # scored: the kept broadcaster and evaluator started over.
+    for run in (first, second):
+        assert run.summary["updates"] == 200
+        assert run.summary["actor_versions_adopted"][0] >= 1
+        assert 0 <= run.summary["actor_last_version"][0] <= run.summary["policy_version"]
+        assert len(run.evaluations) >= 3 and np.isfinite(run.summary["final_eval_return_mean"])
+
+
+def test_an_actor_no_run_takes_is_ended_after_keep_s(ray_local):
+    kept = KeptActors(keep_s=0.2)
+    actor = _Idle.remote()
+    kept.keep("helper", "a", actor)
+    assert kept.held("helper") is actor
+    assert _ended(actor)
+    assert kept.held("helper") is None and kept.take("helper", "a") is None
+
+
+def test_a_run_asking_for_another_key_ends_the_kept_actor(ray_local):
+    kept = KeptActors(keep_s=60.0)
+    fits, other = _Idle.remote(), _Idle.remote()
+    kept.keep("helper", "a", fits)
+    assert kept.take("helper", "a") is fits  # taken: no longer kept, and not ended
+    assert ray.get(fits.ping.remote()) == "here"
+    kept.keep("helper", "a", other)
+    assert kept.take("helper", "b") is None
+    assert _ended(other)
+    assert ray.get(fits.ping.remote()) == "here"
+    ray.kill(fits)
+
+
+def test_a_kept_broadcaster_starts_over_for_its_next_run(ray_local):
+    old = BroadcastPublisher()
+    old.publish(5, {"w": torch.zeros(1)})
+    old.stop()
+    new = BroadcastPublisher(kept=old.release())
+    assert new.broadcaster._actor_id == old.broadcaster._actor_id
+    new.publish(0, {"w": torch.ones(1)})  # version 0 again: no "not newer" refusal
+    subscriber = new.subscriber()
+    weights = subscriber.poll(block_s=30.0)
+    assert not subscriber.stopped and subscriber.version == 0
+    assert np.array_equal(weights["w"], np.ones(1))
+    new.close()
+
+
+def test_a_dead_kept_evaluator_is_replaced_by_a_new_one(ray_local):
+    builder, _, _ = probe(load_preset("pendulum-td3", **{"td3.hidden_sizes": [8, 8]}))
+    weights = builder.make_learner().policy_state()
+    args = {"env": load_preset("pendulum-td3").env_spec(), "seed": 3}
+    first = RemoteEvaluator(behaviour=builder.make_behaviour(num_actors=1), **args)
+    scored = first.evaluate(weights, episodes=1, tag=TAG).result(timeout=120)
+    dead = first.release()
+    ray.kill(dead)
+    second = RemoteEvaluator(behaviour=builder.make_behaviour(num_actors=1), kept=dead, **args)
+    try:
+        again = second.evaluate(weights, episodes=1, tag=TAG).result(timeout=120)
+    finally:
+        second.close()
+    assert second.restarts == 0 and again["returns"] == scored["returns"]
