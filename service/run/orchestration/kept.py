@@ -40,7 +40,8 @@ class KeptActors:
     ended after `keep_s` unless a run takes it."""
 
     def __init__(self, keep_s: float = KEEP_S) -> None:
-        self._keep_s = keep_s
+        self.keep_s = keep_s
+        """Seconds an untaken actor is kept."""
         self._lock = threading.Lock()
         self._kept: dict[str, _Kept] = {}
 
@@ -67,7 +68,7 @@ class KeptActors:
 
     def keep(self, role: str, key: str, actor: Any) -> None:
         """Holds `actor`, which fits runs asking for `key`, for the next `take` of `role`."""
-        timer = threading.Timer(self._keep_s, self._expire, args=(role, actor))
+        timer = threading.Timer(self.keep_s, self._expire, args=(role, actor))
         timer.daemon = True
         with self._lock:
             previous = self._kept.pop(role, None)

@@ -28,6 +28,9 @@ TINY = {
     "td3.hidden_sizes": [32, 32],
     "dqn.hidden_sizes": [32, 32],
 }
+IDEAL_WORLD = "actors.minecraft.sim.server:ideal_world_server"
+"""A simulated world without real Malmo's loading and ending seconds (the presets smoke
+the service's path; the pacing has tests of its own)."""
 DEMOS = {"pretrain.demo_steps": 200, "pretrain.pretrain_updates": 40}
 BUDGETS = {
     # Offline only: the budget is the demonstrations; 40 updates on them, no online phase.
@@ -49,7 +52,18 @@ BUDGETS = {
         "learning_starts": 8,
         "dqn.batch_size": 8,
         "env_kwargs.max_ticks": 300,
-        "env_kwargs.world_server": "actors.minecraft.sim.server:ideal_world_server",
+        "env_kwargs.world_server": IDEAL_WORLD,
+    },
+    # Travel: short missions (an evaluation plays one to its end) in ideally paced worlds.
+    "minecraft-backbone": {
+        "env_steps": 300,
+        "env_kwargs.max_ticks": 200,
+        "env_kwargs.world_server": IDEAL_WORLD,
+    },
+    "minecraft-options": {
+        "env_steps": 300,
+        "env_kwargs.max_ticks": 200,
+        "env_kwargs.world_server": IDEAL_WORLD,
     },
     "pendulum-options-residual": {
         "env_steps": 300,
@@ -69,8 +83,8 @@ def _teacher(folder) -> str:
     return str(folder)
 
 
-# Minecraft presets wait on their world servers (start-up, mission loading): in the
-# real-time part, so the waits overlap the CPU-bound parallel part.
+# Minecraft presets wait on their world servers (start-up, worlds made): in the real-time
+# part, so the waits overlap the CPU-bound parallel part.
 PRESETS = [
     pytest.param(name, marks=pytest.mark.serial) if name.startswith("minecraft-") else name
     for name in preset_names()
