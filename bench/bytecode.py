@@ -70,13 +70,13 @@ def main() -> None:
         source, compiled = copy_tree(Path(tmp) / "source"), copy_tree(Path(tmp) / "compiled")
         for name in PACKAGES:
             compileall.compile_dir(compiled / name, quiet=1, workers=0)
-        costs: dict[str, dict[str, list[float]]] = {k: {"source": [], "compiled": []} for k in KINDS}
+        costs = {kind: {"source": [], "compiled": []} for kind in KINDS}
         for round_ in range(1, args.rounds + 1):
             for kind, code in KINDS.items():
                 for mode, tree in (("source", source), ("compiled", compiled)):
                     cost = start_cost(tree, code, args.starts)
                     costs[kind][mode].append(cost)
-                    print(f"round {round_}, {kind}, {mode}: {cost:.3f} s of CPU a start", flush=True)
+                    print(f"round {round_}, {kind}, {mode}: {cost:.3f} s of CPU", flush=True)
     print("\n| process | from source | byte-compiled | compiled / source |")
     print("|---|---|---|---|")
     for kind, by_mode in costs.items():
