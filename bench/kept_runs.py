@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import tempfile
 import time
 from pathlib import Path
 
 import ray
+from side_by_side import report  # bench/, beside this script
 
 from service.run.config import load_preset
 from service.run.orchestration.kept import KEEP_S, KEPT
@@ -37,7 +37,8 @@ TINY = {
     "envs_per_actor": 2,
     "td3.hidden_sizes": [32, 32],
 }
-CGROUP = Path("/sys/fs/cgroup/cpuacct") / f"graft-kept-runs-{os.getpid()}"
+CGROUP = Path("/sys/fs/cgroup/cpuacct") / "graft-bench"
+"""The benchmark's cgroup: kept for the next run (only differences of its count are read)."""
 MODES = {"started anew": 0.0, "handed on": KEEP_S}
 """How long a finished run's helpers are kept, by mode (0: ended at once)."""
 
@@ -50,7 +51,7 @@ def all_cpu_s() -> float:
 
 
 def account_all() -> None:
-    """Moves this process into a cgroup of its own (cgroup v1 ``cpuacct``; as root),
+    """Moves this process into the benchmark's cgroup (cgroup v1 ``cpuacct``; as root),
     which every process it starts from now on inherits."""
     try:
         CGROUP.mkdir(parents=True, exist_ok=True)
@@ -60,15 +61,6 @@ def account_all() -> None:
             f"bench/kept_runs.py: cannot account in {CGROUP} ({error}): "
             "run as root, on cgroup v1's cpuacct"
         ) from None
-
-
-def end_accounting() -> None:
-    """Moves this process back to the top cgroup and removes its own (once empty)."""
-    (CGROUP.parent / "tasks").write_text(str(os.getpid()))
-    try:
-        CGROUP.rmdir()
-    except OSError:  # a process it started is still ending: left for the system
-        pass
 
 
 def round_of_runs(runs: int, folder: Path) -> tuple[float, float]:
@@ -100,16 +92,8 @@ def main() -> None:
                 print(f"round {round_}, {mode}: {cpu:.2f} s of CPU, {wall:.2f} s a run", flush=True)
                 time.sleep(KEEP_S + 1)  # what this mode kept is ended before the next
     ray.shutdown()
-    end_accounting()
-    print("\n| helpers | CPU a run, median | wall a run, median |")
-    print("|---|---|---|")
-    medians = {}
-    for mode, values in figures.items():
-        medians[mode] = [statistics.median(v[k] for v in values) for k in (0, 1)]
-        print(f"| {mode} | {medians[mode][0]:.2f} s | {medians[mode][1]:.2f} s |")
-    (anew_cpu, anew_wall), (kept_cpu, kept_wall) = medians.values()
-    cpu, wall = kept_cpu / anew_cpu, kept_wall / anew_wall
-    print(f"\nhanded on / started anew: CPU {cpu:.2f}, wall {wall:.2f}")
+    print()
+    report(figures, column="helpers", unit=" a run", digits=2)
 
 
 if __name__ == "__main__":

@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from side_by_side import report  # bench/, beside this script
 
 REPO = Path(__file__).resolve().parents[1]
 ARMS = {
@@ -60,14 +61,7 @@ def main() -> None:
             figures[arm].append((cpu, wall))
             print(f"round {round_}, {arm}: {cpu:.1f} s of CPU, {wall:.1f} s wall", flush=True)
     print(f"\n{args.processes} processes at once, empty cache, median of {args.rounds} rounds")
-    print("| kernels | CPU | wall |")
-    print("|---|---|---|")
-    medians = {}
-    for arm, values in figures.items():
-        medians[arm] = [statistics.median(v[i] for v in values) for i in (0, 1)]
-        print(f"| {arm} | {medians[arm][0]:.1f} s | {medians[arm][1]:.1f} s |")
-    alone, locked = (medians[arm] for arm in ARMS)
-    print(f"\nlock / alone: CPU {locked[0] / alone[0]:.2f}, wall {locked[1] / alone[1]:.2f}")
+    report(figures, column="kernels", unit="", digits=1)
 
 
 if __name__ == "__main__":
