@@ -25,9 +25,10 @@ TEST_DIST ?= loadfile
 TEST_SELECT := not long and not wheel and not container
 # Tests run with bytecode written, graft's own compiled first (a second), where
 # PYTHONDONTWRITEBYTECODE is set (as on the 2-core machine): otherwise every process the
-# suite starts compiles graft's modules from source (a replay server starts in 0.48 s of
-# CPU against 0.43 s, bench/bytecode.py) and pytest rewrites every test module's asserts
-# again in each process and run (`make test-fast` again: 44.7 s of CPU against 42.5 s).
+# suite starts compiles graft's modules from source (a replay server starts in 0.48 s
+# of CPU against 0.43 s, bench/compiled_starts.py) and pytest rewrites every test
+# module's asserts again in each process and run (`make test-fast` again: 44.7 s of CPU
+# against 42.5 s).
 PYTEST := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest
 COMPILE := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m compileall -q -j 0 \
 	graft service actors learner examples tests bench > /dev/null

@@ -9,7 +9,7 @@ start is a fresh interpreter with PYTHONDONTWRITEBYTECODE=1, so nothing it compi
 kept; the byte-compiled mode runs ``compileall`` first (into a copy of the tree: the
 checkout is left as it is). CPU is the children's (user + system). The ratio is the figure.
 
-    python bench/bytecode.py [--starts 10] [--rounds 2]
+    python bench/compiled_starts.py [--starts 10] [--rounds 2]
 """
 
 from __future__ import annotations
