@@ -24,6 +24,10 @@ TINY = {
     "td3.hidden_sizes": [32, 32],
     "td3.batch_size": 32,
     "env_kwargs.ticks_per_step": 2,
+    # Short missions (an evaluation plays one to its end) in ideally paced worlds: the
+    # service's path is under test here, real Malmo's pacing has tests of its own.
+    "env_kwargs.max_ticks": 200,
+    "env_kwargs.world_server": "actors.minecraft.sim.server:ideal_world_server",
 }
 
 

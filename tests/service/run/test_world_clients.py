@@ -8,6 +8,7 @@ import pytest
 
 from actors.minecraft.malmo.client import MalmoClient
 from actors.minecraft.sim.pool import ServerPool
+from actors.minecraft.sim.timing import IDEAL
 from service.run.cli import main
 from service.run.config import load_preset
 from service.run.orchestration import driver
@@ -113,7 +114,7 @@ def test_several_environments_of_an_actor_each_play_in_a_client_of_their_own() -
 def test_each_environment_and_the_evaluator_play_in_their_own_listed_client(
     ray_local, tmp_path
 ) -> None:
-    with ServerPool(5, base_port=0, seed=0) as pool:
+    with ServerPool(5, base_port=0, seed=0, timing=IDEAL) as pool:
         clients = [f"127.0.0.1:{port}" for port in pool.ports]
         config = load_preset("minecraft-backbone", **TINY, envs_per_actor=2, clients=clients)
         result = train(config, run_dir=tmp_path / "run", progress=False)
