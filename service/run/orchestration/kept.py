@@ -4,7 +4,7 @@ and the evaluator.
 Neither holds anything of a run once it ends: the broadcaster starts over
 (`WeightBroadcaster.reset`), the evaluator takes the next run's environment, behaviour and
 seed (`Evaluator.reset`). A driver that trains run after run on a Ray instance it leaves
-running (`graft.train` in a loop or a notebook, `graft tune`, the tests) hands them from
+running (`graft.train` in a loop or a notebook, a sweep's runs, the tests) hands them from
 one run to the next instead of starting two worker processes a run, each about 0.6-0.8 s
 of CPU (`import ray` alone is 0.45 s) and as long before the run can publish or evaluate.
 
