@@ -12,6 +12,7 @@ from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
 from service.run.config import load_preset, preset_names
 from service.run.orchestration.launcher import train
+from tests.service.run.test_travel_service import IDEAL_WORLD, SHORT_TRAVEL
 
 TINY = {
     "learning_starts": 100,
@@ -28,9 +29,6 @@ TINY = {
     "td3.hidden_sizes": [32, 32],
     "dqn.hidden_sizes": [32, 32],
 }
-IDEAL_WORLD = "actors.minecraft.sim.server:ideal_world_server"
-"""A simulated world without real Malmo's loading and ending seconds (the presets smoke
-the service's path; the pacing has tests of its own)."""
 DEMOS = {"pretrain.demo_steps": 200, "pretrain.pretrain_updates": 40}
 BUDGETS = {
     # Offline only: the budget is the demonstrations; 40 updates on them, no online phase.
@@ -54,17 +52,8 @@ BUDGETS = {
         "env_kwargs.max_ticks": 300,
         "env_kwargs.world_server": IDEAL_WORLD,
     },
-    # Travel: short missions (an evaluation plays one to its end) in ideally paced worlds.
-    "minecraft-backbone": {
-        "env_steps": 300,
-        "env_kwargs.max_ticks": 200,
-        "env_kwargs.world_server": IDEAL_WORLD,
-    },
-    "minecraft-options": {
-        "env_steps": 300,
-        "env_kwargs.max_ticks": 200,
-        "env_kwargs.world_server": IDEAL_WORLD,
-    },
+    "minecraft-backbone": {"env_steps": 300, **SHORT_TRAVEL},
+    "minecraft-options": {"env_steps": 300, **SHORT_TRAVEL},
     "pendulum-options-residual": {
         "env_steps": 300,
         "td3.burn_in_updates": 30,

@@ -10,6 +10,11 @@ import pytest
 from service.run.config import load_preset
 from service.run.orchestration.launcher import train
 
+IDEAL_WORLD = "actors.minecraft.sim.server:ideal_world_server"
+"""A simulated world without real Malmo's loading and ending seconds."""
+SHORT_TRAVEL = {"env_kwargs.max_ticks": 200, "env_kwargs.world_server": IDEAL_WORLD}
+"""Short missions (an evaluation plays one to its end) in ideally paced worlds: the
+service's path is under test, real Malmo's pacing has tests of its own."""
 TINY = {
     "num_actors": 2,
     "env_steps": 600,
@@ -24,10 +29,7 @@ TINY = {
     "td3.hidden_sizes": [32, 32],
     "td3.batch_size": 32,
     "env_kwargs.ticks_per_step": 2,
-    # Short missions (an evaluation plays one to its end) in ideally paced worlds: the
-    # service's path is under test here, real Malmo's pacing has tests of its own.
-    "env_kwargs.max_ticks": 200,
-    "env_kwargs.world_server": "actors.minecraft.sim.server:ideal_world_server",
+    **SHORT_TRAVEL,
 }
 
 
