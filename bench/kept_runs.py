@@ -5,8 +5,8 @@ against both started anew for each run.
 Each round trains `--runs` tiny pendulum-td3 runs (300 env steps, one actor) in each mode
 in turn, so another job on the machine moves both alike. A run's CPU is every process's:
 this driver's, and that of every process it started (Ray's daemons and workers, the
-replay servers), ended ones included. The first run of a round is left out (it starts
-both helpers in either mode). The ratio is the figure.
+replay servers), ended ones included. The first run of each mode is left out: it finds
+what the mode before kept, or nothing. The ratio is the figure.
 
     python bench/kept_runs.py [--runs 5] [--rounds 2]
 """
@@ -90,7 +90,6 @@ def main() -> None:
                 cpu, wall = round_of_runs(args.runs, Path(tmp) / f"{round_}-{keep_s}")
                 figures[mode].append((cpu, wall))
                 print(f"round {round_}, {mode}: {cpu:.2f} s of CPU, {wall:.2f} s a run", flush=True)
-                time.sleep(KEEP_S + 1)  # what this mode kept is ended before the next
     ray.shutdown()
     print()
     report(figures, column="helpers", unit=" a run", digits=2)
