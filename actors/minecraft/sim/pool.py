@@ -115,6 +115,7 @@ class ServerPool:
             env = dict(os.environ)
             # The servers import this package wherever the caller's cwd is.
             env["PYTHONPATH"] = os.pathsep.join(filter(None, [_ROOT, env.get("PYTHONPATH")]))
+            env.setdefault("OPENBLAS_NUM_THREADS", "1")  # no linear algebra: no BLAS pool
             self.procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, env=env))
         try:
             for port, proc in zip(self.ports, self.procs, strict=True):

@@ -16,7 +16,7 @@ from collections.abc import Coroutine
 from concurrent import futures
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional, TypeVar
+from typing import TYPE_CHECKING, Any, Optional, TypeVar
 
 import grpc
 from grpc_health.v1 import _async as aio_health
@@ -25,11 +25,14 @@ from grpc_health.v1 import health_pb2, health_pb2_grpc
 from service.replay._proto import replay_pb2_grpc
 from service.replay.codec import DEFAULT_MAX_BYTES
 from service.replay.server.allocator import FreedMemory
-from service.replay.server.prom import ReplayMetrics
+from service.replay.server.rpc_meter import NoMeter, RpcMeter
 from service.replay.server.servicer import ReplayServicer
 from service.replay.server.store import ReplayCore
 from service.replay.server.thread_pool import HotThreadPool
 from service.replay.server.token_auth import TokenInterceptor
+
+if TYPE_CHECKING:
+    from service.replay.server.prom import ReplayMetrics
 
 SERVICE_NAME = "graft.replay.v1.ReplayService"
 LOOPBACK_HOSTS = frozenset({"127.0.0.1", "localhost", "::1", "[::1]"})
@@ -135,7 +138,8 @@ class RunningServer:
     server: ServerHandle
     port: int
     health: HealthHandle
-    metrics: ReplayMetrics
+    metrics: Optional[ReplayMetrics]
+    """Its Prometheus figures, where `build_server` was asked for them."""
     freed_memory: FreedMemory
     """Hands back what refused and aborted calls freed, once its `run` is started."""
 
@@ -161,7 +165,7 @@ def _cannot_bind(host: str, port: int) -> Optional[PortUnavailable]:
 
 async def _start(
     core: ReplayCore,
-    metrics: ReplayMetrics,
+    meter: RpcMeter,
     o: ServerOptions,
     loop: asyncio.AbstractEventLoop,
     pool: futures.Executor,
@@ -181,7 +185,7 @@ async def _start(
     )
     servicer = ReplayServicer(
         core,
-        metrics,
+        meter,
         loop=loop,
         pool=pool,
         max_message_bytes=o.max_message_bytes,
@@ -213,9 +217,12 @@ async def _start(
     return server, servicer, health_servicer, port
 
 
-def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> RunningServer:
+def build_server(
+    core: ReplayCore, options: ServerOptions = ServerOptions(), *, metrics: bool = False
+) -> RunningServer:
     """Creates and starts the server on `options.port` (0 = any free port) on an event
-    loop thread of its own.
+    loop thread of its own; with `metrics`, it keeps Prometheus figures (served by
+    `RunningServer.metrics.serve`).
 
     Raises:
         InsecureBindError: a non-loopback host without a token or `insecure=True`.
@@ -230,12 +237,17 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
     if (o.tls_cert is None) != (o.tls_key is None):
         raise ValueError("TLS needs both a certificate and a key")
     freed = FreedMemory()
-    metrics = ReplayMetrics(core, freed)
+    prometheus: Optional[ReplayMetrics] = None
+    meter: RpcMeter = NoMeter()
+    if metrics:
+        from service.replay.server.prom import ReplayMetrics
+
+        prometheus = meter = ReplayMetrics(core, freed)
     loop = _EventLoopThread()
     pool = HotThreadPool(o.max_workers, thread_name_prefix="replay")
     try:
         server, servicer, health_servicer, port = loop.run(
-            _start(core, metrics, o, loop.loop, pool, freed)
+            _start(core, meter, o, loop.loop, pool, freed)
         )
     except BaseException:
         pool.shutdown()
@@ -245,7 +257,7 @@ def build_server(core: ReplayCore, options: ServerOptions = ServerOptions()) -> 
         ServerHandle(server, servicer, loop, pool),
         port,
         HealthHandle(health_servicer, loop),
-        metrics,
+        prometheus,
         freed,
     )
 

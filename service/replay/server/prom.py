@@ -16,7 +16,8 @@ from service.replay.server.table import Table
 
 
 class ReplayMetrics:
-    """RPC latency, bytes in/out, and per-table figures read live from the core."""
+    """RPC latency, bytes in/out, and per-table figures read live from the core: the
+    `RpcMeter` of a server with a metrics port."""
 
     def __init__(self, core: ReplayCore, freed: FreedMemory) -> None:
         self.registry = CollectorRegistry()
@@ -46,6 +47,18 @@ class ReplayMetrics:
                 gauge.labels(table.name).set_function(functools.partial(read, table))
         r.register(_DurabilityCollector(core))
         r.register(_FreedMemoryCollector(freed))
+
+    def refused(self, code: str) -> None:
+        self.errors.labels(code).inc()
+
+    def received(self, nbytes: int) -> None:
+        self.bytes_in.inc(nbytes)
+
+    def sent(self, nbytes: int) -> None:
+        self.bytes_out.inc(nbytes)
+
+    def handled(self, method: str, seconds: float) -> None:
+        self.rpc_latency.labels(method).observe(seconds)
 
     def serve(self, port: int, host: str = "127.0.0.1") -> int:
         """Starts the /metrics HTTP endpoint; returns the bound port."""

@@ -53,10 +53,10 @@ def serve_forever(
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
-    running = build_server(core, options)
+    running = build_server(core, options, metrics=metrics_port is not None)
     address = host_port(options.host, running.port)
     extra = ""
-    if metrics_port is not None:
+    if running.metrics is not None and metrics_port is not None:
         bound = running.metrics.serve(metrics_port, metrics_host.strip("[]"))
         extra = f", metrics on http://{host_port(metrics_host, bound)}/metrics"
     print(f"replay server listening on {address}{extra}", flush=True)

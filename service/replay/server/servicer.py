@@ -27,13 +27,13 @@ from service.replay.codec import (
     encode_batch,
 )
 from service.replay.server.durability import StorageError
-from service.replay.server.prom import ReplayMetrics
 from service.replay.server.request_limits import (
     batches_per_message,
     check_insert,
     check_sample,
     check_table_name,
 )
+from service.replay.server.rpc_meter import RpcMeter
 from service.replay.server.signature import SignatureError
 from service.replay.server.store import CallEnded, ReplayCore, StagedInsert, UnknownTable
 from service.replay.server.table import LockBusy, RateLimitTimeout, Table
@@ -71,7 +71,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
     def __init__(
         self,
         core: ReplayCore,
-        metrics: ReplayMetrics,
+        meter: RpcMeter,
         *,
         loop: asyncio.AbstractEventLoop,
         pool: futures.Executor,
@@ -81,7 +81,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         """`ended_badly` is called (on the event loop) for each call refused or aborted."""
         self.core = core
         self._ended_badly = ended_badly
-        self.metrics = metrics
+        self.meter = meter
         self.max_message_bytes = max_message_bytes
         self._loop = loop
         self._pool = pool
@@ -105,7 +105,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         self._ended_badly()  # what the call leaves is handed back (allocator.FreedMemory)
         for kinds, code in _STATUS_OF:
             if isinstance(error, kinds):
-                self.metrics.errors.labels(code.name).inc()
+                self.meter.refused(code.name)
                 context.set_code(code)
                 context.set_details(str(error))
                 return
@@ -211,7 +211,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         deadline, stream_batches, stream_bytes, stored, dropped = call.deadline, 0, 0, 0, 0
         try:
             async for request in request_iterator:
-                self.metrics.bytes_in.inc(len(request.batch))
+                self.meter.received(len(request.batch))
                 stream_batches += 1
                 stream_bytes += len(request.batch)
                 table = check_insert(
@@ -250,7 +250,7 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
         finally:
             self.core.writers.release(call, claimed)
             self._wakeups.wake(Wakeups.CLAIMS)
-        self.metrics.rpc_latency.labels("Insert").observe(time.perf_counter() - start)
+        self.meter.handled("Insert", time.perf_counter() - start)
         return replay_pb2.InsertResponse(
             items_inserted=stored,
             batches_dropped_as_duplicates=dropped,
@@ -308,8 +308,8 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                         what="sample",
                     )
                     credits -= sent
-                    self.metrics.bytes_out.inc(len(payload))
-                    self.metrics.rpc_latency.labels("Sample").observe(time.perf_counter() - start)
+                    self.meter.sent(len(payload))
+                    self.meter.handled("Sample", time.perf_counter() - start)
                     yield replay_pb2.SampleResponse(
                         batch=payload,
                         table_inserts=table.stats.inserts,

@@ -10,8 +10,6 @@ import sys
 from pathlib import Path
 from typing import Optional
 
-import yaml
-
 from service.replay.server.grpc_server import ServerOptions
 from service.replay.server.serve import serve_forever
 from service.replay.server.store import FolderUnusable, ReplayCore
@@ -121,6 +119,8 @@ def _token(args: argparse.Namespace, command: str) -> Optional[str]:
 
 def _table_specs(args: argparse.Namespace) -> list[dict]:
     if args.config:
+        import yaml  # only here: the launcher's config is JSON, which YAML reads
+
         with open(args.config) as f:
             data = yaml.safe_load(f)
         if not isinstance(data, dict) or not isinstance(data.get("tables"), list):

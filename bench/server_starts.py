@@ -1,0 +1,79 @@
+"""Benchmark: what starting a replay server and a world server costs, this tree against an
+earlier commit's (default: the parent of the change that made them cheaper).
+
+The launcher starts a replay server per run and shard, and a run of Minecraft clients a
+world server per client, so their start-up is paid again and again: by a sweep, by a
+supervisor's restarts, and by the tests (~190 replay servers a `make test`). Each start is
+a fresh interpreter that starts the server the way a run does (`ReplayProcess`,
+`ServerPool`), waits until it answers and stops it. Both trees are byte-compiled copies;
+the two alternate, `--starts` each per round, so another job on the machine moves both
+alike. CPU is the children's (user + system), server processes included. The ratio is
+the figure.
+
+    python bench/server_starts.py [--base REV] [--starts 10] [--rounds 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import compileall
+import io
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.compiled_starts import PACKAGES, ROOT, SERVE, copy_tree, start_cost  # noqa: E402
+
+BASE = "58fd2ad"
+"""The last commit before replay and world servers ran with one OpenBLAS thread and
+loaded Prometheus only for a metrics port."""
+WORLD = (
+    "from actors.minecraft.sim.pool import ServerPool; "
+    "pool = ServerPool(1, 0); pool.start(); pool.stop()"
+)
+KINDS = {"replay server": SERVE, "world server": WORLD}
+
+
+def export(rev: str, to: Path) -> Path:
+    """graft's packages as of commit `rev`."""
+    archive = subprocess.run(
+        ["git", "archive", rev, *PACKAGES], cwd=ROOT, check=True, capture_output=True
+    ).stdout
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(to, filter="data")
+    return to
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--base", default=BASE, help=f"the commit to compare with ({BASE})")
+    parser.add_argument("--starts", type=int, default=10, help="starts per kind, tree and round")
+    parser.add_argument("--rounds", type=int, default=2)
+    args = parser.parse_args()
+    if args.starts < 1 or args.rounds < 1:
+        parser.error("--starts and --rounds must be >= 1")
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = {"base": export(args.base, Path(tmp) / "base"), "now": copy_tree(Path(tmp) / "now")}
+        for tree in trees.values():
+            for name in PACKAGES:
+                compileall.compile_dir(tree / name, quiet=1, workers=0)
+        costs: dict[str, dict[str, list[float]]] = {k: {t: [] for t in trees} for k in KINDS}
+        for round_ in range(1, args.rounds + 1):
+            for kind, code in KINDS.items():
+                for name, tree in trees.items():
+                    cost = start_cost(tree, code, args.starts)
+                    costs[kind][name].append(cost)
+                    print(f"round {round_}, {kind}, {name}: {cost:.3f} s of CPU", flush=True)
+    print(f"\n| process | {args.base} | this tree | this / {args.base} |")
+    print("|---|---|---|---|")
+    for kind, by_tree in costs.items():
+        base, now = (statistics.median(by_tree[t]) for t in ("base", "now"))
+        print(f"| {kind} | {base:.3f} s | {now:.3f} s | {now / base:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
