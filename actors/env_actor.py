@@ -114,6 +114,15 @@ class EnvActor:
         self._start: Optional[float] = None
         self._advanced: dict[str, int] = {}  # advance(): env steps acted per table
         self._window = (time.monotonic(), 0)  # measurement window: start, env steps then
+        self._cpu_before = 0.0  # this process's CPU before this run (a kept actor's earlier runs)
+
+    def reset(self, **arguments: Any) -> None:
+        """Sets up for another run as a new actor would, from a new actor's `arguments`,
+        after closing this run's environments and writer: a driver keeps its actors
+        between runs (service/run/orchestration/kept.py)."""
+        self.close()
+        type(self).__init__(self, **arguments)
+        self._cpu_before = time.process_time()
 
     def _adopt_new_weights(self, block_s: float = 0.0) -> None:
         weights = self.weights.poll(block_s=block_s)
@@ -319,7 +328,7 @@ class EnvActor:
             "replay/insert_call_s": self.writer.insert_call_s(),
             "replay/insert_calls": self.writer.insert_calls,
             "replay/fastest_insert_s": self.writer.fastest_insert_s,
-            "perf/process_cpu_s": time.process_time(),
+            "perf/process_cpu_s": time.process_time() - self._cpu_before,
             "policy/version": self.weights.version,
             "policy/versions_adopted": len(self.versions_seen),
         }

@@ -1,14 +1,14 @@
 """Benchmark: tiny runs back to back in one driver on a Ray instance it keeps up, with the
-weight broadcaster and evaluator handed from run to run (service/run/orchestration/kept.py)
-against both started anew for each run.
+weight broadcaster, the evaluator and the environment actors handed from run to run
+(service/run/orchestration/kept.py) against all started anew for each run.
 
-Each round trains `--runs` tiny pendulum-td3 runs (300 env steps, one actor) in each mode
-in turn, so another job on the machine moves both alike. A run's CPU is every process's:
+Each round trains `--runs` tiny pendulum-td3 runs (300 env steps, `--actors` actors) in
+each mode in turn, so another job on the machine moves both alike. A run's CPU is every process's:
 this driver's, and that of every process it started (Ray's daemons and workers, the
 replay servers), ended ones included. The first run of each mode is left out: it finds
 what the mode before kept, or nothing. The ratio is the figure.
 
-    python bench/kept_runs.py [--runs 5] [--rounds 2]
+    python bench/kept_runs.py [--runs 5] [--rounds 2] [--actors 2]
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ TINY = {
     "eval_every": 200,
     "eval_episodes": 1,
     "publish_every": 20,
-    "num_actors": 1,
     "envs_per_actor": 2,
     "td3.hidden_sizes": [32, 32],
 }
@@ -63,9 +62,9 @@ def account_all() -> None:
         ) from None
 
 
-def round_of_runs(runs: int, folder: Path) -> tuple[float, float]:
+def round_of_runs(runs: int, actors: int, folder: Path) -> tuple[float, float]:
     """CPU and wall seconds per run, the first run left out."""
-    config = load_preset("pendulum-td3", **TINY)
+    config = load_preset("pendulum-td3", **{**TINY, "num_actors": actors})
     train(config, run_dir=folder / "first", progress=False)
     cpu, wall = all_cpu_s(), time.perf_counter()
     for i in range(runs - 1):
@@ -77,9 +76,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--runs", type=int, default=5, help="runs per mode and round (>= 2)")
     parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--actors", type=int, default=2, help="environment actors a run")
     args = parser.parse_args()
-    if args.runs < 2 or args.rounds < 1:
-        parser.error("--runs must be >= 2 and --rounds >= 1")
+    if args.runs < 2 or args.rounds < 1 or args.actors < 1:
+        parser.error("--runs must be >= 2, --rounds and --actors >= 1")
     account_all()
     start_local(num_cpus=2)
     figures: dict[str, list[tuple[float, float]]] = {mode: [] for mode in MODES}
@@ -87,7 +87,7 @@ def main() -> None:
         for round_ in range(1, args.rounds + 1):
             for mode, keep_s in MODES.items():
                 KEPT.keep_s = keep_s
-                cpu, wall = round_of_runs(args.runs, Path(tmp) / f"{round_}-{keep_s}")
+                cpu, wall = round_of_runs(args.runs, args.actors, Path(tmp) / f"{round_}-{keep_s}")
                 figures[mode].append((cpu, wall))
                 print(f"round {round_}, {mode}: {cpu:.2f} s of CPU, {wall:.2f} s a run", flush=True)
     ray.shutdown()

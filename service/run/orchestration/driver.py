@@ -36,7 +36,7 @@ from service.metrics import MetricsLogger, plot_learning_curve
 from service.run.config import TrainConfig
 from service.run.orchestration.budget import StepBudget
 from service.run.orchestration.clients import actor_env, evaluator_env, world_clients
-from service.run.orchestration.kept import BROADCASTER, EVALUATOR, KEPT
+from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, EVALUATOR, KEPT
 from service.run.orchestration.lockstep import ActorRing, deterministic, stalled
 from service.run.orchestration.preflight import check_cluster, check_fits_locally, check_run_dir
 from service.run.orchestration.progress import FaultLog, say_and_keep, watch
@@ -153,12 +153,11 @@ def train_here(
         )
         resumed_env_steps = state.env_steps  # a restored table's env steps (resume_with)
 
+        actor_options = {**config.actors.ray_options(), "max_concurrency": 2}
+        actors_key = repr(sorted(actor_options.items()))
+
         def make_actor(i: int, incarnation: int) -> Any:
-            # @ray.remote gives the class `.remote` at run time; mypy sees the plain class.
-            options = EnvActor.options(  # type: ignore[attr-defined]
-                **config.actors.ray_options(), max_concurrency=2
-            )
-            return options.remote(
+            arguments = dict(
                 env=actor_env(config, clients, i),
                 num_envs=config.envs_per_actor,
                 # A replacement explores from other seeds than the actor it replaces.
@@ -170,6 +169,14 @@ def train_here(
                 async_envs=config.async_envs,
                 nice=config.actor_nice,
             )
+            if incarnation == 0 and (kept := KEPT.take(ENV_ACTORS, actors_key)) is not None:
+                try:  # waited for: calls to a threaded actor may overtake one another
+                    ray.get(kept.reset.remote(**arguments))
+                    return kept
+                except Exception:  # ended while kept, or its reset failed: a new one, as ever
+                    ray.kill(kept)
+            # @ray.remote gives the class `.options` at run time; mypy sees the plain class.
+            return EnvActor.options(**actor_options).remote(**arguments)  # type: ignore[attr-defined]
 
         # Asynchronous: every actor claims the steps of each phase from one shared budget,
         # an insert batch at a time, until the phase's budget is spent (so none idles
@@ -304,10 +311,13 @@ def train_here(
     finally:
         if supervisor is not None:
             supervisor.stop()
-        if actors is not None:
-            actors.kill()
         # A run that ended well on a Ray instance that stays hands its helpers on (kept.py).
         keep = finished and not started_ray
+        if actors is not None:
+            if keep:
+                KEPT.keep(ENV_ACTORS, actors_key, *actors.release())
+            else:
+                actors.kill()
         if evaluator is not None:
             if keep:
                 KEPT.keep(EVALUATOR, evaluator_key, evaluator.release())

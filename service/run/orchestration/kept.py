@@ -1,16 +1,20 @@
-"""The helpers a driver keeps between its runs on one Ray instance: the weight broadcaster
-and the evaluator.
+"""The helpers a driver keeps between its runs on one Ray instance: the weight broadcaster,
+the evaluator and the environment actors.
 
-Neither holds anything of a run once it ends: the broadcaster starts over
+None holds anything of a run once it ends: the broadcaster starts over
 (`WeightBroadcaster.reset`), the evaluator takes the next run's environment, behaviour and
-seed (`Evaluator.reset`). A driver that trains run after run on a Ray instance it leaves
-running (`graft.train` in a loop or a notebook, a sweep's runs, the tests) hands them from
-one run to the next instead of starting two worker processes a run, each about 0.6-0.8 s
-of CPU (`import ray` alone is 0.45 s) and as long before the run can publish or evaluate.
+seed (`Evaluator.reset`), and an environment actor closes its environments and writer and
+sets up as a new one would (`EnvActor.reset`). A driver that trains run after run on a Ray
+instance it leaves running (`graft.train` in a loop or a notebook, a sweep's runs, the
+tests) hands them from one run to the next instead of starting a worker process for each,
+about 0.5-0.8 s of CPU apiece (`import ray` alone is 0.45 s) and as long before the run
+can act, publish or evaluate.
 
-One that no run takes within `KEEP_S` is ended, so the CPU share an evaluator holds comes
-back; a run that needs an evaluator of other Ray options ends the kept one at once. A run
-that started its own Ray instance ends both with it, as before.
+One that no run takes within `KEEP_S` is ended, so the CPU share it holds comes back; a
+run that needs one of other Ray options ends the kept ones at once. A run that started its
+own Ray instance ends them with it, as before. A module a kept actor imported stays
+imported, as in any Ray worker Ray reuses: an environment edited between two runs in one
+session is loaded afresh only by new actors (wait `KEEP_S`, or start Ray again).
 """
 
 from __future__ import annotations
@@ -23,65 +27,73 @@ import ray
 
 KEEP_S = 10.0
 """How long a finished run's helpers wait for the next run before they are ended."""
-BROADCASTER, EVALUATOR = "broadcaster", "evaluator"
-"""The roles kept, one actor each."""
+BROADCASTER, EVALUATOR, ENV_ACTORS = "broadcaster", "evaluator", "env actors"
+"""The roles kept: one actor each, and a run's environment actors."""
 
 
 @dataclass(frozen=True)
 class _Kept:
     instance: tuple[str, str]
     key: str
-    actor: Any
+    actors: list[Any]
     timer: threading.Timer
 
 
 class KeptActors:
-    """At most one idle actor per role, with the key it fits (e.g. its Ray options), each
-    ended after `keep_s` unless a run takes it."""
+    """The idle actors of each role, with the key they fit (e.g. their Ray options), ended
+    after `keep_s` unless runs take them."""
 
     def __init__(self, keep_s: float = KEEP_S) -> None:
         self.keep_s = keep_s
-        """Seconds an untaken actor is kept."""
+        """Seconds untaken actors are kept."""
         self._lock = threading.Lock()
         self._kept: dict[str, _Kept] = {}
 
     def take(self, role: str, key: str) -> Optional[Any]:
-        """The actor kept for `role` if it was kept under `key` on this Ray instance, else
-        None (one kept under another key is ended now)."""
-        with self._lock:
-            kept = self._kept.pop(role, None)
-        if kept is None:
-            return None
-        kept.timer.cancel()
-        if kept.instance != _instance():  # its Ray instance (and the actor with it) is gone
-            return None
-        if kept.key == key:
-            return kept.actor
-        ray.kill(kept.actor)
-        return None
-
-    def held(self, role: str) -> Optional[Any]:
-        """The actor kept for `role` now, if any (it stays kept)."""
+        """An actor kept for `role` if it was kept under `key` on this Ray instance, else
+        None (those kept under another key are ended now)."""
         with self._lock:
             kept = self._kept.get(role)
-        return None if kept is None else kept.actor
+            if kept is None:
+                return None
+            if kept.instance == _instance() and kept.key == key:
+                actor = kept.actors.pop()
+                if kept.actors:
+                    return actor
+                del self._kept[role]
+                kept.timer.cancel()
+                return actor
+            del self._kept[role]
+        kept.timer.cancel()
+        _end(kept)
+        return None
 
-    def keep(self, role: str, key: str, actor: Any) -> None:
-        """Holds `actor`, which fits runs asking for `key`, for the next `take` of `role`."""
-        timer = threading.Timer(self.keep_s, self._expire, args=(role, actor))
+    def held(self, role: str) -> list[Any]:
+        """The actors kept for `role` now (they stay kept)."""
+        with self._lock:
+            kept = self._kept.get(role)
+        return [] if kept is None else list(kept.actors)
+
+    def keep(self, role: str, key: str, *actors: Any) -> None:
+        """Holds `actors`, which fit runs asking for `key`, for the next `take`s of `role`
+        (in place of any kept before)."""
+        if not actors:
+            return
+        idle = list(actors)
+        timer = threading.Timer(self.keep_s, self._expire, args=(role, idle))
         timer.daemon = True
         with self._lock:
             previous = self._kept.pop(role, None)
-            self._kept[role] = _Kept(_instance(), key, actor, timer)
+            self._kept[role] = _Kept(_instance(), key, idle, timer)
         timer.start()
         if previous is not None:
             previous.timer.cancel()
             _end(previous)
 
-    def _expire(self, role: str, actor: Any) -> None:
+    def _expire(self, role: str, idle: list[Any]) -> None:
         with self._lock:
             kept = self._kept.get(role)
-            if kept is None or kept.actor is not actor:  # taken, or replaced, meanwhile
+            if kept is None or kept.actors is not idle:  # all taken, or replaced, meanwhile
                 return
             del self._kept[role]
         _end(kept)
@@ -95,7 +107,8 @@ def _instance() -> tuple[str, str]:
 
 def _end(kept: _Kept) -> None:
     if ray.is_initialized() and _instance() == kept.instance:
-        ray.kill(kept.actor)
+        for actor in kept.actors:
+            ray.kill(actor)
 
 
 KEPT = KeptActors()

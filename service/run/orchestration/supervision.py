@@ -57,6 +57,8 @@ class _Slot:
     """Items this incarnation reported stored (its last `report()`)."""
     report: Any = None  # a pending `report()` ObjectRef
     incarnation: int = 0
+    stopped: bool = False
+    """Stopped by the supervisor once the learner was done (`ActorFleet.reports`)."""
 
 
 class ActorFleet:
@@ -198,6 +200,7 @@ class ActorFleet:
                 except (RayActorError, ray.exceptions.GetTimeoutError):
                     pass
                 ray.kill(slot.actor)
+                slot.stopped = True
                 report = {"env_steps": slot.stored, "versions_seen": []}
                 notes.append(
                     f"env actor {i} was still inserting after the learner finished; stopped "
@@ -208,10 +211,16 @@ class ActorFleet:
         return reports, notes
 
     def kill(self) -> None:
+        self.release()
         for slot in self.slots:
             ray.kill(slot.actor)
+
+    def release(self) -> list[Any]:
+        """The actors of a run that ended well, for the next run to take (kept.py): all
+        but those stopped. The shared budget, which is the run's alone, is ended."""
         if self.budget is not None:
             ray.kill(self.budget)
+        return [s.actor for s in self.slots if not s.stopped]
 
 
 def _lease(i: int, slot: _Slot) -> str:

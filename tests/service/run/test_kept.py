@@ -1,5 +1,6 @@
-"""A driver's runs on one Ray instance hand their weight broadcaster and evaluator on to the
-next run (service/run/orchestration/kept.py), on a real local Ray."""
+"""A driver's runs on one Ray instance hand their weight broadcaster, evaluator and
+environment actors on to the next run (service/run/orchestration/kept.py), on a real local
+Ray."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from ray.exceptions import RayActorError
 
 from actors.evaluator import RemoteEvaluator
 from service.run.config import load_preset
-from service.run.orchestration.kept import BROADCASTER, EVALUATOR, KEPT, KeptActors
+from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, EVALUATOR, KEPT, KeptActors
 from service.run.orchestration.launcher import train
 from service.run.orchestration.roles import probe
 from service.weights import BroadcastPublisher
@@ -41,7 +42,11 @@ def _ended(actor, within_s: float = 30.0) -> bool:
     return False
 
 
-def test_a_second_run_publishes_and_evaluates_with_the_first_runs_helpers(ray_local, tmp_path):
+def _ids(actors) -> list[str]:
+    return sorted(a._actor_id.hex() for a in actors)
+
+
+def test_a_second_run_acts_publishes_and_evaluates_with_the_first_runs_helpers(ray_local, tmp_path):
     config = load_preset(
         "pendulum-td3",
         env_steps=300,
@@ -49,21 +54,24 @@ def test_a_second_run_publishes_and_evaluates_with_the_first_runs_helpers(ray_lo
         eval_every=100,
         eval_episodes=1,
         publish_every=20,
-        num_actors=1,
+        num_actors=2,
         **{"td3.hidden_sizes": [16, 16], "td3.batch_size": 32},
     )
     first = train(config, run_dir=tmp_path / "first", progress=False)
-    helpers = {role: KEPT.held(role) for role in (BROADCASTER, EVALUATOR)}
-    assert None not in helpers.values()
+    helpers = {role: _ids(KEPT.held(role)) for role in (BROADCASTER, EVALUATOR, ENV_ACTORS)}
+    assert [len(ids) for ids in helpers.values()] == [1, 1, 2]
     second = train(config, run_dir=tmp_path / "second", progress=False)
-    for role, actor in helpers.items():  # the same actors, kept again for a third run
-        assert KEPT.held(role)._actor_id == actor._actor_id, role
-    # The second run published from version 0 again, its actors adopted it, and it was
-    # scored: the kept broadcaster and evaluator started over.
+    for role, ids in helpers.items():  # the same actors, kept again for a third run
+        assert _ids(KEPT.held(role)) == ids, role
+    # The second run published from version 0 again, its actors (started over on their
+    # new seeds, replay writers and subscriptions) acted its whole budget and adopted its
+    # weights, and it was scored: every kept helper started over.
     for run in (first, second):
-        assert run.summary["updates"] == 200
-        assert run.summary["actor_versions_adopted"][0] >= 1
-        assert 0 <= run.summary["actor_last_version"][0] <= run.summary["policy_version"]
+        assert run.summary["updates"] == 200 and run.summary["env_steps"] == 300
+        assert sum(run.summary["actor_env_steps"]) == 300
+        steps, adopted = run.summary["actor_env_steps"], run.summary["actor_versions_adopted"]
+        assert all(v >= 1 for n, v in zip(steps, adopted, strict=True) if n), run.summary
+        assert max(run.summary["actor_last_version"]) <= run.summary["policy_version"]
         assert len(run.evaluations) >= 3 and np.isfinite(run.summary["final_eval_return_mean"])
 
 
@@ -71,9 +79,20 @@ def test_an_actor_no_run_takes_is_ended_after_keep_s(ray_local):
     kept = KeptActors(keep_s=0.2)
     actor = _Idle.remote()
     kept.keep("helper", "a", actor)
-    assert kept.held("helper") is actor
+    assert kept.held("helper") == [actor]
     assert _ended(actor)
-    assert kept.held("helper") is None and kept.take("helper", "a") is None
+    assert kept.held("helper") == [] and kept.take("helper", "a") is None
+
+
+def test_of_several_kept_actors_those_no_run_takes_are_ended(ray_local):
+    kept = KeptActors(keep_s=1.0)
+    actors = [_Idle.remote() for _ in range(3)]
+    kept.keep("workers", "a", *actors)
+    taken = kept.take("workers", "a")
+    assert taken in actors and len(kept.held("workers")) == 2
+    assert all(_ended(a) for a in actors if a is not taken)
+    assert ray.get(taken.ping.remote()) == "here" and kept.held("workers") == []
+    ray.kill(taken)
 
 
 def test_a_run_asking_for_another_key_ends_the_kept_actor(ray_local):
