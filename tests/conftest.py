@@ -10,6 +10,7 @@ which starting Ray or a subprocess fails the test, so a missing mark cannot go u
 
 from __future__ import annotations
 
+import fcntl
 import importlib.util
 import os
 import site
@@ -43,21 +44,25 @@ USER_PACKAGES = {
 
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Installs each user package (``pip install -e``, as a user would) when it is not
-    installed from its folder yet; `make test` does it before pytest starts."""
-    for module, folder in USER_PACKAGES.items():
-        spec = importlib.util.find_spec(module)
-        if spec is not None and spec.origin and Path(spec.origin).is_relative_to(folder):
-            continue
-        subprocess.run(
-            [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "-e", str(folder)],
-            check=True,
-        )
-        # This process read site-packages' .pth files before the install: read the new one
-        # (addpackage skips folders already on sys.path).
-        for site_folder in site.getsitepackages():
-            for pth in Path(site_folder).glob("__editable__.*.pth"):
-                site.addpackage(site_folder, pth.name, None)  # type: ignore[attr-defined]
-        importlib.invalidate_caches()
+    installed from its folder yet (`make test` does it before pytest starts), one pytest
+    process at a time: `make test` starts two, and two pip installs of one package at once
+    fail."""
+    with open(Path(sys.prefix) / ".graft-test-packages.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        for module, folder in USER_PACKAGES.items():
+            importlib.invalidate_caches()  # another process may have installed it meanwhile
+            spec = importlib.util.find_spec(module)
+            if spec is not None and spec.origin and Path(spec.origin).is_relative_to(folder):
+                continue
+            subprocess.run(
+                [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "-e", str(folder)],
+                check=True,
+            )
+            # This process read site-packages' .pth files before the install: read the new
+            # one (addpackage skips folders already on sys.path).
+            for site_folder in site.getsitepackages():
+                for pth in Path(site_folder).glob("__editable__.*.pth"):
+                    site.addpackage(site_folder, pth.name, None)  # type: ignore[attr-defined]
 
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
