@@ -15,6 +15,9 @@ python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upg
   --target "$site" .gpu/*.whl || exit 1
 tar xJf .gpu/ray-*.tar.xz -C "$site" || exit 1
 export PYTHONPATH="$site:$PWD" PYTHONUNBUFFERED=1
+# The tests install the user-task fixture and the examples (`pip install -e`): from the
+# image's setuptools, with no index to ask (pip reads PIP_NO_BUILD_ISOLATION=0 as "off").
+export PIP_NO_INDEX=1 PIP_NO_BUILD_ISOLATION=0
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$out/gpu.txt"
 python3 -c 'import torch; print("torch", torch.__version__, torch.cuda.get_device_name(0))' \
   >> "$out/gpu.txt" 2>&1
@@ -31,10 +34,11 @@ step() {
 }
 
 # Every device test (CUDA ones included), then the presets' smoke runs that record it.
-step tests 150 python3 -m pytest -q -p no:cacheprovider tests/learner/test_device.py \
+step tests 150 python3 -m pytest -q -p no:cacheprovider -n 8 tests/learner/test_device.py \
   "tests/service/run/test_presets_smoke.py::test_preset_runs_through_the_service"
 step learner 200 python3 bench/learner_updates.py --device cuda --compile off,compile,cuda_graphs \
   --compiled-learners td3 --seconds 5 --out "$out"
+rm -rf /tmp/graft-gpu-run  # a machine still warm from an earlier try keeps its folder
 step train 240 python3 -m service.run.cli train --preset pendulum-td3 --no-progress \
   --env-steps 20000 --set learner.device=cuda --set prefetch=16 --set eval_every=2000 \
   --run-dir /tmp/graft-gpu-run

@@ -100,7 +100,8 @@ class LearnerPlacement(Placement):
     cpu, cuda or cuda:N; a ``ray://`` run's learner sees a GPU only with ``num_gpus: 1``."""
     compile: str = "auto"
     """The update's networks: off (eager), compile (torch.compile), cuda_graphs (compiled
-    and replayed as CUDA graphs) or auto (compile on CUDA, eager on the CPU)."""
+    and replayed as CUDA graphs) or auto (eager: compiling these small networks lost on
+    an H200 and gained nothing on the CPU, README, "The learner alone")."""
     prefetch_to_device: int = 2
     """Sampled batches copied to a CUDA device ahead of their update (none on the CPU)."""
 

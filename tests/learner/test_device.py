@@ -70,10 +70,10 @@ def test_cuda_asked_for_without_cuda_is_refused_in_one_line(spec: str) -> None:
     assert "learner.device=auto or cpu" in message and "\n" not in message
 
 
-def test_compile_auto_is_eager_on_the_cpu_and_cuda_graphs_need_cuda() -> None:
+def test_compile_auto_is_eager_everywhere_and_cuda_graphs_need_cuda() -> None:
     assert resolve_compile("auto", CPU) == "off"
     assert resolve_compile("compile", CPU) == "compile"
-    assert resolve_compile("auto", torch.device("cuda", 0)) == "compile"
+    assert resolve_compile("auto", torch.device("cuda", 0)) == "off"
     with pytest.raises(ValueError, match="cuda_graphs needs a CUDA device"):
         resolve_compile("cuda_graphs", CPU)
 
