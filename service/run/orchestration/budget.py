@@ -92,6 +92,10 @@ class Budget:
 class StepBudget(Budget):
     """`Budget` as a Ray actor (calls run one at a time): the run's one shared budget."""
 
+    def reset(self, totals: Mapping[str, int]) -> None:
+        """Starts over as the next run's budget (a driver keeps it between runs: kept.py)."""
+        Budget.__init__(self, totals)
+
 
 BudgetHandle = Any
 """A Ray handle to a `StepBudget` (its `.remote` methods exist at run time only)."""

@@ -36,7 +36,14 @@ from service.metrics import MetricsLogger, plot_learning_curve
 from service.run.config import TrainConfig
 from service.run.orchestration.budget import StepBudget
 from service.run.orchestration.clients import actor_env, evaluator_env, world_clients
-from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, EVALUATOR, KEPT
+from service.run.orchestration.kept import (
+    BROADCASTER,
+    BUDGET,
+    ENV_ACTORS,
+    EVALUATOR,
+    KEPT,
+    take_or_start,
+)
 from service.run.orchestration.lockstep import ActorRing, deterministic, stalled
 from service.run.orchestration.preflight import check_cluster, check_fits_locally, check_run_dir
 from service.run.orchestration.progress import FaultLog, say_and_keep, watch
@@ -169,14 +176,16 @@ def train_here(
                 async_envs=config.async_envs,
                 nice=config.actor_nice,
             )
-            if incarnation == 0 and (kept := KEPT.take(ENV_ACTORS, actors_key)) is not None:
-                try:  # waited for: calls to a threaded actor may overtake one another
-                    ray.get(kept.reset.remote(**arguments))
-                    return kept
-                except Exception:  # ended while kept, or its reset failed: a new one, as ever
-                    ray.kill(kept)
+
             # @ray.remote gives the class `.options` at run time; mypy sees the plain class.
-            return EnvActor.options(**actor_options).remote(**arguments)  # type: ignore[attr-defined]
+            def start() -> Any:
+                return EnvActor.options(**actor_options).remote(**arguments)  # type: ignore[attr-defined]
+
+            if incarnation:  # a replacement: never one that acted for another run
+                return start()
+            return take_or_start(
+                ENV_ACTORS, actors_key, start, lambda kept: kept.reset.remote(**arguments)
+            )
 
         # Asynchronous: every actor claims the steps of each phase from one shared budget,
         # an insert batch at a time, until the phase's budget is spent (so none idles
@@ -193,8 +202,12 @@ def train_here(
             # its actors must not take the budget along. @ray.remote gives the class
             # `.options` at run time; mypy sees the plain class.
             here = NodeAffinitySchedulingStrategy(node, False)
-            budget = StepBudget.options(scheduling_strategy=here).remote(  # type: ignore[attr-defined]
-                {s.table: s.steps for s in actor_segments(phases, 1)}
+            totals = {s.table: s.steps for s in actor_segments(phases, 1)}
+            budget = take_or_start(
+                BUDGET,
+                node,
+                lambda: StepBudget.options(scheduling_strategy=here).remote(totals),  # type: ignore[attr-defined]
+                lambda kept: kept.reset.remote(totals),
             )
         actors = ActorFleet(
             make_actor,
@@ -316,6 +329,8 @@ def train_here(
         if actors is not None:
             if keep:
                 KEPT.keep(ENV_ACTORS, actors_key, *actors.release())
+                if budget is not None:
+                    KEPT.keep(BUDGET, node, budget)
             else:
                 actors.kill()
         if evaluator is not None:

@@ -20,6 +20,7 @@ session is loaded afresh only by new actors (wait `KEEP_S`, or start Ray again).
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Optional
 
@@ -27,7 +28,7 @@ import ray
 
 KEEP_S = 10.0
 """How long a finished run's helpers wait for the next run before they are ended."""
-BROADCASTER, EVALUATOR, ENV_ACTORS = "broadcaster", "evaluator", "env actors"
+BROADCASTER, EVALUATOR, ENV_ACTORS, BUDGET = "broadcaster", "evaluator", "env actors", "budget"
 """The roles kept: one actor each, and a run's environment actors."""
 
 
@@ -97,6 +98,23 @@ class KeptActors:
                 return
             del self._kept[role]
         _end(kept)
+
+
+def take_or_start(
+    role: str, key: str, start: Callable[[], Any], reset: Callable[[Any], Any]
+) -> Any:
+    """An actor of `role` kept under `key`, set up for this run by `reset(actor)` (an
+    ObjectRef, waited for: calls to a threaded actor may overtake one another), else a
+    new one from `start()`: also in place of one that ended while kept or whose reset
+    failed (a new actor then fails, or not, as it always would)."""
+    kept = KEPT.take(role, key)
+    if kept is not None:
+        try:
+            ray.get(reset(kept))
+            return kept
+        except Exception:  # noqa: BLE001 - whatever went wrong, a new actor takes its place
+            ray.kill(kept)
+    return start()
 
 
 def _instance() -> tuple[str, str]:

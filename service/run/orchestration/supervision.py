@@ -211,15 +211,14 @@ class ActorFleet:
         return reports, notes
 
     def kill(self) -> None:
-        self.release()
         for slot in self.slots:
             ray.kill(slot.actor)
+        if self.budget is not None:
+            ray.kill(self.budget)
 
     def release(self) -> list[Any]:
         """The actors of a run that ended well, for the next run to take (kept.py): all
-        but those stopped. The shared budget, which is the run's alone, is ended."""
-        if self.budget is not None:
-            ray.kill(self.budget)
+        but those stopped."""
         return [s.actor for s in self.slots if not s.stopped]
 
 

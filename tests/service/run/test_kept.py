@@ -14,7 +14,14 @@ from ray.exceptions import RayActorError
 
 from actors.evaluator import RemoteEvaluator
 from service.run.config import load_preset
-from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, EVALUATOR, KEPT, KeptActors
+from service.run.orchestration.kept import (
+    BROADCASTER,
+    BUDGET,
+    ENV_ACTORS,
+    EVALUATOR,
+    KEPT,
+    KeptActors,
+)
 from service.run.orchestration.launcher import train
 from service.run.orchestration.roles import probe
 from service.weights import BroadcastPublisher
@@ -58,14 +65,16 @@ def test_a_second_run_acts_publishes_and_evaluates_with_the_first_runs_helpers(r
         **{"td3.hidden_sizes": [16, 16], "td3.batch_size": 32},
     )
     first = train(config, run_dir=tmp_path / "first", progress=False)
-    helpers = {role: _ids(KEPT.held(role)) for role in (BROADCASTER, EVALUATOR, ENV_ACTORS)}
-    assert [len(ids) for ids in helpers.values()] == [1, 1, 2]
+    roles = (BROADCASTER, EVALUATOR, ENV_ACTORS, BUDGET)
+    helpers = {role: _ids(KEPT.held(role)) for role in roles}
+    assert [len(ids) for ids in helpers.values()] == [1, 1, 2, 1]
     second = train(config, run_dir=tmp_path / "second", progress=False)
     for role, ids in helpers.items():  # the same actors, kept again for a third run
         assert _ids(KEPT.held(role)) == ids, role
     # The second run published from version 0 again, its actors (started over on their
-    # new seeds, replay writers and subscriptions) acted its whole budget and adopted its
-    # weights, and it was scored: every kept helper started over.
+    # new seeds, replay writers and subscriptions) acted its whole budget (the kept
+    # budget started over) and adopted its weights, and it was scored: every kept helper
+    # started over.
     for run in (first, second):
         assert run.summary["updates"] == 200 and run.summary["env_steps"] == 300
         assert sum(run.summary["actor_env_steps"]) == 300
