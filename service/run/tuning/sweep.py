@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import secrets
 import time
 from collections.abc import Callable
@@ -34,6 +35,7 @@ from actors.task import EnvSpec
 from actors.transitions import replay_signature
 from service.replay.client import ReplayClient
 from service.replay.sharding import ShardedReplayClient
+from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, KEPT, take_or_start
 from service.run.orchestration.preflight import check_task
 from service.run.orchestration.ray_session import connect_ray
 from service.run.orchestration.roles import PENDING_INSERTS
@@ -47,6 +49,9 @@ from service.weights import BroadcastPublisher
 
 FILL_TIMEOUT_S = 120.0
 """The longest a point waits for its table to reach the size sampling starts at."""
+ACTOR_END_S = 10.0
+"""Seconds a point's actors get to end their runs once it is measured; those that do are
+kept for the next point (service/run/orchestration/kept.py), the others ended."""
 TUNE_MAX_SIZE = 100_000
 """Replay capacity of a tuning point (a short run never needs more)."""
 
@@ -92,7 +97,8 @@ def run_point(
             addresses = [f"{node}:{a.rsplit(':', 1)[1]}" for a in addresses]
         shards = [ReplayClient(a, token=token) for a in addresses]
         client = _replay_client(addresses, token)
-        publisher = BroadcastPublisher()
+        node = ray.get_runtime_context().get_node_id()
+        publisher = BroadcastPublisher(kept=KEPT.take(BROADCASTER, node))
         n = config.num_actors
         segment = Segment(
             phase.name,
@@ -100,21 +106,24 @@ def run_point(
             warmup_steps=-(-phase.warmup_steps // n),
             pending_inserts=0 if phase.samples_per_insert is not None else PENDING_INSERTS,
         )
+        options = {"num_cpus": costs.actor_cpus, "max_concurrency": 2}
+        key = repr(sorted(options.items()))
+        finished = False
         try:
             for i in range(n):
-                # @ray.remote gives the class `.options` at run time; mypy sees the plain class.
-                actors.append(
-                    EnvActor.options(num_cpus=costs.actor_cpus).remote(  # type: ignore[attr-defined]
-                        env=EnvSpec(ENV_ID, env_kwargs),
-                        num_envs=config.envs_per_actor,
-                        seed=seed * 1000 + i * config.envs_per_actor,
-                        replay=_replay_client(addresses, token, home=i),
-                        weights=publisher.subscriber(),
-                        behaviour=behaviour,
-                        steps_per_insert=config.steps_per_insert,
-                        nice=0 if costs.tick_ms else None,
-                    )
+                arguments = dict(
+                    env=EnvSpec(ENV_ID, env_kwargs),
+                    num_envs=config.envs_per_actor,
+                    seed=seed * 1000 + i * config.envs_per_actor,
+                    replay=_replay_client(addresses, token, home=i),
+                    weights=publisher.subscriber(),
+                    behaviour=behaviour,
+                    steps_per_insert=config.steps_per_insert,
+                    nice=0 if costs.tick_ms else None,
                 )
+                start = functools.partial(_new_actor, options, arguments)
+                reset = functools.partial(_reset_actor, arguments)
+                actors.append(take_or_start(ENV_ACTORS, key, start, reset))
             ray.get([a.report.remote() for a in actors])  # started: time from here
             stream = client.sample_stream(phase.name, builder.batch_size, prefetch=config.prefetch)
             learner = TuningLearner(point, stream=stream, publisher=publisher, builder=builder)
@@ -132,10 +141,24 @@ def run_point(
             _raise_actor_errors(runs)
             publisher.stop()
             stream.close()
+            # Stopped, each actor ends its run: those that did go to the next point.
+            ended, _ = ray.wait(runs, num_returns=len(runs), timeout=ACTOR_END_S)
+            finished = True
         finally:
-            for actor in actors:
-                ray.kill(actor)
-            publisher.close()
+            if finished:
+                done = {ref.hex() for ref in ended}
+                idle = []
+                for actor, run in zip(actors, runs, strict=True):
+                    if run.hex() in done:
+                        idle.append(actor)
+                    else:
+                        ray.kill(actor)
+                KEPT.keep(ENV_ACTORS, key, *idle)
+                KEPT.keep(BROADCASTER, node, publisher.release())
+            else:
+                for actor in actors:
+                    ray.kill(actor)
+                publisher.close()
             for c in [client, *shards]:
                 c.close()
     row = measure(before, after, learner.version)
@@ -146,6 +169,15 @@ def run_point(
         skipped=None if costs.tick_ms == 0 else row["skipped"],
     )
     return {**point.knobs, **row}
+
+
+def _new_actor(options: dict[str, Any], arguments: dict[str, Any]) -> Any:
+    # @ray.remote gives the class `.options` at run time; mypy sees the plain class.
+    return EnvActor.options(**options).remote(**arguments)  # type: ignore[attr-defined]
+
+
+def _reset_actor(arguments: dict[str, Any], kept: Any) -> Any:
+    return kept.reset.remote(**arguments)
 
 
 def _replay_client(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, KEPT
 from service.run.tuning.grid import Costs, parse_grid, plan
 from service.run.tuning.measure import bottleneck
 from service.run.tuning.report import preset_lines, table
@@ -162,8 +163,12 @@ def test_tune_over_replay_shards_spreads_inserts_over_every_shard(ray_local):
         overrides={**SMALL, "num_actors": 2}, costs=Costs(learner="drain", step_latency_ms=2.0),
         address="local",
     )  # fmt: skip
-    rows = [run_point(p, warmup_s=0.5, measure_s=1.5, address="local") for p in points]
+    rows, helpers = [], []
+    for point in points:
+        rows.append(run_point(point, warmup_s=0.5, measure_s=1.5, address="local"))
+        helpers.append({a._actor_id for role in (ENV_ACTORS, BROADCASTER) for a in KEPT.held(role)})
     one, two = rows
+    assert len(helpers[0]) == 3 and helpers[1] == helpers[0]  # the second point took them on
     assert "/" not in one["shard_inserted_per_s"] and one["inserted_per_s"] > 0
     per_shard = [float(v) for v in two["shard_inserted_per_s"].split(" / ")]
     assert len(per_shard) == 2 and min(per_shard) > 0, two  # each actor has its own shard
