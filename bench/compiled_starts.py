@@ -52,6 +52,37 @@ def start_cost(tree: Path, code: str, starts: int) -> float:
     return (children_cpu_s() - before) / starts
 
 
+def compare_starts(
+    trees: dict[str, Path], kinds: dict[str, str], *, starts: int, rounds: int
+) -> None:
+    """Each kind's start cost (``python -c code``) in each of two trees, in turn, round
+    after round, so another job on the machine moves both alike; then each one's median
+    and the second's against the first's, as a table headed by the trees' names."""
+    costs: dict[str, dict[str, list[float]]] = {k: {name: [] for name in trees} for k in kinds}
+    for round_ in range(1, rounds + 1):
+        for kind, code in kinds.items():
+            for name, tree in trees.items():
+                cost = start_cost(tree, code, starts)
+                costs[kind][name].append(cost)
+                print(f"round {round_}, {kind}, {name}: {cost:.3f} s of CPU", flush=True)
+    first, second = trees
+    print(f"\n| process | {first} | {second} | {second} / {first} |")
+    print("|---|---|---|---|")
+    for kind, by_tree in costs.items():
+        a, b = (statistics.median(by_tree[name]) for name in (first, second))
+        print(f"| {kind} | {a:.3f} s | {b:.3f} s | {b / a:.2f} |")
+
+
+def parse_rounds(parser: argparse.ArgumentParser) -> argparse.Namespace:
+    """`parser`'s arguments with ``--starts`` and ``--rounds`` (each at least 1) added."""
+    parser.add_argument("--starts", type=int, default=10, help="starts per kind, tree and round")
+    parser.add_argument("--rounds", type=int, default=2)
+    args = parser.parse_args()
+    if args.starts < 1 or args.rounds < 1:
+        parser.error("--starts and --rounds must be >= 1")
+    return args
+
+
 def copy_tree(to: Path) -> Path:
     """graft's packages, without any ``__pycache__``."""
     for name in PACKAGES:
@@ -60,28 +91,17 @@ def copy_tree(to: Path) -> Path:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--starts", type=int, default=10, help="starts per kind, mode and round")
-    parser.add_argument("--rounds", type=int, default=2)
-    args = parser.parse_args()
-    if args.starts < 1 or args.rounds < 1:
-        parser.error("--starts and --rounds must be >= 1")
+    args = parse_rounds(argparse.ArgumentParser(description=__doc__.split("\n")[0]))
     with tempfile.TemporaryDirectory() as tmp:
         source, compiled = copy_tree(Path(tmp) / "source"), copy_tree(Path(tmp) / "compiled")
         for name in PACKAGES:
             compileall.compile_dir(compiled / name, quiet=1, workers=0)
-        costs = {kind: {"source": [], "compiled": []} for kind in KINDS}
-        for round_ in range(1, args.rounds + 1):
-            for kind, code in KINDS.items():
-                for mode, tree in (("source", source), ("compiled", compiled)):
-                    cost = start_cost(tree, code, args.starts)
-                    costs[kind][mode].append(cost)
-                    print(f"round {round_}, {kind}, {mode}: {cost:.3f} s of CPU", flush=True)
-    print("\n| process | from source | byte-compiled | compiled / source |")
-    print("|---|---|---|---|")
-    for kind, by_mode in costs.items():
-        plain, compiled_s = (statistics.median(by_mode[m]) for m in ("source", "compiled"))
-        print(f"| {kind} | {plain:.3f} s | {compiled_s:.3f} s | {compiled_s / plain:.2f} |")
+        compare_starts(
+            {"from source": source, "byte-compiled": compiled},
+            KINDS,
+            starts=args.starts,
+            rounds=args.rounds,
+        )
 
 
 if __name__ == "__main__":

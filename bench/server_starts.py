@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import compileall
 import io
-import statistics
 import subprocess
 import sys
 import tarfile
@@ -26,7 +25,14 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.compiled_starts import PACKAGES, ROOT, SERVE, copy_tree, start_cost  # noqa: E402
+from bench.compiled_starts import (  # noqa: E402
+    PACKAGES,
+    ROOT,
+    SERVE,
+    compare_starts,
+    copy_tree,
+    parse_rounds,
+)
 
 BASE = "58fd2ad"
 """The last commit before replay and world servers ran with one OpenBLAS thread and
@@ -51,28 +57,16 @@ def export(rev: str, to: Path) -> Path:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--base", default=BASE, help=f"the commit to compare with ({BASE})")
-    parser.add_argument("--starts", type=int, default=10, help="starts per kind, tree and round")
-    parser.add_argument("--rounds", type=int, default=2)
-    args = parser.parse_args()
-    if args.starts < 1 or args.rounds < 1:
-        parser.error("--starts and --rounds must be >= 1")
+    args = parse_rounds(parser)
     with tempfile.TemporaryDirectory() as tmp:
-        trees = {"base": export(args.base, Path(tmp) / "base"), "now": copy_tree(Path(tmp) / "now")}
+        trees = {
+            args.base: export(args.base, Path(tmp) / "base"),
+            "this tree": copy_tree(Path(tmp) / "now"),
+        }
         for tree in trees.values():
             for name in PACKAGES:
                 compileall.compile_dir(tree / name, quiet=1, workers=0)
-        costs: dict[str, dict[str, list[float]]] = {k: {t: [] for t in trees} for k in KINDS}
-        for round_ in range(1, args.rounds + 1):
-            for kind, code in KINDS.items():
-                for name, tree in trees.items():
-                    cost = start_cost(tree, code, args.starts)
-                    costs[kind][name].append(cost)
-                    print(f"round {round_}, {kind}, {name}: {cost:.3f} s of CPU", flush=True)
-    print(f"\n| process | {args.base} | this tree | this / {args.base} |")
-    print("|---|---|---|---|")
-    for kind, by_tree in costs.items():
-        base, now = (statistics.median(by_tree[t]) for t in ("base", "now"))
-        print(f"| {kind} | {base:.3f} s | {now:.3f} s | {now / base:.2f} |")
+        compare_starts(trees, KINDS, starts=args.starts, rounds=args.rounds)
 
 
 if __name__ == "__main__":
