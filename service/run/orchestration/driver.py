@@ -181,7 +181,7 @@ def train_here(
             def start() -> Any:
                 return EnvActor.options(**actor_options).remote(**arguments)  # type: ignore[attr-defined]
 
-            if incarnation:  # a replacement: never one that acted for another run
+            if incarnation:  # a dead actor's replacement: a new process
                 return start()
             return take_or_start(
                 ENV_ACTORS, actors_key, start, lambda kept: kept.reset.remote(**arguments)
