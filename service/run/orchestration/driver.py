@@ -327,7 +327,8 @@ def train_here(
         # A run that ended well on a Ray instance that stays hands its helpers on (kept.py).
         keep = finished and not started_ray
         if actors is not None:
-            if keep:
+            # An interrupted run's actors may still be acting: they are ended, not kept.
+            if keep and not interrupted:
                 KEPT.keep(ENV_ACTORS, actors_key, *actors.release())
                 if budget is not None:
                     KEPT.keep(BUDGET, node, budget)
