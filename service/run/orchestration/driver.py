@@ -26,7 +26,6 @@ import torch
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 from tqdm import tqdm
 
-from actors.env_actor import EnvActor
 from actors.evaluator import RemoteEvaluator
 from learner.agent import Phase
 from learner.device import device_name
@@ -42,6 +41,8 @@ from service.run.orchestration.kept import (
     ENV_ACTORS,
     EVALUATOR,
     KEPT,
+    env_actor,
+    options_key,
     take_or_start,
 )
 from service.run.orchestration.lockstep import ActorRing, deterministic, stalled
@@ -148,7 +149,7 @@ def train_here(
         notes: list[str] = []
         say = say_and_keep(notes, progress)
         evaluator_options = config.evaluator.ray_options()
-        evaluator_key = repr(sorted(evaluator_options.items()))
+        evaluator_key = options_key(evaluator_options)
         evaluator = RemoteEvaluator(
             env=evaluator_env(config, clients),
             behaviour=builder.make_behaviour(num_actors=1),
@@ -161,9 +162,9 @@ def train_here(
         resumed_env_steps = state.env_steps  # a restored table's env steps (resume_with)
 
         actor_options = {**config.actors.ray_options(), "max_concurrency": 2}
-        actors_key = repr(sorted(actor_options.items()))
 
         def make_actor(i: int, incarnation: int) -> Any:
+            # A dead actor's replacement is a new process, never a kept one.
             arguments = dict(
                 env=actor_env(config, clients, i),
                 num_envs=config.envs_per_actor,
@@ -176,16 +177,7 @@ def train_here(
                 async_envs=config.async_envs,
                 nice=config.actor_nice,
             )
-
-            # @ray.remote gives the class `.options` at run time; mypy sees the plain class.
-            def start() -> Any:
-                return EnvActor.options(**actor_options).remote(**arguments)  # type: ignore[attr-defined]
-
-            if incarnation:  # a dead actor's replacement: a new process
-                return start()
-            return take_or_start(
-                ENV_ACTORS, actors_key, start, lambda kept: kept.reset.remote(**arguments)
-            )
+            return env_actor(actor_options, arguments, kept=incarnation == 0)
 
         # Asynchronous: every actor claims the steps of each phase from one shared budget,
         # an insert batch at a time, until the phase's budget is spent (so none idles
@@ -329,7 +321,7 @@ def train_here(
         if actors is not None:
             # An interrupted run's actors may still be acting: they are ended, not kept.
             if keep and not interrupted:
-                KEPT.keep(ENV_ACTORS, actors_key, *actors.release())
+                KEPT.keep(ENV_ACTORS, options_key(actor_options), *actors.release())
                 if budget is not None:
                     KEPT.keep(BUDGET, node, budget)
             else:

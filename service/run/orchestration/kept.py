@@ -20,11 +20,13 @@ session is loaded afresh only by new actors (wait `KEEP_S`, or start Ray again).
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Optional
 
 import ray
+
+from actors.env_actor import EnvActor
 
 KEEP_S = 10.0
 """How long a finished run's helpers wait for the next run before they are ended."""
@@ -115,6 +117,28 @@ def take_or_start(
         except Exception:  # noqa: BLE001 - whatever went wrong, a new actor takes its place
             ray.kill(kept)
     return start()
+
+
+def options_key(options: Mapping[str, Any]) -> str:
+    """The key an actor of Ray `options` is kept under: runs asking for the same take it."""
+    return repr(sorted(options.items()))
+
+
+def env_actor(
+    options: Mapping[str, Any], arguments: Mapping[str, Any], *, kept: bool = True
+) -> Any:
+    """An environment actor of Ray `options`, set up from `EnvActor`'s `arguments`: one kept
+    under the same options, reset, else (and always without `kept`) a new one."""
+
+    def start() -> Any:
+        # @ray.remote gives the class `.options` at run time; mypy sees the plain class.
+        return EnvActor.options(**options).remote(**arguments)  # type: ignore[attr-defined]
+
+    if not kept:
+        return start()
+    return take_or_start(
+        ENV_ACTORS, options_key(options), start, lambda actor: actor.reset.remote(**arguments)
+    )
 
 
 def _instance() -> tuple[str, str]:

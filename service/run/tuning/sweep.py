@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import secrets
 import time
 from collections.abc import Callable
@@ -29,13 +28,13 @@ import ray
 import torch
 from tqdm import tqdm
 
-from actors.env_actor import EnvActor, Segment
+from actors.env_actor import Segment
 from actors.simulated import ENV_ID, simulated_env_kwargs
 from actors.task import EnvSpec
 from actors.transitions import replay_signature
 from service.replay.client import ReplayClient
 from service.replay.sharding import ShardedReplayClient
-from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, KEPT, take_or_start
+from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, KEPT, env_actor, options_key
 from service.run.orchestration.preflight import check_task
 from service.run.orchestration.ray_session import connect_ray
 from service.run.orchestration.roles import PENDING_INSERTS
@@ -107,8 +106,7 @@ def run_point(
             pending_inserts=0 if phase.samples_per_insert is not None else PENDING_INSERTS,
         )
         options = {"num_cpus": costs.actor_cpus, "max_concurrency": 2}
-        key = repr(sorted(options.items()))
-        finished = False
+        handed_on = False
         try:
             for i in range(n):
                 arguments = dict(
@@ -121,9 +119,7 @@ def run_point(
                     steps_per_insert=config.steps_per_insert,
                     nice=0 if costs.tick_ms else None,
                 )
-                start = functools.partial(_new_actor, options, arguments)
-                reset = functools.partial(_reset_actor, arguments)
-                actors.append(take_or_start(ENV_ACTORS, key, start, reset))
+                actors.append(env_actor(options, arguments))
             ray.get([a.report.remote() for a in actors])  # started: time from here
             stream = client.sample_stream(phase.name, builder.batch_size, prefetch=config.prefetch)
             learner = TuningLearner(point, stream=stream, publisher=publisher, builder=builder)
@@ -142,22 +138,16 @@ def run_point(
             publisher.stop()
             stream.close()
             # Stopped, each actor ends its run: those that did go to the next point.
-            ended, _ = ray.wait(runs, num_returns=len(runs), timeout=ACTOR_END_S)
-            finished = True
+            ended = {r.hex() for r in ray.wait(runs, num_returns=n, timeout=ACTOR_END_S)[0]}
+            mine = list(zip(actors, runs, strict=True))
+            KEPT.keep(ENV_ACTORS, options_key(options), *(a for a, r in mine if r.hex() in ended))
+            actors = [a for a, r in mine if r.hex() not in ended]
+            KEPT.keep(BROADCASTER, node, publisher.release())
+            handed_on = True
         finally:
-            if finished:
-                done = {ref.hex() for ref in ended}
-                idle = []
-                for actor, run in zip(actors, runs, strict=True):
-                    if run.hex() in done:
-                        idle.append(actor)
-                    else:
-                        ray.kill(actor)
-                KEPT.keep(ENV_ACTORS, key, *idle)
-                KEPT.keep(BROADCASTER, node, publisher.release())
-            else:
-                for actor in actors:
-                    ray.kill(actor)
+            for actor in actors:
+                ray.kill(actor)
+            if not handed_on:
                 publisher.close()
             for c in [client, *shards]:
                 c.close()
@@ -169,15 +159,6 @@ def run_point(
         skipped=None if costs.tick_ms == 0 else row["skipped"],
     )
     return {**point.knobs, **row}
-
-
-def _new_actor(options: dict[str, Any], arguments: dict[str, Any]) -> Any:
-    # @ray.remote gives the class `.options` at run time; mypy sees the plain class.
-    return EnvActor.options(**options).remote(**arguments)  # type: ignore[attr-defined]
-
-
-def _reset_actor(arguments: dict[str, Any], kept: Any) -> Any:
-    return kept.reset.remote(**arguments)
 
 
 def _replay_client(

@@ -71,10 +71,10 @@ def test_a_second_run_acts_publishes_and_evaluates_with_the_first_runs_helpers(r
     second = train(config, run_dir=tmp_path / "second", progress=False)
     for role, ids in helpers.items():  # the same actors, kept again for a third run
         assert _ids(KEPT.held(role)) == ids, role
-    # The second run published from version 0 again, its actors (started over on their
-    # new seeds, replay writers and subscriptions) acted its whole budget (the kept
-    # budget started over) and adopted its weights, and it was scored: every kept helper
-    # started over.
+    # Each run, the second on reset actors: updates and env steps are its own budget's
+    # (a reset budget and actors count from zero), every actor that acted adopted a
+    # version of that run's weights (its broadcaster publishes from version 0 again),
+    # and its evaluator scored it.
     for run in (first, second):
         assert run.summary["updates"] == 200 and run.summary["env_steps"] == 300
         assert sum(run.summary["actor_env_steps"]) == 300
