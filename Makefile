@@ -78,7 +78,7 @@ test-lowest:
 	$(call install_torch,$(LOWEST)/bin)
 	$(PYTHON) .ci/lowest_constraints.py --hold torch > $(LOWEST)/constraints.txt
 	$(LOWEST)/bin/pip install --only-binary :all: -c $(LOWEST)/constraints.txt \
-		. pytest pytest-timeout pytest-xdist hypothesis
+		. pytest pytest-timeout pytest-xdist
 	cd $(LOWEST) && env -u PYTHONPATH -u RAY_ADDRESS bin/graft train --preset pendulum-td3 \
 		--env-steps 1500 --actors 1 --address local --run-dir run --no-progress
 	env -u PYTHONPATH $(LOWEST)/bin/python -m pytest -q -n 2 \

@@ -1,84 +1,34 @@
 """Fuzzing: 10,000+ generated malformed payloads against a real server process.
 
-Every payload is malformed by construction (random bytes, random msgpack values,
-truncations, or a valid batch with exactly one injected defect). The server must
-answer each with INVALID_ARGUMENT or RESOURCE_EXHAUSTED, never crash, and keep its
-stored data bit-for-bit.
+Every payload is malformed by construction (random bytes, random msgpack values, a valid
+batch with exactly one injected defect, or every truncation of a valid payload). The server
+must answer each with INVALID_ARGUMENT or RESOURCE_EXHAUSTED, never crash, and keep its
+stored data bit-for-bit. The payloads come from seeded generators (`malformed.py`): the
+same ones every run.
 """
 
 from __future__ import annotations
+
+import random
+from collections.abc import Callable, Iterable
 
 import grpc
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
 from service.run.replay_host.process import ReplayProcess
+from tests.service.replay import malformed
 from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
 pytestmark = pytest.mark.service  # a real server process per module
 
 TABLE = [{"name": "t", "max_size": 1000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]
-EXAMPLES_PER_STRATEGY = 2_600  # four strategies: 10,400 payloads in all
-
-VALID = {
-    "x": {"dtype": "<i8", "shape": [2], "data": np.arange(2, dtype=np.int64).tobytes()},
-    "terminated": {"dtype": "|b1", "shape": [2], "data": bytes(2)},
-    "truncated": {"dtype": "|b1", "shape": [2], "data": bytes(2)},
-}
-
-
-def defects() -> st.SearchStrategy[dict]:
-    """A valid columnar map with exactly one thing wrong."""
-    column = st.sampled_from(sorted(VALID))
-    return st.one_of(
-        column.map(lambda c: {**VALID, c: {**VALID[c], "dtype": "|O"}}),
-        st.tuples(column, st.sampled_from(["<f4", "<i4", "|u1", "<f8", "<U1", "xyz", ""])).map(
-            lambda cd: (
-                {**VALID, cd[0]: {**VALID[cd[0]], "dtype": cd[1]}}
-                if cd[1] != VALID[cd[0]]["dtype"]
-                else {**VALID, cd[0]: {**VALID[cd[0]], "dtype": "|O"}}
-            )
-        ),
-        st.tuples(column, st.lists(st.integers(-3, 5), max_size=4)).map(
-            lambda cs: (
-                {**VALID, cs[0]: {**VALID[cs[0]], "shape": cs[1]}}
-                if cs[1] != [2]
-                else {**VALID, cs[0]: {**VALID[cs[0]], "shape": [3]}}
-            )
-        ),
-        st.tuples(column, st.integers(0, 15)).map(  # truncated data
-            lambda ci: (
-                {**VALID, ci[0]: {**VALID[ci[0]], "data": VALID[ci[0]]["data"][: ci[1]]}}
-                if ci[1] < len(VALID[ci[0]]["data"])
-                else {**VALID, ci[0]: {**VALID[ci[0]], "data": b""}}
-            )
-        ),
-        column.map(lambda c: {k: v for k, v in VALID.items() if k != c}),  # missing column
-        st.text(min_size=1, max_size=8).map(  # unknown column
-            lambda name: {**VALID, "zz" + name: VALID["x"]}
-        ),
-        column.map(lambda c: {**VALID, c: msgpack.ExtType(3, b"x")}),
-        column.map(lambda c: {**VALID, c: {**VALID[c], "extra": 1}}),
-        st.just({**VALID, "x": {**VALID["x"], "data": "text"}}),
-    )
-
-
-msgpack_values = st.recursive(
-    st.none()
-    | st.booleans()
-    | st.integers(-(2**63), 2**64 - 1)
-    | st.floats()
-    | st.text()
-    | st.binary(),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(), inner, max_size=4),
-    max_leaves=12,
-)
+EXAMPLES_PER_GENERATOR = 3_300  # three generators and 141 truncations: 10,041 payloads
+SEED = 2600
 
 
 @pytest.fixture(scope="module")
@@ -100,40 +50,47 @@ def send(client: ReplayClient, payload: bytes) -> None:
     ), caught.value.details()
 
 
-FUZZ = settings(
-    max_examples=EXAMPLES_PER_STRATEGY,
-    deadline=None,
-    derandomize=True,  # the same 10,400 payloads every run
-    suppress_health_check=list(HealthCheck),
-    database=None,
-)
+def send_all(client: ReplayClient, payloads: Iterable[bytes]) -> int:
+    """Sends each payload; a failure names the payload's index and bytes."""
+    sent = 0
+    for index, payload in enumerate(payloads):
+        try:
+            send(client, payload)
+        except BaseException as error:
+            raise AssertionError(f"payload {index} ({payload[:80]!r}): {error}") from error
+        sent += 1
+    return sent
 
 
-@FUZZ
-@given(st.binary(max_size=256))
-def test_random_bytes(server, payload):
-    send(server[1], payload)
+def generated(make: Callable[[random.Random], bytes]) -> Iterable[bytes]:
+    rng = random.Random(SEED)
+    return (make(rng) for _ in range(EXAMPLES_PER_GENERATOR))
 
 
-@FUZZ
-@given(msgpack_values)
-def test_random_msgpack_values(server, value):
-    send(server[1], msgpack.packb(value, use_bin_type=True))
+def test_random_bytes(server):
+    assert send_all(server[1], generated(malformed.random_bytes)) == EXAMPLES_PER_GENERATOR
 
 
-@FUZZ
-@given(defects())
-def test_one_defect_in_a_valid_batch(server, columns):
-    send(server[1], msgpack.packb({"columns": columns}, use_bin_type=True))
+def test_random_msgpack_values(server):
+    def packed(rng: random.Random) -> bytes:
+        return msgpack.packb(malformed.msgpack_value(rng), use_bin_type=True)
+
+    assert send_all(server[1], generated(packed)) == EXAMPLES_PER_GENERATOR
+
+
+def test_one_defect_in_a_valid_batch(server):
+    def packed(rng: random.Random) -> bytes:
+        return msgpack.packb({"columns": malformed.one_defect(rng)}, use_bin_type=True)
+
+    assert send_all(server[1], generated(packed)) == EXAMPLES_PER_GENERATOR
 
 
 VALID_PAYLOAD = encode_batch(scalar_batch([7, 8, 9]))
 
 
-@FUZZ
-@given(st.integers(0, len(VALID_PAYLOAD) - 1))
-def test_truncated_valid_payload(server, cut):
-    send(server[1], VALID_PAYLOAD[:cut])
+def test_truncated_valid_payload(server):
+    cuts = [VALID_PAYLOAD[:cut] for cut in range(len(VALID_PAYLOAD))]
+    assert send_all(server[1], cuts) == len(VALID_PAYLOAD) == 141
 
 
 def test_server_survived_and_data_is_unchanged(server):
