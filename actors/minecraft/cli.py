@@ -48,6 +48,15 @@ def _limits(args: argparse.Namespace) -> Limits:
         raise SystemExit(f"graft minecraft serve: {str(e).replace(field, flag, 1)}") from None
 
 
+def warm_up() -> None:
+    """What a world server loads before it serves: the simulator and the frame's compiled
+    kernels. A fork server (`service.forkserver`, as `ServerPool` starts world servers)
+    runs it once, and every world server forked from it starts with them loaded."""
+    from actors.minecraft.sim import render, server  # noqa: F401 - loaded to be inherited
+
+    render.warm_up()
+
+
 def _serve(args: argparse.Namespace) -> int:
     from actors.minecraft.sim.server import WorldServer
 

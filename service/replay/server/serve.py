@@ -6,8 +6,11 @@ from __future__ import annotations
 import json
 import logging
 import os
+import select
 import signal
 import threading
+import time
+from collections.abc import Callable
 from contextlib import suppress
 from typing import Optional
 
@@ -18,16 +21,66 @@ from service.replay.server.store import ReplayCore
 log = logging.getLogger(__name__)
 
 
-def _stop_when_orphaned(parent_pid: int, stop: threading.Event, poll_s: float = 1.0) -> None:
-    """Sets `stop` once we are no longer `parent_pid`'s child (it died: we were re-parented).
+class _StopRequest:
+    """A stop that a signal or any thread may ask for, and that the main thread's wait sees
+    at once.
+
+    Python runs signal handlers on the main thread only, and a signal the kernel hands to
+    another thread (gRPC's, ours) does not wake a main thread blocked in `Event.wait`: it
+    slept on until its next checkpoint (300 s by default), and a supervisor's SIGTERM
+    ended in SIGKILL, without the final checkpoint. Here the main thread waits on a pipe
+    that Python's C-level handler writes to (`signal.set_wakeup_fd`), whichever thread
+    took the signal.
+    """
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        """Set once a stop is asked for (what the other threads wait on)."""
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+
+    def on_signals(self, *signals: int) -> None:
+        """Asks for the stop on each of `signals` (from the main thread)."""
+        signal.set_wakeup_fd(self._write)
+        for sig in signals:
+            signal.signal(sig, lambda *_: self.set())
+
+    def set(self) -> None:
+        self.event.set()
+        with suppress(BlockingIOError):  # a full pipe already wakes the waiter
+            os.write(self._write, b"\0")
+
+    def wait(self, timeout: Optional[float]) -> bool:
+        """Waits at most `timeout` seconds (None: for ever) for the stop; True if asked."""
+        if select.select([self._read], [], [], timeout)[0]:
+            os.read(self._read, 4096)  # the handler has run, or runs before the check below
+        return self.event.is_set()
+
+
+def _stop_when_orphaned(parent_pid: int, stop: _StopRequest, poll_s: float = 1.0) -> None:
+    """Asks for the stop once process `parent_pid`, the one that started us (our parent,
+    or the parent of the fork server we were forked from), has died.
 
     A launcher killed with SIGKILL cannot stop its replay server; without this the server
     would outlive it and keep its port and memory.
     """
-    while not stop.wait(poll_s):
-        if os.getppid() != parent_pid:
+    gone = _death_check(parent_pid)
+    while not stop.event.wait(poll_s):
+        if gone():
             log.warning("parent process %d is gone; stopping", parent_pid)
             stop.set()
+
+
+def _death_check(pid: int) -> Callable[[], bool]:
+    """A check, True once process `pid` has died: its pidfd (Linux) says so, or (without
+    pidfds, where `pid` must be our parent) we have been re-parented."""
+    try:
+        pidfd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return lambda: True
+    except (AttributeError, OSError):
+        return lambda: os.getppid() != pid
+    return lambda: bool(select.select([pidfd], [], [], 0)[0])
 
 
 def serve_forever(
@@ -50,9 +103,8 @@ def serve_forever(
     # Before the server answers or says it is ready: a stop sent the moment it is ready
     # (a test's, a supervisor's) must still get the final checkpoint, not Python's default
     # SIGTERM, which ends the process on the spot.
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = _StopRequest()
+    stop.on_signals(signal.SIGTERM, signal.SIGINT)
     running = build_server(core, options, metrics=metrics_port is not None)
     address = host_port(options.host, running.port)
     extra = ""
@@ -67,12 +119,16 @@ def serve_forever(
         os.replace(ready_file + ".tmp", ready_file)  # atomic: readers never see half a file
     # Refused megabyte requests would otherwise leave RSS tens of MiB up (cyclic garbage,
     # and free pages glibc's malloc keeps).
-    threading.Thread(target=running.freed_memory.run, args=(stop,), daemon=True).start()
+    threading.Thread(target=running.freed_memory.run, args=(stop.event,), daemon=True).start()
     if parent_pid is not None:
         threading.Thread(target=_stop_when_orphaned, args=(parent_pid, stop), daemon=True).start()
-    while not stop.wait(checkpoint_every_s or None):
-        with suppress(StorageError):  # logged and counted by the core
-            core.checkpoint()  # periodic; sampling goes on while the file is written
+    period = checkpoint_every_s or None
+    due = time.monotonic() + (period or 0.0)
+    while not stop.wait(None if period is None else max(0.0, due - time.monotonic())):
+        if period is not None and time.monotonic() >= due:
+            with suppress(StorageError):  # logged and counted by the core
+                core.checkpoint()  # periodic; sampling goes on while the file is written
+            due = time.monotonic() + period
     running.health.enter_graceful_shutdown()
     with suppress(StorageError):
         core.checkpoint()

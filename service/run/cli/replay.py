@@ -80,7 +80,8 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
         "--exit-with-parent",
         type=int,
         metavar="PID",
-        help="stop gracefully (final checkpoint) once process PID, our parent, has died",
+        help="stop gracefully (final checkpoint) once process PID, the one that started "
+        "this server, has died",
     )
     serve.set_defaults(handler=_serve)
     info = commands.add_parser("info", help="print a server's tables and figures")

@@ -6,12 +6,13 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Optional
+
+from service import forkserver
 
 EXIT_FOLDER_UNUSABLE = 3
 """`graft replay serve`'s exit status when its --checkpoint-dir cannot be restored for its
@@ -23,7 +24,8 @@ class FolderRefused(RuntimeError):
 
 
 class ReplayProcess:
-    """A `graft replay serve` child process; `address` is known once it listens.
+    """A `graft replay serve` process (a fork of the replay server's fork server,
+    `service.forkserver`); `address` is known once it listens.
 
     `token` (None: the server takes none, whatever this process's GRAFT_TOKEN) reaches
     the child in its environment, never on its command line.
@@ -45,9 +47,6 @@ class ReplayProcess:
         config.write_text(json.dumps({"tables": tables}))
         ready = Path(self._dir.name) / "ready.json"
         command = [
-            sys.executable,
-            "-m",
-            "service.run.cli.replay",
             "serve",
             "--config",
             str(config),
@@ -59,8 +58,8 @@ class ReplayProcess:
             str(ready),
             "--exit-with-parent",
             str(os.getpid()),
+            *extra_args,
         ]
-        command += list(extra_args)
         # The token goes by environment: a command line is readable by every local user.
         env = {k: v for k, v in os.environ.items() if k != "GRAFT_TOKEN"}
         # It does no linear algebra: one OpenBLAS thread, not a spinning pool per core
@@ -68,9 +67,8 @@ class ReplayProcess:
         env.setdefault("OPENBLAS_NUM_THREADS", "1")
         if token:
             env["GRAFT_TOKEN"] = token
-        self._log = open(log_path, "ab") if log_path else subprocess.DEVNULL
-        self.process = subprocess.Popen(
-            command, stdout=self._log, stderr=subprocess.STDOUT, env=env
+        self.process = forkserver.start(
+            "service.run.cli.replay", command, env=env, output=str(log_path) if log_path else None
         )
         try:
             self._wait_until_ready(ready, startup_timeout_s, log_path)
@@ -102,8 +100,6 @@ class ReplayProcess:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
-        if not isinstance(self._log, int):  # an open log file, not subprocess.DEVNULL
-            self._log.close()
         self._dir.cleanup()
 
     def kill(self) -> None:

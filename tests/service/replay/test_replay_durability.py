@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import ctypes
+import json
+import signal
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +22,9 @@ from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, 
 pytestmark = [pytest.mark.service, pytest.mark.serial]  # servers restarted on their port
 
 TABLE = [{"name": "log", "max_size": 1_000_000, "sampler": "fifo", "signature": SCALAR_SIGNATURE}]
+
+
+SYS_TGKILL = 234  # x86-64's number of tgkill(2): a signal to one thread of a process
 
 
 def durable_server(folder, port=0) -> ReplayProcess:
@@ -69,6 +76,34 @@ def test_graceful_stop_writes_a_final_checkpoint(tmp_path):
     [checkpoint] = tmp_path.glob("checkpoint-*.npz")
     after = [p for p in tmp_path.glob("wal-*.log") if p.stem[4:] >= checkpoint.stem[11:]]
     assert after and sum(p.stat().st_size for p in after) == 0  # all in the checkpoint
+
+
+def test_a_stop_signal_any_thread_takes_still_stops_it_at_once(tmp_path):
+    """The kernel may hand a SIGTERM to any of the server's threads (gRPC's, its own). A
+    `graft replay serve` run by hand (no --exit-with-parent) slept on until its next
+    periodic checkpoint, 300 s away, when the main thread was not the one."""
+    config = tmp_path / "tables.json"
+    config.write_text(json.dumps({"tables": TABLE}))
+    ready = tmp_path / "ready.json"
+    state = tmp_path / "state"
+    command = [
+        sys.executable, "-m", "service.run.cli.replay", "serve", "--config", str(config),
+        "--port", "0", "--ready-file", str(ready), "--checkpoint-dir", str(state),
+    ]  # fmt: skip
+    server = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        while not ready.exists():
+            assert server.poll() is None, "the server did not start"
+            time.sleep(0.05)
+        threads = sorted(int(t.name) for t in Path(f"/proc/{server.pid}/task").iterdir())
+        other = next(t for t in threads if t != server.pid)  # not the main thread
+        tgkill = ctypes.CDLL(None, use_errno=True).syscall
+        assert tgkill(SYS_TGKILL, server.pid, other, signal.SIGTERM) == 0, ctypes.get_errno()
+        assert server.wait(30.0) == 0
+    finally:
+        server.kill()
+        server.wait()
+    assert list(state.glob("checkpoint-*.npz"))  # stopped gracefully
 
 
 def test_sigkill_mid_stream_loses_and_doubles_nothing_acknowledged(tmp_path):

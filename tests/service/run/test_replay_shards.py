@@ -118,18 +118,25 @@ def test_two_shards_hold_the_ratio_over_the_whole_replay() -> None:
 
 
 def _own_shard_server(run_dir: Path, shard: int) -> int:
-    """The PID of this process's replay server child for `shard` of the run in `run_dir`."""
+    """The PID of this process's replay server for `shard` of the run in `run_dir`: its
+    child, or its fork server's."""
     folder = str(run_dir / "replay" / f"shard-{shard}")
+    parents: dict[int, int] = {}
     for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
         try:
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            stat = (entry / "stat").read_text()
+            parents[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
         except (OSError, ValueError, IndexError):
             continue
-        if ppid == os.getpid() and b"service.run.cli.replay" in argv and folder.encode() in argv:
-            return int(entry.name)
+    for pid, ppid in parents.items():
+        if os.getpid() not in (ppid, parents.get(ppid)):
+            continue
+        try:
+            command = (Path("/proc") / str(pid) / "cmdline").read_bytes().replace(b"\0", b" ")
+        except OSError:
+            continue
+        if b"service.run.cli.replay serve" in command and folder.encode() in command:
+            return pid
     raise AssertionError(f"no replay server of {folder} among this process's children")
 
 
