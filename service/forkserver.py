@@ -282,6 +282,7 @@ def _serve(module: str) -> None:
                     _reply({"error": f"fork: {error}"})
                     continue
                 if pid == 0:
+                    selector.close()
                     os.close(wake_read)
                     os.close(wake_write)
                     _child(loaded, module, request, title)
