@@ -40,6 +40,7 @@ IMPORT_VARIABLES = ("PYTHONPATH", "PYTHONHOME", "OPENBLAS_NUM_THREADS", "OMP_NUM
 """Environment variables that shape what a process imports and how: a fork server runs
 with the starting process's environment and these from the request's. Requests that differ
 in them get fork servers of their own; every other variable is the fork's own."""
+TITLE_ROOM = "GRAFT_FORK_SERVER_TITLE_ROOM"
 ENABLED = sys.platform.startswith("linux") and os.environ.get("GRAFT_FORK_SERVER") != "0"
 """Whether `start` forks (Linux, unless GRAFT_FORK_SERVER=0) or runs a plain process."""
 
@@ -144,6 +145,12 @@ class _ForkServer:
         self.module = module
         env = {k: v for k, v in os.environ.items() if k not in IMPORT_VARIABLES}
         env.update((name, value) for name, value in imports if value is not None)
+        # A fork's title is written over the fork server's command line and environment,
+        # and cut where they end: with a small environment, or with SPT_NOENV (set in
+        # Ray's workers: titles then keep to the command line), a replay server's title
+        # lost its --checkpoint-dir. This variable is room for long titles.
+        env.pop("SPT_NOENV", None)
+        env[TITLE_ROOM] = " " * 4096
         self.process = subprocess.Popen(
             [sys.executable, "-m", __name__, module],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,

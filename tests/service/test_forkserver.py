@@ -30,6 +30,8 @@ def mode(request, monkeypatch) -> str:
 def _start(tmp_path: Path, *argv: str) -> tuple[forkserver.Process, Path]:
     output = tmp_path / "out.log"
     env = {**os.environ, "PYTHONPATH": str(ROOT), "FORKEE_X": "from the request"}
+    if argv[0] == "sleep":  # a long title (a replay server's is several hundred characters)
+        argv = (*argv, "x" * 2000)
     process = forkserver.start(MODULE, list(argv), env=env, output=str(output), cwd=str(tmp_path))
     return process, output
 
@@ -46,14 +48,34 @@ def test_a_process_runs_the_modules_main_with_its_arguments_environment_and_fold
             assert time.monotonic() < deadline and process.poll() is None
             time.sleep(0.02)
         title = Path(f"/proc/{process.pid}/cmdline").read_bytes().replace(b"\0", b" ")
-        assert f"-m {MODULE} sleep 30".encode() in title  # as `ps` shows it
+        assert f"-m {MODULE} sleep 30 {'x' * 2000}".encode() in title  # as `ps` shows it
         assert (_ppid(process.pid) == os.getpid()) == (mode == "plain")
     finally:
         process.terminate()
     assert process.wait(10) == -signal.SIGTERM
     seen = json.loads(output.read_text())
-    assert seen["argv"] == seen["sys.argv"] == ["sleep", "30"]
+    assert seen["argv"] == seen["sys.argv"] == ["sleep", "30", "x" * 2000]
     assert seen["x"] == "from the request" and seen["cwd"] == str(tmp_path)
+
+
+def test_a_long_title_fits_a_fork_server_of_a_small_environment(tmp_path, monkeypatch):
+    """A title is written over the fork server's command line and environment: a small
+    environment (a node's service manager's, a container's), or one that says to keep to
+    the command line (SPT_NOENV, in Ray's workers), must not cut it short."""
+    forkserver.close_all()  # the next start makes a fork server of this environment
+    monkeypatch.setattr(os, "environ", {"PATH": os.environ["PATH"], "SPT_NOENV": "1"})
+    process, output = _start(tmp_path, "sleep", "30")
+    try:
+        deadline = time.monotonic() + 30
+        while not output.read_text():
+            assert time.monotonic() < deadline and process.poll() is None
+            time.sleep(0.02)
+        title = Path(f"/proc/{process.pid}/cmdline").read_bytes().rstrip(b"\0")
+        assert title.endswith(b"sleep 30 " + b"x" * 2000)
+    finally:
+        process.terminate()
+        process.wait(10)
+        forkserver.close_all()
 
 
 @pytest.mark.parametrize(
@@ -61,6 +83,8 @@ def test_a_process_runs_the_modules_main_with_its_arguments_environment_and_fold
     [
         (["return", "0"], 0, ""),
         (["return", "3"], 3, ""),
+        (["exit", "3"], 3, ""),  # as a replay server refusing its folder
+        (["exit", "0"], 0, ""),
         (["exit-message", "no such table"], 1, "no such table"),
         (["raise", "boom"], 1, "RuntimeError: boom"),
     ],

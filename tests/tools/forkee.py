@@ -1,5 +1,5 @@
 """A module for the fork-server tests: `main(argv)` prints what it was started with, then
-ends as `argv` asks (return N, exit-message TEXT, raise TEXT, sleep SECONDS)."""
+ends as `argv` asks (return N, exit N, exit-message TEXT, raise TEXT, sleep SECONDS)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,9 @@ import time
 def main(argv: list[str]) -> int:
     seen = {"argv": argv, "sys.argv": sys.argv[1:], "x": os.environ.get("FORKEE_X")}
     print(json.dumps({**seen, "cwd": os.getcwd()}), flush=True)
-    how, what = argv
+    how, what = argv[:2]
+    if how == "exit":
+        raise SystemExit(int(what))
     if how == "exit-message":
         raise SystemExit(what)
     if how == "raise":
