@@ -92,6 +92,8 @@ class ForkedProcess:
             self._pidfd: Optional[int] = os.pidfd_open(pid)
         except ProcessLookupError:  # exited already: its status is on its way
             self._pidfd = None
+        except OSError:  # no pidfds here (a container's seccomp): -9 at once, then
+            self._pidfd = None
 
     def _exit(self, status: int) -> None:
         if self._exited.is_set():

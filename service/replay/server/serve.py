@@ -72,15 +72,28 @@ def _stop_when_orphaned(parent_pid: int, stop: _StopRequest, poll_s: float = 1.0
 
 
 def _death_check(pid: int) -> Callable[[], bool]:
-    """A check, True once process `pid` has died: its pidfd (Linux) says so, or (without
-    pidfds, where `pid` must be our parent) we have been re-parented."""
+    """A check, True once process `pid` has died: its pidfd (Linux) says so; without
+    pidfds (another system, a container's seccomp), we have been re-parented if `pid` is
+    our parent, else no process has its pid any more."""
     try:
         pidfd = os.pidfd_open(pid)
     except ProcessLookupError:
         return lambda: True
     except (AttributeError, OSError):
-        return lambda: os.getppid() != pid
+        if os.getppid() == pid:
+            return lambda: os.getppid() != pid
+        return lambda: not _exists(pid)
     return lambda: bool(select.select([pidfd], [], [], 0)[0])
+
+
+def _exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's: it exists
+        pass
+    return True
 
 
 def serve_forever(

@@ -49,3 +49,28 @@ def test_the_replay_server_stops_when_its_parent_is_killed() -> None:
     finally:
         if _running(server):
             os.kill(server, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("pidfds", [True, False], ids=["pidfd", "no pidfds (seccomp)"])
+def test_the_death_of_the_starting_process_is_seen_with_or_without_pidfds(
+    monkeypatch, pidfds
+) -> None:
+    """A forked server's starting process is its grandparent; a container's seccomp may
+    refuse pidfd_open. Either way a check sees that process die, and only then."""
+    from service.replay.server.serve import _death_check
+
+    if not pidfds:
+
+        def refused(pid: int) -> int:
+            raise PermissionError(1, "Operation not permitted")
+
+        monkeypatch.setattr(os, "pidfd_open", refused)
+    starter = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        gone = _death_check(starter.pid)
+        assert not gone()
+        assert not _death_check(os.getppid())()  # our own parent, alive
+    finally:
+        starter.kill()
+        starter.wait()
+    assert gone()
