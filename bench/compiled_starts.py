@@ -23,6 +23,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,20 +57,36 @@ def compare_starts(
     trees: dict[str, Path], kinds: dict[str, str], *, starts: int, rounds: int
 ) -> None:
     """Each kind's start cost (``python -c code``) in each of two trees, in turn, round
+    after round; then the table `compare` prints, headed by the trees' names."""
+    compare(
+        list(kinds), list(trees), lambda kind, tree: start_cost(trees[tree], kinds[kind], starts),
+        rounds=rounds,
+    )  # fmt: skip
+
+
+def compare(
+    kinds: Sequence[str],
+    modes: Sequence[str],
+    cost: Callable[[str, str], float],
+    *,
+    rounds: int,
+    heading: str = "process",
+) -> None:
+    """`cost(kind, mode)`, CPU seconds, for each kind in each of two modes in turn, round
     after round, so another job on the machine moves both alike; then each one's median
-    and the second's against the first's, as a table headed by the trees' names."""
-    costs: dict[str, dict[str, list[float]]] = {k: {name: [] for name in trees} for k in kinds}
+    and the second mode's against the first's, as a table."""
+    costs: dict[str, dict[str, list[float]]] = {k: {m: [] for m in modes} for k in kinds}
     for round_ in range(1, rounds + 1):
-        for kind, code in kinds.items():
-            for name, tree in trees.items():
-                cost = start_cost(tree, code, starts)
-                costs[kind][name].append(cost)
-                print(f"round {round_}, {kind}, {name}: {cost:.3f} s of CPU", flush=True)
-    first, second = trees
-    print(f"\n| process | {first} | {second} | {second} / {first} |")
+        for kind in kinds:
+            for mode in modes:
+                spent = cost(kind, mode)
+                costs[kind][mode].append(spent)
+                print(f"round {round_}, {kind}, {mode}: {spent:.3f} s of CPU", flush=True)
+    first, second = modes
+    print(f"\n| {heading} | {first} | {second} | {second} / {first} |")
     print("|---|---|---|---|")
-    for kind, by_tree in costs.items():
-        a, b = (statistics.median(by_tree[name]) for name in (first, second))
+    for kind, by_mode in costs.items():
+        a, b = (statistics.median(by_mode[m]) for m in (first, second))
         print(f"| {kind} | {a:.3f} s | {b:.3f} s | {b / a:.2f} |")
 
 

@@ -14,14 +14,13 @@ so another job on the machine moves both alike; the ratio is the figure.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from actors.minecraft.sim.pool import ServerPool  # noqa: E402
-from bench.compiled_starts import parse_rounds  # noqa: E402
+from bench.compiled_starts import compare, parse_rounds  # noqa: E402
 from bench.procfs import cpu_seconds  # noqa: E402
 from service import forkserver  # noqa: E402
 from service.run.replay_host.process import ReplayProcess  # noqa: E402
@@ -63,20 +62,15 @@ def round_cost(start: Callable[[], float], starts: int) -> float:
 def main() -> None:
     args = parse_rounds(argparse.ArgumentParser(description=__doc__.split("\n")[0]))
     kinds = {"replay server": replay_server, "world server": world_server}
-    costs: dict[str, dict[str, list[float]]] = {k: {m: [] for m in MODES} for k in kinds}
-    for round_ in range(1, args.rounds + 1):
-        for kind, start in kinds.items():
-            for mode, forked in MODES.items():
-                forkserver.ENABLED = forked
-                cost = round_cost(start, args.starts)
-                costs[kind][mode].append(cost)
-                print(f"round {round_}, {kind}, {mode}: {cost:.3f} s of CPU a start", flush=True)
-    first, second = MODES
-    print(f"\n| process ({args.starts} starts) | {first} | {second} | {second} / {first} |")
-    print("|---|---|---|---|")
-    for kind, by_mode in costs.items():
-        a, b = (statistics.median(by_mode[m]) for m in (first, second))
-        print(f"| {kind} | {a:.3f} s | {b:.3f} s | {b / a:.2f} |")
+
+    def cost(kind: str, mode: str) -> float:
+        forkserver.ENABLED = MODES[mode]
+        return round_cost(kinds[kind], args.starts)
+
+    compare(
+        list(kinds), list(MODES), cost, rounds=args.rounds,
+        heading=f"process ({args.starts} starts, CPU a start)",
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -36,6 +36,13 @@ def _start(tmp_path: Path, *argv: str) -> tuple[forkserver.Process, Path]:
     return process, output
 
 
+def _wait_for_output(process: forkserver.Process, output: Path) -> None:
+    deadline = time.monotonic() + 30
+    while not output.read_text():
+        assert time.monotonic() < deadline and process.poll() is None
+        time.sleep(0.02)
+
+
 def _ppid(pid: int) -> int:
     return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
 
@@ -43,10 +50,7 @@ def _ppid(pid: int) -> int:
 def test_a_process_runs_the_modules_main_with_its_arguments_environment_and_folder(tmp_path, mode):
     process, output = _start(tmp_path, "sleep", "30")
     try:
-        deadline = time.monotonic() + 30
-        while not output.read_text():
-            assert time.monotonic() < deadline and process.poll() is None
-            time.sleep(0.02)
+        _wait_for_output(process, output)
         title = Path(f"/proc/{process.pid}/cmdline").read_bytes().replace(b"\0", b" ")
         assert f"-m {MODULE} sleep 30 {'x' * 2000}".encode() in title  # as `ps` shows it
         assert (_ppid(process.pid) == os.getpid()) == (mode == "plain")
@@ -66,10 +70,7 @@ def test_a_long_title_fits_a_fork_server_of_a_small_environment(tmp_path, monkey
     monkeypatch.setattr(os, "environ", {"PATH": os.environ["PATH"], "SPT_NOENV": "1"})
     process, output = _start(tmp_path, "sleep", "30")
     try:
-        deadline = time.monotonic() + 30
-        while not output.read_text():
-            assert time.monotonic() < deadline and process.poll() is None
-            time.sleep(0.02)
+        _wait_for_output(process, output)
         title = Path(f"/proc/{process.pid}/cmdline").read_bytes().rstrip(b"\0")
         assert title.endswith(b"sleep 30 " + b"x" * 2000)
     finally:
