@@ -41,6 +41,7 @@ IMPORT_VARIABLES = ("PYTHONPATH", "PYTHONHOME", "OPENBLAS_NUM_THREADS", "OMP_NUM
 with the starting process's environment and these from the request's. Requests that differ
 in them get fork servers of their own; every other variable is the fork's own."""
 TITLE_ROOM = "GRAFT_FORK_SERVER_TITLE_ROOM"
+"""A fork server's environment variable that is room for its forks' process titles."""
 ENABLED = sys.platform.startswith("linux") and os.environ.get("GRAFT_FORK_SERVER") != "0"
 """Whether `start` forks (Linux, unless GRAFT_FORK_SERVER=0) or runs a plain process."""
 
