@@ -7,7 +7,7 @@ A fork server is one process per driver and module, started on the first request
 the module imported; each server is a fork of it that runs the module's `main(argv)`, as
 `python -m MODULE ARGV...` would, under that command's process title, with its own
 environment, working folder and output, listening within a few hundredths of a second of
-CPU (`python bench/server_starts.py`).
+CPU (`python bench/forked_starts.py`).
 
 The servers are the fork server's children: `ForkedProcess` stands in for
 `subprocess.Popen` (pid, poll, wait, send_signal, terminate, kill, returncode), the exit
@@ -91,10 +91,8 @@ class ForkedProcess:
         self._exited = threading.Event()
         try:  # to see it exit should its fork server die first
             self._pidfd: Optional[int] = os.pidfd_open(pid)
-        except ProcessLookupError:  # exited already: its status is on its way
-            self._pidfd = None
-        except OSError:  # no pidfds here (a container's seccomp): -9 at once, then
-            self._pidfd = None
+        except OSError:  # exited already (its status is on its way), or no pidfds here
+            self._pidfd = None  # (a container's seccomp): then -9 at once, if orphaned
 
     def _exit(self, status: int) -> None:
         if self._exited.is_set():
@@ -163,10 +161,9 @@ class _ForkServer:
         self._requests: IO[bytes] = self.process.stdin
         self._replies = self.process.stdout
         self._lock = threading.Lock()  # one request at a time, answered in order
-        self._started: list[dict[str, Any]] = []
+        self._started: list[ForkedProcess | str] = []  # a fork, or why there is none
         self._answered = threading.Condition()
         self._children: dict[int, ForkedProcess] = {}
-        self._early: dict[int, int] = {}  # exits reported before their pid was handed out
         threading.Thread(target=self._read, name=f"fork server {module}", daemon=True).start()
 
     def alive(self) -> bool:
@@ -182,27 +179,23 @@ class _ForkServer:
                     self._answered.wait(0.5)
                 if not self._started:
                     raise RuntimeError(f"the fork server of {self.module} exited")
-                reply = self._started.pop(0)
-                if "error" in reply:
-                    raise OSError(reply["error"])
-                child = ForkedProcess(reply["pid"], [sys.executable, "-m", self.module])
-                self._children[child.pid] = child
-                if child.pid in self._early:
-                    child._exit(self._early.pop(child.pid))
+                child = self._started.pop(0)
+        if isinstance(child, str):
+            raise OSError(child)
         return child
 
     def _read(self) -> None:
         for line in self._replies:
             reply = json.loads(line)
-            with self._answered:
+            with self._answered:  # a pid always comes before its exit status
                 if "exited" in reply:
-                    child = self._children.pop(reply["exited"], None)
-                    if child is None:
-                        self._early[reply["exited"]] = reply["status"]
-                    else:
-                        child._exit(reply["status"])
+                    self._children.pop(reply["exited"])._exit(reply["status"])
+                elif "error" in reply:
+                    self._started.append(reply["error"])
                 else:
-                    self._started.append(reply)
+                    child = ForkedProcess(reply["pid"], [sys.executable, "-m", self.module])
+                    self._children[child.pid] = child
+                    self._started.append(child)
                 self._answered.notify_all()
         with self._answered:  # the fork server is gone: no status will come
             for child in self._children.values():
@@ -297,7 +290,6 @@ def _serve(module: str) -> None:
                     os.close(wake_write)
                     _child(loaded, module, request, title)
                 _reply({"pid": pid})
-        _reap()
 
 
 def _reap() -> None:
@@ -315,7 +307,9 @@ def _reply(message: dict[str, Any]) -> None:
     os.write(1, json.dumps(message).encode() + b"\n")
 
 
-def _child(loaded: Any, module: str, request: dict[str, Any], title: Any) -> None:
+def _child(
+    loaded: Any, module: str, request: dict[str, Any], title: Optional[Callable[[str], None]]
+) -> None:
     """In the fork: becomes `python -m module *argv` and never returns."""
     code = 1
     try:

@@ -51,10 +51,19 @@ class _StopRequest:
             os.write(self._write, b"\0")
 
     def wait(self, timeout: Optional[float]) -> bool:
-        """Waits at most `timeout` seconds (None: for ever) for the stop; True if asked."""
-        if select.select([self._read], [], [], timeout)[0]:
-            os.read(self._read, 4096)  # the handler has run, or runs before the check below
-        return self.event.is_set()
+        """Waits at most `timeout` seconds (None: for ever) for the stop; True if asked.
+
+        A byte may come before the Python handler has run (it runs on the main thread's
+        next instructions, and writes a byte of its own): the wait goes on until the stop
+        is set or the time is up."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self.event.is_set():
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                return False
+            if select.select([self._read], [], [], left)[0]:
+                os.read(self._read, 4096)
+        return True
 
 
 def _stop_when_orphaned(parent_pid: int, stop: _StopRequest, poll_s: float = 1.0) -> None:
@@ -135,13 +144,9 @@ def serve_forever(
     threading.Thread(target=running.freed_memory.run, args=(stop.event,), daemon=True).start()
     if parent_pid is not None:
         threading.Thread(target=_stop_when_orphaned, args=(parent_pid, stop), daemon=True).start()
-    period = checkpoint_every_s or None
-    due = time.monotonic() + (period or 0.0)
-    while not stop.wait(None if period is None else max(0.0, due - time.monotonic())):
-        if period is not None and time.monotonic() >= due:
-            with suppress(StorageError):  # logged and counted by the core
-                core.checkpoint()  # periodic; sampling goes on while the file is written
-            due = time.monotonic() + period
+    while not stop.wait(checkpoint_every_s or None):
+        with suppress(StorageError):  # logged and counted by the core
+            core.checkpoint()  # periodic; sampling goes on while the file is written
     running.health.enter_graceful_shutdown()
     with suppress(StorageError):
         core.checkpoint()
