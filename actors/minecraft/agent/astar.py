@@ -21,7 +21,12 @@ destroyed set), which is independent of the order the blocks were destroyed in.
 
 The heuristic is admissible: every move changes the horizontal Manhattan distance by at
 most 1 and costs at least 1; a rise of one block needs a jump (cost 2, which also moves 1
-sideways); a move descends at most 3 blocks. Destroy costs are not counted.
+sideways); a move descends at most 3 blocks. Destroy costs are not counted, but for the
+goal's own two cells: standing there needs their solid blocks broken, 5 each.
+
+The search itself is compiled (``astar_kernel``, numba): a search that cannot reach its
+goal spends its whole budget, and in Python such searches were half the tree's CPU in a
+world (``python bench/astar_search.py`` measures it).
 
 Coordinates are grid indices ``(x, y, z)``; the grid array is indexed ``[y, z, x]`` (Malmo's
 order: x fastest, then z, then y). The caller re-plans every tick; ``Planner`` memoises
@@ -32,16 +37,14 @@ dictionary lookup.
 from __future__ import annotations
 
 import functools
-import heapq
-import itertools
-import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
 from actors.minecraft import blocks as B
+from actors.minecraft.agent import astar_kernel
+from actors.minecraft.compiled import compile_lock
 
 Cell = tuple[int, int, int]
 
@@ -118,67 +121,13 @@ class Plan:
         return tuple(s.cell for s in self.steps if s.kind == "destroy")
 
 
-class _Node:
-    """A search node: the single changed element and links to the parent."""
-
-    __slots__ = ("parent", "pos", "broken", "g", "zkey", "last_destroy")
-
-    def __init__(
-        self,
-        parent: Optional[_Node],
-        pos: Cell,
-        broken: Optional[int],
-        g: float,
-        zkey: int,
-    ) -> None:
-        self.parent = parent
-        self.pos = pos
-        self.broken = broken  # flat index of the block destroyed to reach this node
-        self.g = g
-        self.zkey = zkey
-        if broken is not None:
-            self.last_destroy: Optional[_Node] = self
-        else:
-            self.last_destroy = parent.last_destroy if parent is not None else None
-
-    def destroyed_cells(self) -> list[int]:
-        """Flat indices of the blocks destroyed on the way to this node."""
-        out = []
-        n = self.last_destroy
-        while n is not None:
-            assert n.broken is not None
-            out.append(n.broken)
-            p = n.parent
-            n = p.last_destroy if p is not None else None
-        return out
-
-    def destroyed(self, flat_index: int) -> bool:
-        """Whether the block at ``flat_index`` was destroyed on the way to this node."""
-        n = self.last_destroy
-        while n is not None:
-            if n.broken == flat_index:
-                return True
-            p = n.parent
-            n = p.last_destroy if p is not None else None
-        return False
-
-
-def heuristic(pos: Cell, goal: Cell) -> float:
-    """Admissible cost-to-go from ``pos`` to ``goal`` (destroys not counted)."""
-    hd = abs(goal[0] - pos[0]) + abs(goal[2] - pos[2])
-    dy = goal[1] - pos[1]
-    if dy > 0:
-        return JUMP_COST * dy + max(0, hd - dy) * MOVE_COST
-    return max(hd, math.ceil(-dy / MAX_DROP)) * MOVE_COST
-
-
 @functools.cache
-def _zobrist(n: int) -> list[int]:
+def _zobrist(n: int) -> np.ndarray:
     """Random 63-bit keys, one per cell; a destroyed set hashes to the XOR of its keys."""
-    return np.random.default_rng(0x5EED).integers(1, 2**63, size=n, dtype=np.int64).tolist()
+    return np.random.default_rng(0x5EED).integers(1, 2**63, size=n, dtype=np.int64)
 
 
-def _breakable(grid: np.ndarray) -> bytes:
+def _breakable(grid: np.ndarray) -> np.ndarray:
     """Per cell (flat, Malmo order): 1 for a solid block no water or lava touches."""
     liquid = np.isin(grid, (WATER, LAVA))
     touched = liquid.copy()
@@ -188,204 +137,44 @@ def _breakable(grid: np.ndarray) -> bytes:
         lo[axis], hi[axis] = slice(None, -1), slice(1, None)
         touched[tuple(hi)] |= liquid[tuple(lo)]  # the cell above / after a liquid
         touched[tuple(lo)] |= liquid[tuple(hi)]  # the cell below / before one
-    return ((grid == SOLID) & ~touched).astype(np.uint8).reshape(-1).tobytes()
+    return ((grid == SOLID) & ~touched).astype(np.uint8).reshape(-1)
 
 
-class _Search:
-    """One A* search over a fixed grid."""
+def _goal_solids(
+    cells: np.ndarray, dims: tuple[int, int, int], goals: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per goal, the solid blocks in its own two cells (feet, head): their number, and
+    (cell, goal) rows. Standing there needs them broken, whatever the way in."""
+    nx, ny, nz = dims
+    counts = np.zeros(len(goals), dtype=np.int64)
+    pairs = []
+    for k, (x, y, z) in enumerate(goals.tolist()):
+        for cy in (y, y + 1):
+            if 0 <= x < nx and 0 <= cy < ny and 0 <= z < nz:
+                i = (cy * nz + z) * nx + x
+                if cells[i] == SOLID:
+                    counts[k] += 1
+                    pairs.append((i, k))
+    return counts, np.array(pairs, dtype=np.int64).reshape(-1, 2)
 
-    def __init__(self, grid: np.ndarray, goals: frozenset[Cell], sets_per_position: int) -> None:
-        self.sets_per_position = sets_per_position
-        if grid.ndim != 3:
-            raise ValueError(f"grid must be 3-D [y, z, x], got shape {grid.shape}")
-        self.ny, self.nz, self.nx = grid.shape
-        self.cells = bytes(np.ascontiguousarray(grid, dtype=np.uint8).reshape(-1))
-        self._breakable = _breakable(grid)
-        self.goals = goals
-        self.zobrist = _zobrist(len(self.cells))
-        # h's parts: each goal with its solid own cells, and solid cell -> goals it blocks.
-        self._goal_terms: list[tuple[Cell, int]] = []
-        self._goal_solids: dict[int, list[int]] = {}
-        for k, g in enumerate(goals):
-            solid = [i for c in (g, (g[0], g[1] + 1, g[2])) if self._is_solid(i := self.index(c))]
-            self._goal_terms.append((g, len(solid)))
-            for i in solid:
-                self._goal_solids.setdefault(i, []).append(k)
-        self._h_at: dict[Cell, tuple[float, list[float]]] = {}
 
-    def _is_solid(self, i: int) -> bool:
-        return i >= 0 and self.cells[i] == SOLID
+def warm_up() -> None:
+    """Compiles the search (or loads it from numba's cache), one process at a time
+    (``compiled.compile_lock``), so a client's first plan does not wait for the compiler."""
+    if astar_kernel.search.signatures:  # compiled in this process already
+        return
+    with compile_lock("astar"):
+        ints = np.zeros(3, dtype=np.int64)
+        cells = np.zeros(1, dtype=np.uint8)
+        none = np.zeros((0, 3), dtype=np.int64)
+        astar_kernel.search(ints, cells, cells, ints, ints, none, ints, none[:, :2].copy(), 0, 0)
 
-    # ---------------------------------------------------------------- cells
-    def index(self, c: Cell) -> int:
-        """Flat index of cell ``c``, or -1 outside the grid."""
-        x, y, z = c
-        if 0 <= x < self.nx and 0 <= y < self.ny and 0 <= z < self.nz:
-            return (y * self.nz + z) * self.nx + x
-        return -1
 
-    def cat(self, c: Cell, node: _Node) -> int:
-        """Category of ``c`` in the node's state (outside the grid: hard)."""
-        x, y, z = c
-        if not (0 <= x < self.nx and 0 <= y < self.ny and 0 <= z < self.nz):
-            return HARD
-        i = (y * self.nz + z) * self.nx + x
-        k = self.cells[i]
-        if k == SOLID and node.destroyed(i):
-            return FREE
-        return k
-
-    def breakable(self, c: Cell) -> bool:
-        """A solid block that may be destroyed: no liquid touches it."""
-        i = self.index(c)
-        return i >= 0 and self._breakable[i] == 1
-
-    def landing(self, c: Cell, node: _Node, below_first: int = 1) -> Optional[Cell]:
-        """Where a body whose feet enter free cell ``c`` comes to rest, if safely.
-
-        Returns None for a drop longer than MAX_DROP, into a liquid, or off the grid.
-        """
-        x, y, z = c
-        for d in range(0, MAX_DROP + 1):
-            under = self.cat((x, y - d - 1, z), node)
-            here = self.cat((x, y - d, z), node)
-            if here != FREE:
-                return None
-            if under in (SOLID, HARD):
-                return (x, y - d, z)
-            if under != FREE:
-                return None  # water or lava below
-        return None
-
-    # ------------------------------------------------------------ successors
-    def blockers(self, cells: list[Cell], node: _Node) -> Optional[list[Cell]]:
-        """Solid cells among ``cells`` to destroy (in order), or None if one cannot be."""
-        out = []
-        for c in cells:
-            k = self.cat(c, node)
-            if k == FREE:
-                continue
-            if k != SOLID or not self.breakable(c):
-                return None
-            out.append(c)
-        return out
-
-    def options(self, node: _Node) -> list[tuple[list[Cell], Cell, float]]:
-        """Moves from ``node``: (blocks to destroy first, top first; target cell; cost of
-        the move itself). The landing is resolved after the destroys."""
-        x, y, z = node.pos
-        out: list[tuple[list[Cell], Cell, float]] = []
-        for dx, dz in HORIZONTAL:
-            nx_, nz_ = x + dx, z + dz
-            feet, head = (nx_, y, nz_), (nx_, y + 1, nz_)
-            if self.cat(feet, node) in (SOLID, HARD):
-                # Jump onto the obstacle: head room above us and two free cells above it.
-                up = self.blockers([(x, y + 2, z), (nx_, y + 2, nz_), head], node)
-                if up is not None:
-                    out.append((up, head, JUMP_COST))
-            walk = self.blockers([head, feet], node)
-            if walk is not None:
-                out.append((walk, feet, MOVE_COST))
-        down = self.blockers([(x, y - 1, z)], node)
-        if down is not None:
-            out.append((down, (x, y - 1, z), MOVE_COST))
-        return out
-
-    def successors(self, node: _Node) -> list[_Node]:
-        """Arrival nodes reachable from ``node``, each with its destroy nodes chained
-        in between (one changed element per node)."""
-        out = []
-        for blocks, target, cost in self.options(node):
-            n = node
-            for c in blocks:
-                i = self.index(c)
-                n = _Node(n, n.pos, i, n.g + DESTROY_COST, n.zkey ^ self.zobrist[i])
-            land = self.landing(target, n)
-            if land is None:
-                continue
-            if cost == JUMP_COST and land != target:
-                continue  # a jump must land on the obstacle
-            out.append(_Node(n, land, None, n.g + cost, n.zkey))
-        return out
-
-    def cell(self, i: int) -> Cell:
-        """Cell (x, y, z) of a flat index."""
-        yz, x = divmod(i, self.nx)
-        y, z = divmod(yz, self.nz)
-        return (x, y, z)
-
-    def unwind(self, node: _Node) -> tuple[Step, ...]:
-        """The steps from the root to ``node``, following parent pointers."""
-        steps: list[Step] = []
-        n: Optional[_Node] = node
-        while n is not None and n.parent is not None:
-            if n.broken is not None:
-                steps.append(Step("destroy", self.cell(n.broken)))
-            else:
-                steps.append(Step("move", n.pos))
-            n = n.parent
-        return tuple(reversed(steps))
-
-    # ----------------------------------------------------------------- search
-    def h(self, node: _Node) -> float:
-        """Admissible: the move bound plus 5 per solid block in the goal's own two cells
-        (standing there needs them broken, whatever the way in).
-
-        The bound at a position with nothing destroyed is kept per position; a node's
-        destroyed blocks change it only when one of them is a goal's own cell."""
-        at = self._h_at.get(node.pos)
-        if at is None:
-            at = self._h_at[node.pos] = self._h_intact(node.pos)
-        bound, per_goal = at
-        if node.last_destroy is None or not self._goal_solids:
-            return bound
-        opened = [i for i in node.destroyed_cells() if i in self._goal_solids]
-        if not opened:
-            return bound
-        v = list(per_goal)
-        for i in opened:
-            for k in self._goal_solids[i]:
-                v[k] -= DESTROY_COST
-        return min(v)
-
-    def _h_intact(self, pos: Cell) -> tuple[float, list[float]]:
-        """(h with nothing destroyed, each goal's term of that minimum)."""
-        v = [heuristic(pos, g) + DESTROY_COST * n for g, n in self._goal_terms]
-        return min(v), v
-
-    def run(self, start: Cell, max_expansions: int) -> Plan:
-        if not self.goals:
-            return Plan((), 0.0, False, 0)
-        counter = itertools.count()
-        root = _Node(None, start, None, 0.0, 0)
-        best_g: dict[tuple[Cell, int], float] = {(start, 0): 0.0}
-        h0 = self.h(root)
-        expansions_at: dict[Cell, int] = {}
-        heap: list[tuple[float, float, int, _Node]] = [(h0, -0.0, next(counter), root)]
-        best, best_h = root, h0
-        expanded = 0
-        while heap and expanded < max_expansions:
-            _, _, _, node = heapq.heappop(heap)
-            if best_g.get((node.pos, node.zkey), math.inf) < node.g:
-                continue  # a stale entry
-            if node.pos in self.goals:
-                return Plan(self.unwind(node), node.g, True, expanded)
-            seen = expansions_at.get(node.pos, 0)
-            if seen >= self.sets_per_position:
-                continue
-            expansions_at[node.pos] = seen + 1
-            expanded += 1
-            hn = self.h(node)
-            if hn < best_h or (hn == best_h and node.g < best.g):
-                best, best_h = node, hn
-            for child in self.successors(node):
-                g = child.g
-                key = (child.pos, child.zkey)
-                if g < best_g.get(key, math.inf):
-                    best_g[key] = g
-                    # Ties on f go to the deeper node (larger g): fewer re-expansions.
-                    heapq.heappush(heap, (g + self.h(child), -g, next(counter), child))
-        return Plan(self.unwind(best), best.g, False, expanded)
+def _cell(i: int, nx: int, nz: int) -> Cell:
+    """Cell (x, y, z) of a flat index."""
+    yz, x = divmod(i, nx)
+    y, z = divmod(yz, nz)
+    return (x, y, z)
 
 
 def plan(
@@ -410,9 +199,41 @@ def plan(
             thousand nodes and only matters for paths that come back to a position
             with a different set of broken blocks.
     """
-    x, y, z = start
-    search = _Search(grid, frozenset(goals), sets_per_position)
-    return search.run((x, y, z), max_expansions)
+    end, reached, expanded, parent, pos, broken, g = _search(
+        grid, start, goals, max_expansions, sets_per_position
+    )
+    nx, nz = grid.shape[2], grid.shape[1]
+    steps: list[Step] = []
+    n = int(end)
+    while parent[n] != -1:
+        if broken[n] != -1:
+            steps.append(Step("destroy", _cell(int(broken[n]), nx, nz)))
+        else:
+            steps.append(Step("move", _cell(int(pos[n]), nx, nz)))
+        n = int(parent[n])
+    return Plan(tuple(reversed(steps)), float(g[end]), bool(reached), int(expanded))
+
+
+def _search(
+    grid: np.ndarray,
+    start: Cell,
+    goals: Iterable[Cell],
+    max_expansions: int,
+    sets_per_position: int,
+) -> tuple:
+    """The compiled search's answer (``astar_kernel.search``) for these arguments."""
+    if grid.ndim != 3:
+        raise ValueError(f"grid must be 3-D [y, z, x], got shape {grid.shape}")
+    ny, nz, nx = grid.shape
+    cells = np.ascontiguousarray(grid, dtype=np.uint8).reshape(-1)
+    goal_cells = np.array(sorted(set(goals)), dtype=np.int64).reshape(-1, 3)
+    counts, pairs = _goal_solids(cells, (nx, ny, nz), goal_cells)
+    warm_up()
+    return astar_kernel.search(
+        np.array([nx, ny, nz], dtype=np.int64), cells, _breakable(grid), _zobrist(cells.size),
+        np.array(start, dtype=np.int64), goal_cells, counts, pairs, max_expansions,
+        sets_per_position,
+    )  # fmt: skip
 
 
 class Planner:

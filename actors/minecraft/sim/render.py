@@ -8,19 +8,14 @@ Rows are returned bottom-up, the OpenGL order in which Malmo sends frames (malmo
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import math
-import os
-import tempfile
-from collections.abc import Iterator
 from functools import lru_cache
-from pathlib import Path
 
 import numba
 import numpy as np
 
 from actors.minecraft import blocks as B
+from actors.minecraft.compiled import compile_lock
 from actors.minecraft.sim.world import World
 
 FOV_Y = 70.0  # Minecraft's default vertical field of view, degrees
@@ -94,29 +89,11 @@ def warm_up() -> None:
     """Compiles the frame's kernels (or loads them from numba's cache), so a world
     server's first frame does not wait for the compiler.
 
-    One process compiles at a time. World servers started together on a fresh install (a
-    fleet of clients, the test suite) would each spend seconds of CPU compiling the same
-    kernels; behind the lock the first writes numba's cache and the others load it
-    (`python bench/render_compile.py` measures both)."""
+    One process compiles at a time (``compiled.compile_lock``)."""
     if _draw.signatures:  # compiled in this process already
         return
-    with _compile_lock():
+    with compile_lock("render"):
         compile_kernels()
-
-
-@contextlib.contextmanager
-def _compile_lock() -> Iterator[None]:
-    """An exclusive lock, per user, over compiling the kernels (none if the file cannot be
-    opened: then each process compiles alone, as without the lock)."""
-    path = Path(tempfile.gettempdir()) / f"graft-render-compile-{os.getuid()}.lock"
-    try:
-        file = path.open("a")
-    except OSError:
-        yield
-        return
-    with file:  # closing the file releases the lock
-        fcntl.flock(file, fcntl.LOCK_EX)
-        yield
 
 
 def compile_kernels() -> None:

@@ -3,10 +3,16 @@ case), unreachable goals, safety around lava and caves, and re-planning."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from actors.minecraft.agent import astar as A
+from actors.minecraft.agent import astar_kernel as K
+
+FIXTURES = Path(__file__).resolve().parents[3] / "fixtures"
 
 N = 15
 
@@ -139,55 +145,89 @@ def test_replans_when_a_block_appears() -> None:
     assert all(s.cell != (5, 1, 7) for s in second.steps)
 
 
-def test_state_chain_stores_one_change_per_node() -> None:
+def test_each_node_stores_one_change_from_its_parent() -> None:
     g = np.full((N, N, N), A.SOLID, dtype=np.uint8)
     g[7:9, 7, 7] = A.FREE
-    search = A._Search(g, frozenset({(9, 7, 7)}), 2)
-    root = A._Node(None, (7, 7, 7), None, 0.0, 0)
-    kids = search.successors(root)
-    east = next(k for k in kids if k.pos == (8, 7, 7))
-    # The arrival node changed only the position; its parents each destroyed one block.
-    assert east.broken is None and east.parent is not None
-    assert east.parent.broken is not None and east.parent.parent.broken is not None
-    assert east.parent.parent.parent is root
-    assert east.destroyed(search.index((8, 8, 7))) and east.destroyed(search.index((8, 7, 7)))
-    assert not root.destroyed(search.index((8, 7, 7)))
+    end, reached, _, parent, pos, broken, _ = A._search(g, (7, 7, 7), [(9, 7, 7)], 100, 2)
+    assert reached
+    # A destroy node keeps its parent's position; an arrival (a move) destroyed nothing.
+    for n in range(1, len(parent)):
+        assert broken[n] == -1 or pos[n] == pos[parent[n]]
+    # The plan's own chain: head and feet of each cell broken, then the move, twice.
+    kinds = []
+    n = int(end)
+    while parent[n] != -1:
+        kinds.append("destroy" if broken[n] != -1 else "move")
+        n = int(parent[n])
+    assert kinds[::-1] == ["destroy", "destroy", "move"] * 2 and n == 0
 
 
-def test_kept_heuristic_and_breakable_flags_match_their_definitions() -> None:
-    """The per-position cache of h and the precomputed breakable flags give what the
-    definitions give: h = min over goals of the move bound + 5 per solid goal cell not
-    destroyed on the way; breakable = solid with no water or lava among its 6 neighbours."""
+def _h_by_definition(pos, goals, grid, destroyed) -> float:
+    """min over goals of the move bound + 5 per solid block of the goal's own two cells not
+    destroyed, straight from the docstring's words."""
+
+    def solid(c) -> bool:
+        x, y, z = c
+        inside = 0 <= x < N and 0 <= y < N and 0 <= z < N
+        return inside and grid[y, z, x] == A.SOLID and (y * N + z) * N + x not in destroyed
+
+    best = np.inf
+    for gx, gy, gz in goals:
+        hd = abs(gx - pos[0]) + abs(gz - pos[2])
+        dy = gy - pos[1]
+        bound = 2.0 * dy + max(0, hd - dy) if dy > 0 else float(max(hd, -(dy // 3)))
+        best = min(best, bound + 5.0 * (solid((gx, gy, gz)) + solid((gx, gy + 1, gz))))
+    return best
+
+
+def test_the_kept_heuristic_and_breakable_flags_match_their_definitions() -> None:
+    """The search's h (terms kept per position, less 5 per goal block destroyed on the way)
+    is the docstring's h; breakable = solid with no water or lava among its 6 neighbours."""
     rng = np.random.default_rng(7)
     for _ in range(20):
         g = rng.choice(
             [A.FREE, A.SOLID, A.HARD, A.WATER, A.LAVA], (N, N, N), p=[0.4, 0.4, 0.1, 0.05, 0.05]
         )
         g = g.astype(np.uint8)
-        goals = frozenset(tuple(int(v) for v in rng.integers(-1, N + 1, 3)) for _ in range(6))
-        search = A._Search(g, goals, 4)
+        breakable = A._breakable(g)
         for c in np.ndindex(N, N, N):
             liquid = any(
                 0 <= c[0] + d[0] < N and 0 <= c[1] + d[1] < N and 0 <= c[2] + d[2] < N
                 and g[c[1] + d[1], c[2] + d[2], c[0] + d[0]] in (A.WATER, A.LAVA)
                 for d in A.NEIGHBOURS6
             )  # fmt: skip
-            assert search.breakable(c) == (g[c[1], c[2], c[0]] == A.SOLID and not liquid)
-        # Nodes that destroyed goal cells, other solid cells, or nothing.
-        goal_cells = [c for gl in goals for c in (gl, (gl[0], gl[1] + 1, gl[2]))]
+            flat = (c[1] * N + c[2]) * N + c[0]
+            assert breakable[flat] == (g[c[1], c[2], c[0]] == A.SOLID and not liquid)
+        goals = sorted({tuple(int(v) for v in rng.integers(-1, N + 1, 3)) for _ in range(6)})
+        goal_cells = np.array(goals, dtype=np.int64)
+        counts, pairs = A._goal_solids(g.reshape(-1), (N, N, N), goal_cells)
+        own = [i for i, _ in pairs.tolist()]
+        known = np.zeros(N**3 + 1, dtype=np.bool_)
+        terms, bound = np.empty((N**3 + 1, len(goals))), np.empty(N**3 + 1)
         for _ in range(50):
-            node = A._Node(None, tuple(int(v) for v in rng.integers(0, N, 3)), None, 0.0, 0)
-            for _ in range(int(rng.integers(0, 4))):
-                c = goal_cells[int(rng.integers(len(goal_cells)))] if rng.random() < 0.5 else (
-                    tuple(int(v) for v in rng.integers(0, N, 3))
-                )  # fmt: skip
-                i = search.index(c)
-                if i >= 0 and search.cat(c, node) == A.SOLID:  # as the search breaks blocks
-                    node = A._Node(node, node.pos, i, node.g + 5, 0)
-            node = A._Node(node, tuple(int(v) for v in rng.integers(0, N, 3)), None, node.g, 0)
-            expected = min(
-                A.heuristic(node.pos, gl)
-                + 5.0 * sum(search.cat(c, node) == A.SOLID for c in (gl, (gl[0], gl[1] + 1, gl[2])))
-                for gl in goals
-            )
-            assert search.h(node) == expected
+            pos = tuple(int(v) for v in rng.integers(0, N, 3))
+            p = (pos[1] * N + pos[2]) * N + pos[0]
+            # Destroyed on the way: some of the goals' own blocks, some others.
+            destroyed = {i for i in own if rng.random() < 0.3}
+            destroyed |= {int(i) for i in rng.integers(0, N**3, 3) if g.reshape(-1)[i] == A.SOLID}
+            opened = np.zeros(len(goals), dtype=np.int64)
+            for i, k in pairs.tolist():
+                opened[k] += i in destroyed
+            h = K._h(p, np.array(pos, dtype=np.int64), opened, int(opened.sum()), known, terms,
+                     bound, goal_cells, counts)  # fmt: skip
+            assert h == _h_by_definition(pos, goals, g, destroyed)
+
+
+def test_plans_are_those_the_python_search_made_on_recorded_worlds() -> None:
+    """36 searches of the diamond tree in three worlds (bench/diamond.py's seeds 1-3), planned
+    by the search in Python before it was compiled: 12 that spent their whole budget, the
+    others reached. The compiled search makes the same plans, node for node."""
+    recorded = np.load(FIXTURES / "astar_plans.npz")
+    cases = json.loads(str(recorded["cases"]))
+    assert len(cases) == len(recorded["grids"]) == 36
+    for grid, case in zip(recorded["grids"], cases, strict=True):
+        goals = [tuple(c) for c in case["goals"]]
+        p = A.plan(grid, tuple(case["start"]), goals, max_expansions=case["max_expansions"])
+        assert [[s.kind, list(s.cell)] for s in p.steps] == case["steps"], case["start"]
+        assert (p.cost, p.reached, p.expanded) == (case["cost"], case["reached"], case["expanded"])
+    assert sum(not c["reached"] for c in cases) == 12

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from actors.minecraft.compiled import compile_lock
 from actors.minecraft.malmo.mission import parse_mission
 from actors.minecraft.malmo.mission_xml import mission_xml
-from actors.minecraft.sim import render as render_module
 from actors.minecraft.sim.render import render
 from actors.minecraft.sim.world import World
 from tests.actors.minecraft.conftest import FLAT, GROUND
@@ -53,7 +53,7 @@ def test_world_servers_compile_the_frame_kernels_one_at_a_time() -> None:
         "from actors.minecraft.sim import render; print('imported', flush=True); "
         "render.warm_up(); print('compiled', flush=True)"
     )
-    with render_module._compile_lock():
+    with compile_lock("render"):
         child = subprocess.Popen(
             [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, cwd=REPO
         )
