@@ -19,6 +19,7 @@ session is loaded afresh only by new actors (wait `KEEP_S`, or start Ray again).
 
 from __future__ import annotations
 
+import gc
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -100,6 +101,13 @@ class KeptActors:
                 return
             del self._kept[role]
         _end(kept)
+        # The ended actors' handles, and objects of the finished runs, may still sit in
+        # reference cycles (a run's parts refer to each other). A Ray worker that ran a
+        # run as a task (`graft experiment`'s seeds) then idles and allocates nothing, so
+        # Python's cycle collector never runs there; and Ray never ends a worker that still
+        # holds references it owns: each such worker stayed, with torch loaded, for the
+        # cluster's life. Collected now, the worker ends a second later.
+        gc.collect()
 
 
 def take_or_start(

@@ -4,6 +4,7 @@ Ray."""
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -91,6 +92,28 @@ def test_an_actor_no_run_takes_is_ended_after_keep_s(ray_local):
     assert kept.held("helper") == [actor]
     assert _ended(actor)
     assert kept.held("helper") == [] and kept.take("helper", "a") is None
+
+
+@ray.remote(num_cpus=0, runtime_env={"env_vars": {"GRAFT_TEST_FRESH_WORKER": "kept"}})
+def _a_run_in_a_task() -> int:
+    """As a run inside a Ray task leaves things: an actor kept, its handle also held by a
+    reference cycle of the run's objects. The task's worker (its own: a runtime
+    environment no other task has) pid."""
+    kept = KeptActors(keep_s=0.3)
+    run: dict = {"actor": _Idle.remote()}
+    run["self"] = run
+    kept.keep("helper", "a", run["actor"])
+    return os.getpid()
+
+
+def test_a_task_worker_whose_kept_actors_ended_is_ended_too(ray_local):
+    import psutil  # Ray's vendored copy, importable once Ray is
+
+    pid = ray.get(_a_run_in_a_task.remote())
+    deadline = time.monotonic() + 30.0
+    while psutil.pid_exists(pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not psutil.pid_exists(pid), "the worker stayed, holding the ended actor's handle"
 
 
 def test_of_several_kept_actors_those_no_run_takes_are_ended(ray_local):

@@ -3,6 +3,7 @@ processes graft does not use."""
 
 from __future__ import annotations
 
+import os
 import time
 
 import pytest
@@ -63,23 +64,28 @@ def test_a_local_instance_runs_without_a_log_monitor(ray_local) -> None:
 
 def test_a_local_instance_keeps_no_idle_worker(ray_local) -> None:
     # Its workers are ended a second after their task (Ray keeps one per CPU by default,
-    # each costing about 1 % of a core while it waits).
-    ray.get([ray.remote(lambda: 7).remote() for _ in range(2)])
+    # each costing about 1 % of a core while it waits). The tasks get workers of their own
+    # (a runtime environment no earlier task had), whose ends are watched: a worker an
+    # earlier test left may still own objects or actors, and Ray keeps such a worker.
+    fresh = ray.remote(lambda: os.getpid()).options(
+        runtime_env={"env_vars": {"GRAFT_TEST_FRESH_WORKER": "1"}}
+    )
+    pids = set(ray.get([fresh.remote() for _ in range(2)]))
     deadline = time.monotonic() + 30.0
-    while _idle_workers() and time.monotonic() < deadline:
+    while pids & _idle_workers() and time.monotonic() < deadline:
         time.sleep(0.2)
-    assert _idle_workers() == []
+    assert pids & _idle_workers() == set()
 
 
-def _idle_workers() -> list[int]:
+def _idle_workers() -> set[int]:
     """Worker processes of this session's instance waiting for work."""
     import psutil  # Ray's vendored copy, importable once Ray is
 
-    idle = []
+    idle = set()
     for child in psutil.Process().children(recursive=True):
         try:
             if child.cmdline()[:1] == ["ray::IDLE"]:
-                idle.append(child.pid)
+                idle.add(child.pid)
         except psutil.Error:
             pass
     return idle
