@@ -43,53 +43,49 @@ def _slot(keys_pos, keys_z, p, z):
 
 
 @numba.njit(inline="always")
-def _before(hf, hg, hc, a, b):
-    """Heap order: lower f, then larger g (its negation lower), then earlier pushed."""
-    if hf[a] != hf[b]:
-        return hf[a] < hf[b]
-    if hg[a] != hg[b]:
-        return hg[a] < hg[b]
-    return hc[a] < hc[b]
+def _before(f, g, a, b):
+    """Open-list order of nodes ``a`` and ``b``: lower f, then larger g, then the one pushed
+    first (a lower index: nodes are pushed in the order they are made)."""
+    if f[a] != f[b]:
+        return f[a] < f[b]
+    if g[a] != g[b]:
+        return g[a] > g[b]
+    return a < b
 
 
 @numba.njit(inline="always")
-def _push(hf, hg, hc, hn, size, f, negative_g, count, node):
-    """Adds an entry to the binary heap of ``size`` entries (arrays f, -g, push count,
-    node); the new size."""
+def _push(heap, size, node, f, g):
+    """Adds ``node`` to the binary heap of ``size`` nodes; the new size."""
     i = size
-    hf[i], hg[i], hc[i], hn[i] = f, negative_g, count, node
     while i > 0:
         up = (i - 1) // 2
-        if not _before(hf, hg, hc, i, up):
+        if not _before(f, g, node, heap[up]):
             break
-        hf[i], hf[up] = hf[up], hf[i]
-        hg[i], hg[up] = hg[up], hg[i]
-        hc[i], hc[up] = hc[up], hc[i]
-        hn[i], hn[up] = hn[up], hn[i]
+        heap[i] = heap[up]
         i = up
+    heap[i] = node
     return size + 1
 
 
 @numba.njit(inline="always")
-def _pop(hf, hg, hc, hn, size):
-    """Removes the first entry of the heap; its node (the new size is ``size - 1``)."""
-    node = hn[0]
+def _pop(heap, size, f, g):
+    """Removes the first node of the heap and returns it (the new size is ``size - 1``)."""
+    first = heap[0]
     size -= 1
-    hf[0], hg[0], hc[0], hn[0] = hf[size], hg[size], hc[size], hn[size]
+    last = heap[size]
     i = 0
     while True:
-        first, left = i, 2 * i + 1
-        if left < size and _before(hf, hg, hc, left, first):
-            first = left
-        if left + 1 < size and _before(hf, hg, hc, left + 1, first):
-            first = left + 1
-        if first == i:
-            return node
-        hf[i], hf[first] = hf[first], hf[i]
-        hg[i], hg[first] = hg[first], hg[i]
-        hc[i], hc[first] = hc[first], hc[i]
-        hn[i], hn[first] = hn[first], hn[i]
-        i = first
+        child = 2 * i + 1
+        if child >= size:
+            break
+        if child + 1 < size and _before(f, g, heap[child + 1], heap[child]):
+            child += 1
+        if not _before(f, g, heap[child], last):
+            break
+        heap[i] = heap[child]
+        i = child
+    heap[i] = last
+    return first
 
 
 @numba.njit(inline="always")
@@ -141,7 +137,7 @@ def _landing(x, y, z, dims, cells, stamp, mark):
     return -1
 
 
-@numba.njit(cache=True, inline="always")  # cached: the tests call it alone
+@numba.njit(inline="always")
 def _h(p, xyz, opened, n_opened, known, terms, bound, goals, goal_solid_count):
     """Admissible cost-to-go at position ``p`` (cell ``xyz``): per goal, ``astar.heuristic``
     plus 5 per solid block in the goal's own two cells not destroyed yet (``opened``
@@ -254,10 +250,9 @@ def search(
     best_g = np.empty(table)
     s = _slot(keys_pos, keys_z, start_id, 0)
     keys_pos[s], keys_z[s], best_g[s] = start_id, 0, 0.0
-    # The open list: a binary heap of (f, -g, push count, node) in four arrays.
-    heap_f, heap_g = np.empty(capacity), np.empty(capacity)
-    heap_c = np.empty(capacity, dtype=np.int64)
-    heap_n = np.empty(capacity, dtype=np.int64)
+    # The open list: a binary heap of nodes, ordered by their f (kept per node) and g.
+    heap = np.empty(capacity, dtype=np.int64)
+    f = np.empty(capacity)
 
     blocks = np.empty(3, dtype=np.int64)
     cs = np.empty((3, 3), dtype=np.int64)
@@ -267,13 +262,13 @@ def search(
     opt_cost = np.empty(9)
 
     h0 = _h(start_id, xyz[start_id], opened, 0, known, terms, bound, goals, goal_solid_count)
-    counter = 0
-    open_size = _push(heap_f, heap_g, heap_c, heap_n, 0, h0, -0.0, counter, 0)
+    f[0] = h0
+    open_size = _push(heap, 0, 0, f, g)
     best, best_h = 0, h0
     expanded = 0
     mark = -1
     while open_size > 0 and expanded < max_expansions:
-        n = _pop(heap_f, heap_g, heap_c, heap_n, open_size)
+        n = _pop(heap, open_size, f, g)
         open_size -= 1
         p = pos[n]
         s = _slot(keys_pos, keys_z, p, zkey[n])
@@ -362,12 +357,11 @@ def search(
                 s = _slot(keys_pos, keys_z, pos[child], zkey[child])
                 if keys_pos[s] == -1 or g[child] < best_g[s]:
                     keys_pos[s], keys_z[s], best_g[s] = pos[child], zkey[child], g[child]
-                    f = g[child] + _h(pos[child], xyz[pos[child]], opened, n_opened + more,
-                                      known, terms, bound, goals, goal_solid_count)  # fmt: skip
+                    f[child] = g[child] + _h(pos[child], xyz[pos[child]], opened,
+                                             n_opened + more, known, terms, bound, goals,
+                                             goal_solid_count)  # fmt: skip
                     # Ties on f go to the deeper node (larger g): fewer re-expansions.
-                    counter += 1
-                    open_size = _push(heap_f, heap_g, heap_c, heap_n, open_size, f, -g[child],
-                                      counter, child)  # fmt: skip
+                    open_size = _push(heap, open_size, child, f, g)
             for j in range(opt_count[o]):
                 i = opt_blocks[o, j]
                 stamp[i] = -1

@@ -101,13 +101,15 @@ class KeptActors:
                 return
             del self._kept[role]
         _end(kept)
-        # The ended actors' handles, and objects of the finished runs, may still sit in
-        # reference cycles (a run's parts refer to each other). A Ray worker that ran a
-        # run as a task (`graft experiment`'s seeds) then idles and allocates nothing, so
-        # Python's cycle collector never runs there; and Ray never ends a worker that still
-        # holds references it owns: each such worker stayed, with torch loaded, for the
-        # cluster's life. Collected now, the worker ends a second later.
-        gc.collect()
+        if ray.is_initialized() and ray.get_runtime_context().worker.mode == ray.WORKER_MODE:
+            # The ended actors' handles, and objects of the finished runs, may still sit in
+            # reference cycles (a run's parts refer to each other). A Ray worker that ran
+            # a run as a task (`graft experiment`'s seeds) then idles and allocates
+            # nothing, so Python's cycle collector never runs there; and Ray never ends a
+            # worker that still holds references it owns: each such worker stayed, with
+            # torch loaded, for the cluster's life. Collected now, it ends a second later.
+            # (A driver goes on allocating, and a collection there costs 0.1 s or more.)
+            gc.collect()
 
 
 def take_or_start(
