@@ -16,8 +16,7 @@ demo: setup
 TEST_PACKAGES := $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example-cartpole \
 	$(VENV)/.example-lunarlander $(VENV)/.example-halfcheetah
 # The suite is CPU-bound on 2 cores: two xdist workers (more cost CPU in contention than
-# they save in waits), a file per worker (a module's shared server or cluster stays on one),
-# the costly files first (tests/conftest.py's _cost_rank).
+# they save in waits), a file per worker (a module's shared server or cluster stays on one).
 # Tests that measure real-time pacing, or reuse a port across a restart, are marked
 # `serial`: they run beside the parallel part, in one process, at normal priority while
 # the parallel part is niced, so they get a core when they ask for one.
@@ -39,7 +38,7 @@ test: setup $(TEST_PACKAGES)
 	@$(COMPILE)
 	@log=$$(mktemp); \
 	$(PYTEST) -q -p no:cacheprovider -m "serial and $(TEST_SELECT)" > $$log 2>&1 & serial=$$!; \
-	nice -n 10 $(PYTEST) -q -n $(TEST_WORKERS) --dist $(TEST_DIST) --no-loadscope-reorder -m "not serial and $(TEST_SELECT)"; parallel=$$?; \
+	nice -n 10 $(PYTEST) -q -n $(TEST_WORKERS) --dist $(TEST_DIST) -m "not serial and $(TEST_SELECT)"; parallel=$$?; \
 	wait $$serial; real_time=$$?; \
 	echo "--- the real-time part (serial tests, run beside it):"; \
 	if [ $$real_time -eq 0 ]; then tail -n 1 $$log; else cat $$log; fi; rm -f $$log; \

@@ -75,27 +75,10 @@ QUICK = os.environ.get("GRAFT_TEST_FAST") == "1"
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Marks the tests that use a fixture starting Ray or a server process ``service``;
-    then puts the costly files first (see ``_cost_rank``)."""
+    """Marks the tests that use a fixture starting Ray or a server process ``service``."""
     for item in items:
         if SERVICE_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.service)
-    rank: dict[str, int] = {}
-    for item in items:
-        file = item.nodeid.split("::")[0]
-        rank[file] = min(rank.get(file, 2), _cost_rank(item))
-    items.sort(key=lambda item: rank[item.nodeid.split("::")[0]])  # stable: files stay whole
-
-
-def _cost_rank(item: pytest.Item) -> int:
-    """0 for a ``slow`` test, 1 for another ``service`` test, 2 for the rest. `make test`
-    hands whole files to its two workers in collection order (``--no-loadscope-reorder``;
-    xdist's own order, files with the most tests first, left a few costly one-test files
-    to the end, one worker running them while the other had finished): the costly files
-    first and the quick in-process ones last let the workers end together."""
-    if item.get_closest_marker("slow"):
-        return 0
-    return 1 if item.get_closest_marker("service") else 2
 
 
 class NotInTheFastSubset(RuntimeError):
