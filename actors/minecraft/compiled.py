@@ -9,8 +9,9 @@ import contextlib
 import fcntl
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 
 @contextlib.contextmanager
@@ -26,3 +27,13 @@ def compile_lock(kernels: str) -> Iterator[None]:
     with file:  # closing the file releases the lock
         fcntl.flock(file, fcntl.LOCK_EX)
         yield
+
+
+def compile_once(kernels: str, dispatcher: Any, compile: Callable[[], None]) -> None:
+    """Runs ``compile()`` (a call of numba ``dispatcher`` that compiles it, or loads it
+    from numba's cache) under ``compile_lock(kernels)``, unless this process has it
+    already."""
+    if dispatcher.signatures:  # compiled in this process already
+        return
+    with compile_lock(kernels):
+        compile()

@@ -24,9 +24,7 @@ most 1 and costs at least 1; a rise of one block needs a jump (cost 2, which als
 sideways); a move descends at most 3 blocks. Destroy costs are not counted, but for the
 goal's own two cells: standing there needs their solid blocks broken, 5 each.
 
-The search itself is compiled (``astar_kernel``, numba): a search that cannot reach its
-goal spends its whole budget, and in Python such searches were half the tree's CPU in a
-world (``python bench/astar_search.py`` measures it).
+The search itself is compiled (``astar_kernel``, numba; why, and by how much, there).
 
 Coordinates are grid indices ``(x, y, z)``; the grid array is indexed ``[y, z, x]`` (Malmo's
 order: x fastest, then z, then y). The caller re-plans every tick; ``Planner`` memoises
@@ -44,17 +42,22 @@ import numpy as np
 
 from actors.minecraft import blocks as B
 from actors.minecraft.agent import astar_kernel
-from actors.minecraft.compiled import compile_lock
+from actors.minecraft.agent.astar_kernel import (  # noqa: F401 (this module's API)
+    DESTROY_COST,
+    FREE,
+    HARD,
+    HORIZONTAL,
+    JUMP_COST,
+    LAVA,
+    MAX_DROP,
+    MOVE_COST,
+    SOLID,
+    WATER,
+)
+from actors.minecraft.compiled import compile_once
 
 Cell = tuple[int, int, int]
 
-# Cell categories of the planning grid.
-FREE, SOLID, HARD, WATER, LAVA = 0, 1, 2, 3, 4
-MOVE_COST = 1.0
-JUMP_COST = 2.0
-DESTROY_COST = 5.0
-MAX_DROP = 3  # blocks; Minecraft's fall damage is ceil(d - 3)
-HORIZONTAL: tuple[tuple[int, int], ...] = ((1, 0), (-1, 0), (0, 1), (0, -1))
 NEIGHBOURS6: tuple[Cell, ...] = (
     (1, 0, 0),
     (-1, 0, 0),
@@ -160,14 +163,15 @@ def _goal_solids(
 
 def warm_up() -> None:
     """Compiles the search (or loads it from numba's cache), one process at a time
-    (``compiled.compile_lock``), so a client's first plan does not wait for the compiler."""
-    if astar_kernel.search.signatures:  # compiled in this process already
-        return
-    with compile_lock("astar"):
-        ints = np.zeros(3, dtype=np.int64)
-        cells = np.zeros(1, dtype=np.uint8)
-        none = np.zeros((0, 3), dtype=np.int64)
-        astar_kernel.search(ints, cells, cells, ints, ints, none, ints, none[:, :2].copy(), 0, 0)
+    (``compiled.compile_once``), so a client's first plan does not wait for the compiler."""
+    compile_once("astar", astar_kernel.search, _compile)
+
+
+def _compile() -> None:
+    ints = np.zeros(3, dtype=np.int64)
+    cells = np.zeros(1, dtype=np.uint8)
+    none = np.zeros((0, 3), dtype=np.int64)
+    astar_kernel.search(ints, cells, cells, ints, ints, none, ints, none[:, :2].copy(), 0, 0)
 
 
 def _cell(i: int, nx: int, nz: int) -> Cell:

@@ -21,11 +21,13 @@ import math
 import numba
 import numpy as np
 
+# Cell categories of the planning grid, the costs and the moves (``astar`` re-exports them).
 FREE, SOLID, HARD, WATER, LAVA = 0, 1, 2, 3, 4
 MOVE_COST = 1.0
 JUMP_COST = 2.0
 DESTROY_COST = 5.0
-MAX_DROP = 3
+MAX_DROP = 3  # blocks; Minecraft's fall damage is ceil(d - 3)
+HORIZONTAL: tuple[tuple[int, int], ...] = ((1, 0), (-1, 0), (0, 1), (0, -1))
 NODES_PER_EXPANSION = 31
 """At most: 4 sides × (a jump with 3 destroys and a walk with 2, each with its arrival)
 plus digging down (one destroy, one arrival); and the root."""
@@ -298,8 +300,7 @@ def search(
         x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
         options = 0
         for side in range(4):
-            dx = 1 if side == 0 else (-1 if side == 1 else 0)
-            dz = 1 if side == 2 else (-1 if side == 3 else 0)
+            dx, dz = HORIZONTAL[side]
             fx, fz = x + dx, z + dz
             feet = _cat(fx, y, fz, dims, cells, stamp, mark)
             if feet == SOLID or feet == HARD:

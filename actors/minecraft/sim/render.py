@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from actors.minecraft import blocks as B
-from actors.minecraft.compiled import compile_lock
+from actors.minecraft.compiled import compile_once
 from actors.minecraft.sim.world import World
 
 FOV_Y = 70.0  # Minecraft's default vertical field of view, degrees
@@ -89,11 +89,8 @@ def warm_up() -> None:
     """Compiles the frame's kernels (or loads them from numba's cache), so a world
     server's first frame does not wait for the compiler.
 
-    One process compiles at a time (``compiled.compile_lock``)."""
-    if _draw.signatures:  # compiled in this process already
-        return
-    with compile_lock("render"):
-        compile_kernels()
+    One process compiles at a time (``compiled.compile_once``)."""
+    compile_once("render", _draw, compile_kernels)
 
 
 def compile_kernels() -> None:
