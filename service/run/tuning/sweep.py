@@ -51,6 +51,8 @@ FILL_TIMEOUT_S = 120.0
 ACTOR_END_S = 10.0
 """Seconds a point's actors get to end their runs once it is measured; those that do are
 kept for the next point (service/run/orchestration/kept.py), the others ended."""
+DRAIN_CHECK_S = 0.05
+"""How often a finished point, drawing batches for its held actors, checks that they ended."""
 TUNE_MAX_SIZE = 100_000
 """Replay capacity of a tuning point (a short run never needs more)."""
 
@@ -136,9 +138,9 @@ def run_point(
             after = snapshot(learner, actors, replay, shards, phase.name)
             _raise_actor_errors(runs)
             publisher.stop()
-            stream.close()
             # Stopped, each actor ends its run: those that did go to the next point.
-            ended = {r.hex() for r in ray.wait(runs, num_returns=n, timeout=ACTOR_END_S)[0]}
+            ended = _drain_until_ended(stream, runs, ACTOR_END_S)
+            stream.close()
             mine = list(zip(actors, runs, strict=True))
             KEPT.keep(ENV_ACTORS, options_key(options), *(a for a, r in mine if r.hex() in ended))
             actors = [a for a, r in mine if r.hex() not in ended]
@@ -169,6 +171,24 @@ def _replay_client(
     if len(addresses) == 1:
         return ReplayClient(addresses[0], token=token)
     return ShardedReplayClient(addresses, token=token, home=home % len(addresses))
+
+
+def _drain_until_ended(stream: Any, runs: list[Any], limit_s: float) -> set[str]:
+    """The runs (by ref) that ended within `limit_s`, while batches are sampled and dropped:
+    an actor whose insert the table's rate limiter holds ends its run only once sampling
+    admits that insert (a slow learner's table, or a high samples-per-insert ratio held
+    every actor until the limit, and they were ended instead of kept)."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        ready, _ = ray.wait(runs, num_returns=len(runs), timeout=0)
+        if len(ready) == len(runs) or time.monotonic() >= deadline:
+            return {r.hex() for r in ready}
+        check = min(deadline, time.monotonic() + DRAIN_CHECK_S)
+        while (left := check - time.monotonic()) > 0:
+            try:
+                stream.next_within(left)
+            except TimeoutError:
+                pass
 
 
 def _raise_actor_errors(runs: list[Any]) -> None:

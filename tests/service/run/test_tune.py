@@ -99,7 +99,8 @@ def _point(costs: Costs, **overrides):
         # little time, which the rule would rightly call a broadcast bottleneck.)
         (
             "slow actor",
-            {"envs_per_actor": 1, "publish_every": 1000},
+            # Batches of 32: the table starts sampling at 64 steps, 1.3 s of this actor's.
+            {"envs_per_actor": 1, "publish_every": 1000, "td3.batch_size": 32},
             Costs(learner="drain", step_latency_ms=20.0),
             "actors",
         ),
@@ -116,6 +117,9 @@ def _point(costs: Costs, **overrides):
 @pytest.mark.serial  # it measures waits in real time: a starved replay server reads as one
 def test_tune_names_the_bottleneck(ray_local, case, overrides, costs, expected):
     row = run_point(_point(costs, **overrides), warmup_s=2.0, measure_s=4.0, address="local")
+    # Its actor ended its run and waits for the next point, even one the rate limiter held
+    # (the point drew batches until the actor's held inserts were admitted).
+    assert len(KEPT.held(ENV_ACTORS)) == 1, case
     detail = {k: row[k] for k in ("learner_wait", "actor_insert_wait", "publish_fraction")}
     assert row["bottleneck"] == expected, f"{case}: {row['bottleneck']} from {detail}"
     assert row["learner_updates_per_s"] > 0  # the pipeline ran (a held actor may insert nothing)
