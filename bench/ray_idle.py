@@ -1,6 +1,6 @@
 """Benchmark: the CPU an idle local Ray instance costs, as Ray starts it (without its
 dashboard, as graft asks) and as graft starts it (`ray_session.start_local`: no log
-monitor, no idle worker processes kept).
+monitor, no autoscaler monitor, no idle worker processes kept).
 
 On a 2-core machine an instance's own processes (GCS, raylet, agents, idle workers) compete
 with the actors and the learner for the whole run. Each round starts one instance of each

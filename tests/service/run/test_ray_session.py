@@ -52,13 +52,15 @@ def test_other_errors_are_not_retried() -> None:
         start_retrying(start, tries=3, stop=lambda: None)
 
 
-def test_a_local_instance_runs_without_a_log_monitor(ray_local) -> None:
+def test_a_local_instance_runs_without_a_log_monitor_or_autoscaler(ray_local) -> None:
     # ray_local starts it as graft train does (start_local): no worker output reaches the
-    # driver, so nothing tails the log files, and tasks still run.
+    # driver, so nothing tails the log files; nothing scales one machine; tasks still run.
     node = ray._private.worker._global_node
     live = {kind for kind, _ in node.live_processes()}
     assert ray_constants.PROCESS_TYPE_RAYLET in live
     assert ray_constants.PROCESS_TYPE_LOG_MONITOR not in live
+    assert ray_constants.PROCESS_TYPE_MONITOR not in live
+    assert not _children_running("autoscaler/_private/monitor.py")
     assert ray.get(ray.remote(lambda: 7).remote()) == 7
 
 
@@ -75,6 +77,25 @@ def test_a_local_instance_keeps_no_idle_worker(ray_local) -> None:
     while pids & _idle_workers() and time.monotonic() < deadline:
         time.sleep(0.2)
     assert pids & _idle_workers() == set()
+
+
+def _children_running(script: str, wait_s: float = 10.0) -> list[int]:
+    """This process's descendants running `script` after up to `wait_s` (a killed one
+    may take a moment to go)."""
+    import psutil  # Ray's vendored copy, importable once Ray is
+
+    deadline = time.monotonic() + wait_s
+    while True:
+        running = []
+        for child in psutil.Process().children(recursive=True):
+            try:
+                if child.status() != psutil.STATUS_ZOMBIE and script in " ".join(child.cmdline()):
+                    running.append(child.pid)
+            except psutil.Error:
+                pass
+        if not running or time.monotonic() > deadline:
+            return running
+        time.sleep(0.1)
 
 
 def _idle_workers() -> set[int]:
