@@ -36,8 +36,8 @@ from torch import nn
 from actors.transitions import replay_signature
 from learner.checkpoint import save_checkpoint
 from learner.device import (
+    Adam,
     BatchFeed,
-    adam,
     device_name,
     resolve_compile,
     resolve_device,
@@ -214,8 +214,8 @@ def ceiling_row(*, device: torch.device, seconds: float) -> dict[str, Any]:
     actor, critic = _Actor(obs_dim, act_dim, hidden).to(device), _Critic(obs_dim, act_dim, hidden)
     critic.to(device)
     actor_t, critic_t = copy.deepcopy(actor), copy.deepcopy(critic)
-    actor_opt = adam(actor.parameters(), lr=3e-4, device=device)
-    critic_opt = adam(critic.parameters(), lr=3e-4, device=device)
+    actor_opt = Adam(actor.parameters(), lr=3e-4, device=device)
+    critic_opt = Adam(critic.parameters(), lr=3e-4, device=device)
     rng = np.random.default_rng(0)
     pool = [
         {

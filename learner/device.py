@@ -14,7 +14,7 @@ from __future__ import annotations
 import collections
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 import torch
@@ -99,12 +99,49 @@ def compile_networks(modules: Iterable[nn.Module], mode: CompileMode) -> None:
         module.compile(**options)
 
 
-def adam(
-    params: Iterable[nn.Parameter], *, lr: float, device: torch.device
-) -> torch.optim.Optimizer:
+class Adam:
     """Adam, fused into one kernel on CUDA; on the CPU the default for-each Adam (the fused
-    CPU kernel rounds differently, which would change every CPU run's numbers)."""
-    return torch.optim.Adam(params, lr=lr, fused=True if device.type == "cuda" else None)
+    CPU kernel rounds differently, which would change every CPU run's numbers). Built at
+    its first use: building a torch optimiser imports torch._dynamo (1.2 s of CPU), which a
+    learner built only to act (`graft eval`, `graft.load_policy`) never needs. A state
+    loaded before then is loaded into it when it is built, so the optimiser is the one it
+    always was."""
+
+    def __init__(self, params: Iterable[nn.Parameter], *, lr: float, device: torch.device) -> None:
+        self._params = list(params)
+        self._lr = lr
+        self._fused = True if device.type == "cuda" else None
+        self._built: Optional[torch.optim.Adam] = None
+        self._loaded: Optional[dict[str, Any]] = None
+
+    @property
+    def optimizer(self) -> torch.optim.Adam:
+        """The torch optimiser (built now if it was not)."""
+        if self._built is None:
+            self._built = torch.optim.Adam(self._params, lr=self._lr, fused=self._fused)
+            if self._loaded is not None:
+                self._built.load_state_dict(self._loaded)
+                self._loaded = None
+        return self._built
+
+    @property
+    def param_groups(self) -> list[dict[str, Any]]:
+        return self.optimizer.param_groups
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        self.optimizer.zero_grad(set_to_none=set_to_none)
+
+    def step(self) -> None:
+        self.optimizer.step()
+
+    def state_dict(self) -> dict[str, Any]:
+        return self.optimizer.state_dict()
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if self._built is None:
+            self._loaded = state
+        else:
+            self._built.load_state_dict(state)
 
 
 VALID = "_valid"

@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from learner.device import CPU, VALID, CompileMode, adam, compile_networks
+from learner.device import CPU, VALID, Adam, CompileMode, compile_networks
 from learner.dqn.config import DQNConfig
 from learner.dqn.networks import make_q_network
 from learner.selection import with_tree_only
@@ -164,7 +164,7 @@ class DQNLearner:
         self.device = torch.device(device)
         self.q.to(self.device)
         self.target_q = copy.deepcopy(self.q).requires_grad_(False)
-        self.optimizer = adam(self.q.parameters(), lr=config.learning_rate, device=self.device)
+        self.optimizer = Adam(self.q.parameters(), lr=config.learning_rate, device=self.device)
         compile_networks([self.q, self.target_q], compile)
         self._gamma = config.gamma
         self._target_every = config.target_update_every

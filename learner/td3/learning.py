@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from learner.device import CompileMode, adam, compile_networks
+from learner.device import Adam, CompileMode, compile_networks
 from learner.td3.config import TD3Config
 from learner.td3.networks import Actor, TwinCritic
 
@@ -177,8 +177,8 @@ class TD3Learner:
         target policy's smoothed actions (the actor's own range may be narrower)."""
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = adam(self.actor.parameters(), lr=config.actor_lr, device=self.device)
-        self.critic_optimizer = adam(
+        self.actor_optimizer = Adam(self.actor.parameters(), lr=config.actor_lr, device=self.device)
+        self.critic_optimizer = Adam(
             self.critic.parameters(), lr=config.critic_lr, device=self.device
         )
         compile_networks(self._networks(), compile)
