@@ -33,6 +33,7 @@ from actors.simulated import ENV_ID, simulated_env_kwargs
 from actors.task import EnvSpec
 from actors.transitions import replay_signature
 from service.replay.client import ReplayClient
+from service.replay.errors import ReplayError
 from service.replay.sharding import ShardedReplayClient
 from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, KEPT, env_actor, options_key
 from service.run.orchestration.preflight import check_task
@@ -177,18 +178,23 @@ def _drain_until_ended(stream: Any, runs: list[Any], limit_s: float) -> set[str]
     """The runs (by ref) that ended within `limit_s`, while batches are sampled and dropped:
     an actor whose insert the table's rate limiter holds ends its run only once sampling
     admits that insert (a slow learner's table, or a high samples-per-insert ratio held
-    every actor until the limit, and they were ended instead of kept)."""
+    every actor until the limit, and they were ended instead of kept). A table that went
+    away meanwhile admits nothing more: the runs then only get the rest of `limit_s`."""
     deadline = time.monotonic() + limit_s
-    while True:
-        ready, _ = ray.wait(runs, num_returns=len(runs), timeout=0)
-        if len(ready) == len(runs) or time.monotonic() >= deadline:
-            return {r.hex() for r in ready}
-        check = min(deadline, time.monotonic() + DRAIN_CHECK_S)
-        while (left := check - time.monotonic()) > 0:
-            try:
-                stream.next_within(left)
-            except TimeoutError:
-                pass
+    try:
+        while True:
+            ready, _ = ray.wait(runs, num_returns=len(runs), timeout=0)
+            if len(ready) == len(runs) or time.monotonic() >= deadline:
+                return {r.hex() for r in ready}
+            check = min(deadline, time.monotonic() + DRAIN_CHECK_S)
+            while (left := check - time.monotonic()) > 0:
+                try:
+                    stream.next_within(left)
+                except TimeoutError:
+                    pass
+    except (StopIteration, ReplayError):  # the measured window stands; the actors may not end
+        left = max(deadline - time.monotonic(), 0.0)
+        return {r.hex() for r in ray.wait(runs, num_returns=len(runs), timeout=left)[0]}
 
 
 def _raise_actor_errors(runs: list[Any]) -> None:

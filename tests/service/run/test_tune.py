@@ -3,13 +3,16 @@ constructed cases run through the real pipeline (replay server, Ray actors, broa
 
 from __future__ import annotations
 
+import time
+
 import pytest
+import ray
 
 from service.run.orchestration.kept import BROADCASTER, ENV_ACTORS, KEPT
 from service.run.tuning.grid import Costs, parse_grid, plan
 from service.run.tuning.measure import bottleneck
 from service.run.tuning.report import preset_lines, table
-from service.run.tuning.sweep import run_point
+from service.run.tuning.sweep import _drain_until_ended, run_point
 from service.run.validation import ConfigError
 
 
@@ -181,3 +184,12 @@ def test_tune_over_replay_shards_spreads_inserts_over_every_shard(ray_local):
     assert two["learner_updates_per_s"] > 0  # the learner sampled across the shards
     printed = table(rows, ["replay_shards"])
     assert "inserted/s per shard" in printed and "CPU replay per shard" in printed
+
+
+def test_a_point_whose_table_went_away_still_waits_for_its_actors(ray_local, replay_client):
+    """Draining after the window: a stream that ends (here closed; a server gone raises
+    ReplayError) stops the draws, and the runs still get the rest of the limit."""
+    stream = replay_client.sample_stream("transitions", 4)
+    stream.close()
+    run = ray.remote(lambda: time.sleep(0.3)).remote()  # an actor's run ending a moment later
+    assert _drain_until_ended(stream, [run], limit_s=10.0) == {run.hex()}
