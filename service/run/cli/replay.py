@@ -10,10 +10,6 @@ import sys
 from pathlib import Path
 from typing import Optional
 
-from service.replay.server.grpc_server import ServerOptions
-from service.replay.server.serve import serve_forever
-from service.replay.server.store import FolderUnusable, ReplayCore
-from service.replay.server.table_config import make_table
 from service.replay.server.writers import DEFAULT_MAX_WRITERS
 from service.run.replay_host.process import EXIT_FOLDER_UNUSABLE
 
@@ -133,7 +129,21 @@ def _table_specs(args: argparse.Namespace) -> list[dict]:
     return [transition_table_spec(load_preset(args.preset))]
 
 
+def warm_up() -> None:
+    """Imports what a replay server runs (gRPC, the tables), as the fork server that forks
+    `graft train`'s replay servers does before its first fork (service/forkserver.py);
+    other `graft` commands never load them."""
+    import service.replay.server.serve  # noqa: F401
+    import service.replay.server.store  # noqa: F401
+    import service.replay.server.table_config  # noqa: F401
+
+
 def _serve(args: argparse.Namespace) -> None:
+    from service.replay.server.grpc_server import ServerOptions
+    from service.replay.server.serve import serve_forever
+    from service.replay.server.store import FolderUnusable, ReplayCore
+    from service.replay.server.table_config import make_table
+
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     try:
         core = ReplayCore(
