@@ -181,20 +181,23 @@ def _drain_until_ended(stream: Any, runs: list[Any], limit_s: float) -> set[str]
     every actor until the limit, and they were ended instead of kept). A table that went
     away meanwhile admits nothing more: the runs then only get the rest of `limit_s`."""
     deadline = time.monotonic() + limit_s
-    try:
-        while True:
-            ready, _ = ray.wait(runs, num_returns=len(runs), timeout=0)
-            if len(ready) == len(runs) or time.monotonic() >= deadline:
-                return {r.hex() for r in ready}
-            check = min(deadline, time.monotonic() + DRAIN_CHECK_S)
-            while (left := check - time.monotonic()) > 0:
-                try:
-                    stream.next_within(left)
-                except TimeoutError:
-                    pass
-    except (StopIteration, ReplayError):  # the measured window stands; the actors may not end
-        left = max(deadline - time.monotonic(), 0.0)
-        return {r.hex() for r in ray.wait(runs, num_returns=len(runs), timeout=left)[0]}
+    while True:
+        ready, _ = ray.wait(runs, num_returns=len(runs), timeout=0)
+        if len(ready) == len(runs) or time.monotonic() >= deadline:
+            return {r.hex() for r in ready}
+        try:
+            _draw_for(stream, min(DRAIN_CHECK_S, deadline - time.monotonic()))
+        except (StopIteration, ReplayError):  # the measured window stands; the actors may not end
+            left = max(deadline - time.monotonic(), 0.0)
+            return {r.hex() for r in ray.wait(runs, num_returns=len(runs), timeout=left)[0]}
+
+
+def _draw_for(stream: Any, seconds: float) -> None:
+    """Draws batches from `stream`, and drops them, for `seconds`."""
+    until = time.monotonic() + seconds
+    while (left := until - time.monotonic()) > 0:
+        with contextlib.suppress(TimeoutError):
+            stream.next_within(left)
 
 
 def _raise_actor_errors(runs: list[Any]) -> None:

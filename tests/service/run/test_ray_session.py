@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 
 import pytest
 import ray
@@ -60,7 +61,8 @@ def test_a_local_instance_runs_without_a_log_monitor_or_autoscaler(ray_local) ->
     assert ray_constants.PROCESS_TYPE_RAYLET in live
     assert ray_constants.PROCESS_TYPE_LOG_MONITOR not in live
     assert ray_constants.PROCESS_TYPE_MONITOR not in live
-    assert not _children_running("autoscaler/_private/monitor.py")
+    monitor = "autoscaler/_private/monitor.py"
+    assert _left_after(lambda: _children(lambda cmd: any(monitor in a for a in cmd)), 10.0) == set()
     assert ray.get(ray.remote(lambda: 7).remote()) == 7
 
 
@@ -73,40 +75,27 @@ def test_a_local_instance_keeps_no_idle_worker(ray_local) -> None:
         runtime_env={"env_vars": {"GRAFT_TEST_FRESH_WORKER": "1"}}
     )
     pids = set(ray.get([fresh.remote() for _ in range(2)]))
-    deadline = time.monotonic() + 30.0
-    while pids & _idle_workers() and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert pids & _idle_workers() == set()
+    still_idle = lambda: pids & _children(lambda cmd: cmd[:1] == ["ray::IDLE"])  # noqa: E731
+    assert _left_after(still_idle, 30.0) == set()
 
 
-def _children_running(script: str, wait_s: float = 10.0) -> list[int]:
-    """This process's descendants running `script` after up to `wait_s` (a killed one
-    may take a moment to go)."""
+def _children(matches: Callable[[list[str]], bool]) -> set[int]:
+    """This process's live descendants whose command line `matches`."""
     import psutil  # Ray's vendored copy, importable once Ray is
 
-    deadline = time.monotonic() + wait_s
-    while True:
-        running = []
-        for child in psutil.Process().children(recursive=True):
-            try:
-                if child.status() != psutil.STATUS_ZOMBIE and script in " ".join(child.cmdline()):
-                    running.append(child.pid)
-            except psutil.Error:
-                pass
-        if not running or time.monotonic() > deadline:
-            return running
-        time.sleep(0.1)
-
-
-def _idle_workers() -> set[int]:
-    """Worker processes of this session's instance waiting for work."""
-    import psutil  # Ray's vendored copy, importable once Ray is
-
-    idle = set()
+    found = set()
     for child in psutil.Process().children(recursive=True):
         try:
-            if child.cmdline()[:1] == ["ray::IDLE"]:
-                idle.add(child.pid)
+            if child.status() != psutil.STATUS_ZOMBIE and matches(child.cmdline()):
+                found.add(child.pid)
         except psutil.Error:
             pass
-    return idle
+    return found
+
+
+def _left_after(find: Callable[[], set[int]], wait_s: float) -> set[int]:
+    """What `find()` still finds after up to `wait_s` (an ended process takes a moment)."""
+    deadline = time.monotonic() + wait_s
+    while (found := find()) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return found
