@@ -22,16 +22,17 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+from learner_updates import random_batch  # bench/, beside this script
+
+from actors.transitions import replay_signature
+from learner.checkpoint import save_checkpoint
+from learner.loop import to_tensors
+from service.run.config import load_preset
+from service.run.orchestration.provenance import config_record
+from service.run.registry import make_builder
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from learner.checkpoint import save_checkpoint  # noqa: E402
-from learner.loop import to_tensors  # noqa: E402
-from service.run.config import load_preset  # noqa: E402
-from service.run.orchestration.provenance import config_record  # noqa: E402
-from service.run.registry import make_builder  # noqa: E402
-from tests.conftest import pendulum_batch  # noqa: E402
-
 LOAD = (
     "import sys, graft; policy = graft.load_policy(sys.argv[1]); "
     "obs, _ = policy.make_env().reset(seed=0); policy(obs)"
@@ -46,8 +47,15 @@ ARMS = {
 def make_run(folder: Path) -> None:
     """A run folder as `graft train` leaves one: config.yaml and a checkpoint."""
     config = load_preset("pendulum-td3")
-    learner = make_builder(config).make_learner()
-    learner.update(to_tensors(pendulum_batch(256)))
+    builder = make_builder(config)
+    env = config.make_env()
+    signature = replay_signature(
+        env.observation_space, builder.make_behaviour(num_actors=1).columns()
+    )
+    env.close()
+    batch = random_batch(signature, batch=256, window=1, actions=1, rng=np.random.default_rng(0))
+    learner = builder.make_learner()
+    learner.update(to_tensors(batch))
     save_checkpoint(folder / "checkpoints", {"algorithm": learner.state_dict()}, updates=1)
     (folder / "config.yaml").write_text(config_record(config))
 
