@@ -31,7 +31,7 @@ TEST_SELECT := not long and not wheel and not container
 # against 42.5 s).
 PYTEST := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest
 COMPILE := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m compileall -q -j 0 \
-	graft service actors learner examples tests bench > /dev/null
+	graft service actors minecraft learner examples tests bench > /dev/null
 
 # Every test: the parallel part, with the real-time part beside it (its log printed after).
 test: setup $(TEST_PACKAGES)
@@ -135,7 +135,7 @@ $(VENV)/.installed: pyproject.toml
 lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy service actors learner graft
+	$(BIN)/mypy service actors minecraft learner graft
 	$(BIN)/lint-imports
 
 # Generated gRPC code is checked in; CI regenerates it and fails on drift. A copy of the proto

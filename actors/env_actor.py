@@ -119,7 +119,7 @@ class EnvActor:
     def reset(self, **arguments: Any) -> None:
         """Sets up for another run as a new actor would, from a new actor's `arguments`,
         after closing this run's environments and writer: a driver keeps its actors
-        between runs (service/run/orchestration/kept.py)."""
+        between runs (graft/orchestration/kept.py)."""
         self.close()
         type(self).__init__(self, **arguments)
         self._cpu_before = time.process_time()

@@ -1,4 +1,4 @@
-"""Benchmark: the travel planner's compiled A* search (`actors/minecraft/agent/astar.py`)
+"""Benchmark: the travel planner's compiled A* search (`minecraft/agent/astar.py`)
 against the search of an earlier revision (by default ba29239, the last in Python), on the
 searches the diamond tree makes in real worlds.
 
@@ -24,8 +24,8 @@ from types import ModuleType
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from actors.minecraft.agent import astar  # noqa: E402
 from bench import diamond  # noqa: E402
+from minecraft.agent import astar  # noqa: E402
 
 Search = tuple  # (grid, start, goals, max_expansions, the plan made in the world)
 
@@ -33,7 +33,7 @@ Search = tuple  # (grid, start, goals, max_expansions, the plan made in the worl
 def revision(rev: str) -> ModuleType:
     """`astar.py` as it was at git revision `rev`, imported as a module of its own."""
     source = subprocess.run(
-        ["git", "show", f"{rev}:actors/minecraft/agent/astar.py"],
+        ["git", "show", f"{rev}:minecraft/agent/astar.py"],
         cwd=REPO, capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
     path = Path(tempfile.mkdtemp()) / "astar_then.py"

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from graft.replay_host.process import ReplayProcess
 from service.replay.client import ReplayClient
 from service.replay.errors import ReplayError
-from service.run.replay_host.process import ReplayProcess
 
 SIGNATURE = {"x": {"dtype": "int64", "shape": []}}
 MAX_SIZE = 4_000_000

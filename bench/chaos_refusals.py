@@ -17,9 +17,9 @@ import grpc
 from chaos_ledger import free_port  # bench/, beside this script
 from procfs import rss_mib
 
+from graft.replay_host.process import ReplayProcess
 from service.replay._proto import replay_pb2, replay_pb2_grpc
 from service.replay.server.allocator import QUIET_PASSES, TRIM_EVERY_S
-from service.run.replay_host.process import ReplayProcess
 
 MIB = "n" * 2**20
 FLAT = 1.10

@@ -17,15 +17,15 @@ from procfs import proc_status  # bench/, beside this script
 def world_server_limits(idle: int = 300, announcing: int = 16) -> dict[str, Any]:
     """Threads and RSS a world server spends on `idle` idle connections, on `announcing`
     connections that announce 4 MiB and send 1 byte, and its reply to a 2000x2000 frame."""
-    from actors.minecraft.malmo import protocol as P
-    from actors.minecraft.malmo.mission_xml import mission_xml
+    from minecraft.malmo import protocol as P
+    from minecraft.malmo.mission_xml import mission_xml
 
     def connect(port: int) -> socket.socket:
         s = socket.create_connection(("127.0.0.1", port), timeout=30)
         P.send(s, P.HELLO.encode())
         return s
 
-    cmd = [sys.executable, "-m", "actors.minecraft.cli", "minecraft", "serve", "--port", "0"]
+    cmd = [sys.executable, "-m", "minecraft.cli", "minecraft", "serve", "--port", "0"]
     root = Path(__file__).resolve().parents[1]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=root)
     try:

@@ -29,7 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("graft", "service", "actors", "learner")
 SERVE = (
-    "from service.run.replay_host.process import ReplayProcess; "
+    "from graft.replay_host.process import ReplayProcess; "
     "obs = {'dtype': 'float32', 'shape': [3]}; "
     "ReplayProcess([{'name': 't', 'max_size': 100, 'signature': {'obs': obs}}]).stop()"
 )

@@ -13,7 +13,7 @@ reads observations only).
 
 ``--ticks-per-step k``: a slow client, deciding every k-th tick and holding its commands
 in between. ``--controller RUN_DIR`` (repeatable, one per leaf: a travel run corrects
-"Step to cell", a drops run decides "Pick up drops"; ``service.run.trained.
+"Step to cell", a drops run decides "Pick up drops"; ``graft.trained.
 load_corrections``): every world is run twice, the tree alone and the tree with the
 trained corrections, and the two are compared world by world (a sign test on the time to
 diamond, a world without one counting as the time limit). ``--travel-while searching``
@@ -31,18 +31,18 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from actors.minecraft.agent.corrections import Corrections  # noqa: E402
-from actors.minecraft.agent.diamond_tree import EpisodeResult, run_episode  # noqa: E402
-from actors.minecraft.agent.tree_profile import (  # noqa: E402
+from minecraft.agent.corrections import Corrections  # noqa: E402
+from minecraft.agent.diamond_tree import EpisodeResult, run_episode  # noqa: E402
+from minecraft.agent.tree_profile import (  # noqa: E402
     ACTIVITIES,
     LeafTimes,
     Row,
     TimeProfile,
     aggregate,
 )
-from actors.minecraft.malmo.client import MalmoClient  # noqa: E402
-from actors.minecraft.malmo.mission_xml import obtain_diamond  # noqa: E402
-from actors.minecraft.sim.server import WorldServer  # noqa: E402
+from minecraft.malmo.client import MalmoClient  # noqa: E402
+from minecraft.malmo.mission_xml import obtain_diamond  # noqa: E402
+from minecraft.sim.server import WorldServer  # noqa: E402
 
 TIME_LIMIT_TICKS = 24_000
 TREE, CORRECTED = "tree alone", "tree + corrections"
@@ -59,7 +59,7 @@ def _mission(seed: int) -> str:
 def corrections_of(agent: Agent) -> Corrections:
     """The trained corrections of an agent's runs, loaded once per process."""
     if agent not in _loaded:
-        from service.run.trained import load_corrections
+        from graft.trained import load_corrections
 
         runs, travel_while = agent
         _loaded[agent] = load_corrections([Path(r) for r in runs], travel_while)

@@ -11,8 +11,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from actors.minecraft.agent.diamond_tree import EpisodeResult  # noqa: E402
-from actors.minecraft.agent.tree_profile import ACTIVITIES, LeafTimes  # noqa: E402
+from minecraft.agent.diamond_tree import EpisodeResult  # noqa: E402
+from minecraft.agent.tree_profile import ACTIVITIES, LeafTimes  # noqa: E402
 
 Row = tuple[EpisodeResult, float, LeafTimes]
 

@@ -19,11 +19,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from actors.minecraft.sim.pool import ServerPool  # noqa: E402
 from bench.compiled_starts import compare, parse_rounds  # noqa: E402
 from bench.procfs import cpu_seconds  # noqa: E402
+from graft.replay_host.process import ReplayProcess  # noqa: E402
+from minecraft.sim.pool import ServerPool  # noqa: E402
 from service import forkserver  # noqa: E402
-from service.run.replay_host.process import ReplayProcess  # noqa: E402
 
 TABLE = [{"name": "t", "max_size": 100, "signature": {"x": {"dtype": "int64", "shape": []}}}]
 MODES = {"plain processes": False, "forks": True}

@@ -36,8 +36,8 @@ def tree_return(preset: str, *, episodes: int, seed: int) -> float:
 def with_switch(run_dir: Path, margin: float) -> float:
     """The trained run's greedy policy over options with switching margin `margin`
     (−inf: always the RL option), on the 100 evaluation episodes."""
-    from service.run.api import evaluate
-    from service.run.trained import load_behaviour
+    from graft.api import evaluate
+    from graft.trained import load_behaviour
 
     behaviour, config = load_behaviour(run_dir)
     behaviour.margin = margin

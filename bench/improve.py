@@ -10,7 +10,7 @@ commands, each in its own process (`bench/seeds.py`):
 and the tree alone on the same 50 episodes (reset seeds no run used: actors and in-run
 evaluations reset from small seeds and 10,000 + S). Per task it reports the tree's score,
 each seed's final score, the mean improvement over the tree (final minus tree on the same
-episodes) with its 95 % bootstrap interval over seeds (`service.run.experiments.stats`),
+episodes) with its 95 % bootstrap interval over seeds (`graft.experiments.stats`),
 the worst in-run evaluation relative to the tree on the same episodes, env steps and wall
 time; prints a table, writes OUT/improve.json and OUT/improve.png.
 
@@ -44,10 +44,10 @@ import numpy as np
 import graft
 from bench.improve_parts import part_scores, parts_table, reselect
 from bench.seeds import run_seed
+from graft.config import load_preset
+from graft.experiments.plots import curves
+from graft.experiments.stats import MIN_SEEDS, summarize
 from service.metrics import read_metric
-from service.run.config import load_preset
-from service.run.experiments.plots import curves
-from service.run.experiments.stats import MIN_SEEDS, summarize
 
 REPO = Path(__file__).resolve().parents[1]
 TASKS = {

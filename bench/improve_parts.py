@@ -38,7 +38,7 @@ def part_scores(run_dir: Path, *, episodes: int, seed: int) -> dict[str, float]:
     saved = json.loads(cache.read_text()) if cache.exists() else {}
     if key in saved:
         return dict(saved[key])
-    from service.run.trained import load_behaviour
+    from graft.trained import load_behaviour
 
     behaviour, config = load_behaviour(run_dir)
     scores: dict[str, float] = {}
@@ -70,9 +70,9 @@ def reselect(run_dir: Path, *, episodes: int, eval_seed: int) -> dict[str, float
     import torch
 
     from actors.evaluator import play_episodes
+    from graft.trained import load_behaviour
     from learner.checkpoint import find_checkpoint, load_checkpoint
     from learner.selection import tree_wins
-    from service.run.trained import load_behaviour
 
     behaviour, config = load_behaviour(run_dir)
     n, seed = config.selection.episodes, 10_000 + config.seed

@@ -1,6 +1,6 @@
 """Benchmark: tiny runs back to back in one driver on a Ray instance it keeps up, with the
 weight broadcaster, the evaluator and the environment actors handed from run to run
-(service/run/orchestration/kept.py) against all started anew for each run.
+(graft/orchestration/kept.py) against all started anew for each run.
 
 Each round trains `--runs` tiny pendulum-td3 runs (300 env steps, `--actors` actors) in
 each mode in turn, so another job on the machine moves both alike. A run's CPU is every process's:
@@ -22,10 +22,10 @@ from pathlib import Path
 import ray
 from side_by_side import report  # bench/, beside this script
 
-from service.run.config import load_preset
-from service.run.orchestration.kept import KEEP_S, KEPT
-from service.run.orchestration.launcher import train
-from service.run.orchestration.ray_session import start_local
+from graft.config import load_preset
+from graft.orchestration.kept import KEEP_S, KEPT
+from graft.orchestration.launcher import train
+from graft.orchestration.ray_session import start_local
 
 TINY = {
     "env_steps": 300,

@@ -34,6 +34,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from actors.transitions import replay_signature
+from graft.config import TrainConfig, load_preset
+from graft.registry import make_builder
 from learner.checkpoint import save_checkpoint
 from learner.device import (
     Adam,
@@ -45,8 +47,6 @@ from learner.device import (
 from learner.loop import to_tensors
 from learner.td3.learning import TD3Learner
 from service.core import Columns
-from service.run.config import TrainConfig, load_preset
-from service.run.registry import make_builder
 
 PRESETS = {
     "td3": "pendulum-td3",

@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from actors.minecraft import blocks as B
-from actors.minecraft.malmo.mission import parse_mission
-from actors.minecraft.malmo.roles import role_mission
-from actors.minecraft.sim.world import World
+from minecraft import blocks as B
+from minecraft.malmo.mission import parse_mission
+from minecraft.malmo.roles import role_mission
+from minecraft.sim.world import World
 
 SAMPLES = (
-    Path(__file__).parents[1] / "tests" / "actors" / "minecraft" / "compat" / "missions"
+    Path(__file__).parents[1] / "tests" / "minecraft" / "compat" / "missions"
     / "malmo_samples"
 )  # fmt: skip
 

@@ -15,12 +15,12 @@ import torch
 from minecraft_rig import MS_PER_TICK, bench_mission, measure, rig, summary  # bench/
 from naive_loop import NaiveLoop  # Ray workers import it too (Ray puts bench/ on their path)
 
-from actors.minecraft.agent.mission_env import ACTION_SPACE, ENV_ID, observation_space
-from actors.minecraft.malmo.mission import parse_mission
-from actors.minecraft.sim.pool import ServerPool
 from actors.task import EnvSpec
 from learner.td3.builder import make_td3_learner
 from learner.td3.config import TD3Config
+from minecraft.agent.mission_env import ACTION_SPACE, ENV_ID, observation_space
+from minecraft.malmo.mission import parse_mission
+from minecraft.sim.pool import ServerPool
 
 CLIENTS = 4
 

@@ -12,11 +12,11 @@ from typing import Any
 
 from pooled_clients import encode_per_block  # bench/, beside this script
 
-from actors.minecraft.agent import grid_encoding
-from actors.minecraft.malmo.client import MalmoClient
-from actors.minecraft.malmo.mission_xml import mission_xml
-from actors.minecraft.sim.pool import ServerPool
-from actors.minecraft.sim.timing import IDEAL
+from minecraft.agent import grid_encoding
+from minecraft.malmo.client import MalmoClient
+from minecraft.malmo.mission_xml import mission_xml
+from minecraft.sim.pool import ServerPool
+from minecraft.sim.timing import IDEAL
 
 
 def encoding_cost(args: argparse.Namespace) -> None:

@@ -20,18 +20,18 @@ from procfs import cpu_seconds
 
 from actors.behaviours.gaussian import GaussianBehaviour
 from actors.env_actor import EnvActor, Segment
-from actors.minecraft.agent.mission_env import ACTION_SPACE, observation_space
-from actors.minecraft.malmo.mission import parse_mission
-from actors.minecraft.malmo.mission_xml import mission_xml
-from actors.minecraft.sim.pool import ServerPool
 from actors.task import EnvSpec
 from actors.transitions import replay_signature
+from graft.replay_host.process import ReplayProcess
 from learner.td3.builder import make_actor_network, make_td3_learner
 from learner.td3.config import TD3Config
 from learner.td3.networks import acting_copy
+from minecraft.agent.mission_env import ACTION_SPACE, observation_space
+from minecraft.malmo.mission import parse_mission
+from minecraft.malmo.mission_xml import mission_xml
+from minecraft.sim.pool import ServerPool
 from service.core import as_arrays
 from service.replay.client import ReplayClient
-from service.run.replay_host.process import ReplayProcess
 from service.weights import WeightBroadcaster, WeightSubscriber
 
 TABLE = "minecraft"

@@ -8,10 +8,10 @@ import argparse
 import re
 import time
 
-from actors.minecraft.malmo.client import MalmoClient
-from actors.minecraft.malmo.mission_xml import mission_xml
-from actors.minecraft.sim.pool import ServerPool
-from actors.minecraft.sim.timing import IDEAL
+from minecraft.malmo.client import MalmoClient
+from minecraft.malmo.mission_xml import mission_xml
+from minecraft.sim.pool import ServerPool
+from minecraft.sim.timing import IDEAL
 
 
 def ticks_per_second(

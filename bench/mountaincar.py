@@ -27,8 +27,8 @@ import numpy as np
 import ray
 
 import graft
-from service.run.config import load_preset
-from service.run.orchestration.launcher import train
+from graft.config import load_preset
+from graft.orchestration.launcher import train
 
 PRESETS = Path(__file__).resolve().parents[1] / "examples" / "mountaincar" / "presets"
 TRAINED = {

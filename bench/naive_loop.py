@@ -26,10 +26,10 @@ import torch
 
 from actors.behaviours.gaussian import GaussianBehaviour
 from actors.env_actor import VectorStepper
-from actors.minecraft.agent.mission_env import ACTION_SPACE
 from actors.task import EnvSpec
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner
+from minecraft.agent.mission_env import ACTION_SPACE
 
 
 class InlineTrainer:

@@ -5,7 +5,7 @@ return over 100 episodes first reaches -200, the return at the end of the budget
 the learner's fraction of time waiting on the replay server, and its updates/s beside
 a same-process baseline: the identical update loop on an in-memory batch. Then, over
 the seeds, the mean and IQM of the final return and of the env steps to -200, each with
-its 95 % bootstrap confidence interval (service/run/experiments/stats.py).
+its 95 % bootstrap confidence interval (graft/experiments/stats.py).
 
     python bench/pendulum.py [--seeds 5] [--env-steps 20000]
 """
@@ -22,11 +22,11 @@ import numpy as np
 import ray
 import torch
 
+from graft.config import TrainConfig, load_preset
+from graft.experiments.stats import summarize
+from graft.orchestration.launcher import train
 from learner.loop import to_tensors
 from learner.td3.builder import make_td3_learner
-from service.run.config import TrainConfig, load_preset
-from service.run.experiments.stats import summarize
-from service.run.orchestration.launcher import train
 
 THRESHOLD = -200.0
 

@@ -26,11 +26,11 @@ import numpy as np
 from learner_updates import random_batch  # bench/, beside this script
 
 from actors.transitions import replay_signature
+from graft.config import load_preset
+from graft.orchestration.provenance import config_record
+from graft.registry import make_builder
 from learner.checkpoint import save_checkpoint
 from learner.loop import to_tensors
-from service.run.config import load_preset
-from service.run.orchestration.provenance import config_record
-from service.run.registry import make_builder
 
 ROOT = Path(__file__).resolve().parents[1]
 LOAD = (

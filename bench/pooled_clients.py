@@ -16,9 +16,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from actors.minecraft import blocks as B
-from actors.minecraft.agent import grid_encoding
-from actors.minecraft.agent.mission_env import ENV_ID
+from minecraft import blocks as B
+from minecraft.agent import grid_encoding
+from minecraft.agent.mission_env import ENV_ID
 
 VECTORISED_ENCODE = grid_encoding.encode
 _made = itertools.count()  # environments this process made: the next one takes the next world

@@ -21,7 +21,7 @@ from collections.abc import Callable
 import ray
 from procfs import cpu_seconds  # bench/, beside this script
 
-from service.run.orchestration.ray_session import start_local
+from graft.orchestration.ray_session import start_local
 
 import psutil  # isort: skip  (Ray's vendored copy: importable once Ray is imported)
 

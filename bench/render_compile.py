@@ -32,7 +32,7 @@ ARMS = {
 def start_together(call: str, processes: int) -> tuple[float, float]:
     """CPU seconds of `processes` processes making `call` at once over an empty numba cache,
     and the wall seconds until the last one is done."""
-    code = f"from actors.minecraft.sim import render; {call}"
+    code = f"from minecraft.sim import render; {call}"
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache, "PYTHONPATH": str(REPO)}
         start = time.perf_counter()

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from graft.replay_host.process import ReplayProcess
 from service.replay.client import ReplayClient
-from service.run.replay_host.process import ReplayProcess
 
 PREFETCH = (8, 32)
 """Sample streams measured: batches each keeps in flight (`prefetch`, the learner's knob;

@@ -67,8 +67,8 @@ def batch(n: int, seed: int) -> dict[str, np.ndarray]:
 def _serve(policy: str, passes_file: str, argv: list[str]) -> None:
     """Runs `graft replay serve argv` with the memory passes of `policy`, appending each
     full collection's and each trim's duration (ms) to `passes_file`."""
+    from graft.cli.replay import main
     from service.replay.server import allocator
-    from service.run.cli.replay import main
 
     out = open(passes_file, "a", buffering=1)
     started: list[float] = []

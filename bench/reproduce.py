@@ -22,11 +22,11 @@ from typing import Optional
 
 import ray
 
+from graft.cli.flags import parse_settings
+from graft.config import load_preset
+from graft.orchestration.launcher import train
+from graft.orchestration.ray_session import connect_ray
 from service.metrics import MetricsLogger
-from service.run.cli.flags import parse_settings
-from service.run.config import load_preset
-from service.run.orchestration.launcher import train
-from service.run.orchestration.ray_session import connect_ray
 
 
 def comparable_rows(csv_path: Path) -> list[str]:

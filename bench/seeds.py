@@ -20,9 +20,9 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from service.run.experiments.stats import summarize
+from graft.experiments.stats import summarize
 
-GRAFT = [sys.executable, "-m", "service.run.cli"]
+GRAFT = [sys.executable, "-m", "graft.cli"]
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,7 @@ class SeedResult:
 
 def format_ci(values: Sequence[float]) -> str:
     """'mean M [low, high], IQM …, N seeds (95 % bootstrap CI)', as
-    `service.run.experiments.stats` prints."""
+    `graft.experiments.stats` prints."""
     return summarize(values).line()
 
 

@@ -38,8 +38,7 @@ BASE = "58fd2ad"
 """The last commit before replay and world servers ran with one OpenBLAS thread and
 loaded Prometheus only for a metrics port."""
 WORLD = (
-    "from actors.minecraft.sim.pool import ServerPool; "
-    "pool = ServerPool(1, 0); pool.start(); pool.stop()"
+    "from minecraft.sim.pool import ServerPool; pool = ServerPool(1, 0); pool.start(); pool.stop()"
 )
 KINDS = {"replay server": SERVE, "world server": WORLD}
 

@@ -31,9 +31,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from actors.minecraft.agent.travel_task import TravelMission, mission_pool  # noqa: E402
-from actors.minecraft.sim import worldgen  # noqa: E402
-from service.run.trained import load_behaviour, run_config  # noqa: E402
+from graft.trained import load_behaviour, run_config  # noqa: E402
+from minecraft.agent.travel_task import TravelMission, mission_pool  # noqa: E402
+from minecraft.sim import worldgen  # noqa: E402
 
 TREE, CORRECTED = "tree", "tree + correction"
 RECOVERING = " (tree recovers when stalled)"
@@ -47,7 +47,7 @@ class Controller:
     def __init__(
         self, run: Optional[str], checkpoint: Optional[str] = None, recover: bool = False
     ) -> None:
-        from actors.minecraft.agent.travel_env import TravelBackbone
+        from minecraft.agent.travel_env import TravelBackbone
 
         self.policy: Any = None
         self.behaviour: Any = None
@@ -59,7 +59,7 @@ class Controller:
         except FileNotFoundError as error:
             raise SystemExit(f"bench/travel.py: {error}") from None
         if recover:  # the tree takes over from the correction when progress stalls
-            from actors.minecraft.agent.travel_env import correction_trusted
+            from minecraft.agent.travel_env import correction_trusted
 
             self.behaviour.gate = correction_trusted
         self.policy = self.behaviour.greedy
@@ -75,7 +75,7 @@ def run_chunk(job: Job) -> list[dict]:
     """Episodes ``indices`` of ``missions`` with one controller, one world server."""
     import gymnasium as gym
 
-    from actors.minecraft.agent.travel_env import ENV_ID
+    from minecraft.agent.travel_env import ENV_ID
 
     name, run, checkpoint, missions, indices, env_kwargs = job
     controller = Controller(run, checkpoint, recover=name.endswith(RECOVERING))
@@ -235,7 +235,7 @@ def tree_eval_level(run: Path) -> float:
     """The tree alone's mean return on the evaluator's episodes of ``run`` (same seeds,
     same environment settings)."""
     from actors.evaluator import run_episodes
-    from actors.minecraft.agent.travel_env import TravelBackbone
+    from minecraft.agent.travel_env import TravelBackbone
 
     config = run_config(run)
     returns = run_episodes(

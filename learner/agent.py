@@ -1,8 +1,8 @@
 """What an algorithm provides to a run: its phases, its learner and its actors' behaviour.
 
-`train_here` (service/run/orchestration/driver.py) wires a preset into a run like this::
+`train_here` (graft/orchestration/driver.py) wires a preset into a run like this::
 
-    builder = make_builder(config)                     # service/run/registry.py
+    builder = make_builder(config)                     # graft/registry.py
     behaviour = builder.make_behaviour(num_actors=n)   # pickled to every actor
     phases = builder.phases()
     tables = preset_tables(config, phases=phases, signature=...)  # one table per phase

@@ -1,5 +1,5 @@
-"""The service around actors and learner: the replay server and its client (``replay``), the weight
-broadcast (``weights``), metrics, and the run orchestration on top of everything (``run``).
+"""The ground floor everything stands on: the core contracts (``core``), the replay server and its
+client (``replay``), the weight broadcast (``weights``), metrics and the fork server.
 
 ``__version__`` is graft's one version number: the package metadata (pyproject.toml reads it
 here), ``graft --version`` and ``graft.__version__`` all give it."""

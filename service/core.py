@@ -129,7 +129,7 @@ class WeightSource(Protocol):
 
 class StepClaims(Protocol):
     """One actor's draw on the env-step budget all actors share (`BudgetClaims`,
-    service/run/orchestration/budget.py): a phase's steps are claimed one insert batch at a
+    graft/orchestration/budget.py): a phase's steps are claimed one insert batch at a
     time, so no actor idles while another still has steps to act.
 
     `EnvActor.run` (actors/env_actor.py) claims each batch before it acts it::
@@ -153,7 +153,7 @@ UpdateStep = Callable[["Algorithm", TensorBatch], Metrics]
 
 class Algorithm(Protocol):
     """A learning algorithm, as `LearnerLoop.run` (learner/loop.py) drives it (and
-    `restore` in service/run/orchestration/resume.py resumes a run with `load_state_dict`)::
+    `restore` in graft/orchestration/resume.py resumes a run with `load_state_dict`)::
 
         for phase in phases:
             stream = open_stream(phase)
@@ -245,7 +245,7 @@ class Evaluator(Protocol):
 
 class LockstepActors(Protocol):
     """Actors the learner advances itself, in reproducible mode
-    (service/run/orchestration/lockstep.py).
+    (graft/orchestration/lockstep.py).
 
     `LearnerLoop` (learner/loop.py) then samples only what the held ratio allows::
 

@@ -25,13 +25,13 @@ import pytest
 import ray
 import torch
 
+from graft.orchestration.ray_session import LOCAL_STARTS, start_local, start_retrying
+from graft.replay_host.process import ReplayProcess
 from service.replay.client import ReplayClient
-from service.run.orchestration.ray_session import LOCAL_STARTS, start_local, start_retrying
-from service.run.replay_host.process import ReplayProcess
 
 TESTS = Path(__file__).resolve().parent
 USERTASK = TESTS / "fixtures" / "usertask"
-"""A user's own task package, which graft never imports (tests/service/run/test_own_task)."""
+"""A user's own task package, which graft never imports (tests/graft/test_own_task)."""
 USER_PACKAGES = {
     "usertask": USERTASK,
     "mountaincar_example": TESTS.parent / "examples" / "mountaincar",

@@ -35,11 +35,11 @@ step() {
 
 # Every device test (CUDA ones included), then the presets' smoke runs that record it.
 step tests 150 python3 -m pytest -q -p no:cacheprovider -n 8 tests/learner/test_device.py \
-  "tests/service/run/test_presets_smoke.py::test_preset_runs_through_the_service"
+  "tests/graft/test_presets_smoke.py::test_preset_runs_through_the_service"
 step learner 200 python3 bench/learner_updates.py --device cuda --compile off,compile,cuda_graphs \
   --compiled-learners td3 --seconds 5 --out "$out"
 rm -rf /tmp/graft-gpu-run  # a machine still warm from an earlier try keeps its folder
-step train 240 python3 -m service.run.cli train --preset pendulum-td3 --no-progress \
+step train 240 python3 -m graft.cli train --preset pendulum-td3 --no-progress \
   --env-steps 20000 --set learner.device=cuda --set prefetch=16 --set eval_every=2000 \
   --run-dir /tmp/graft-gpu-run
 cp /tmp/graft-gpu-run/summary.json /tmp/graft-gpu-run/learning_curve.png "$out/" 2>/dev/null

@@ -10,7 +10,7 @@ Keys carry their shard in the top byte, so priority updates find their way back.
 
 Each shard's rate limiter sees only its own inserts and samples. Its ratio is the
 preset's, and its error buffer, minimum size and sample credit are the preset's shares
-(`service/run/replay_host/shards.py` splits them), so the sums over shards hold the preset's
+(`graft/replay_host/shards.py` splits them), so the sums over shards hold the preset's
 samples-per-insert ratio overall (see `ShardedSampleStream`).
 """
 

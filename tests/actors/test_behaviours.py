@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.run.config import load_preset
-from service.run.registry import make_builder
+from graft.config import load_preset
+from graft.registry import make_builder
 
 BEHAVIOURS = [
     # (preset, overrides, the columns it computes on s')

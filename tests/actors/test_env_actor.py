@@ -24,21 +24,21 @@ from gymnasium import spaces
 
 from actors.behaviours.gaussian import GaussianBehaviour
 from actors.env_actor import EnvActor, Segment, VectorStepper
-from actors.minecraft.agent.mission_env import ACTION_SPACE, ENV_ID, observation_space
-from actors.minecraft.malmo.mission import parse_mission
-from actors.minecraft.sim.pool import ServerPool
-from actors.minecraft.sim.timing import IDEAL
 from actors.policies import gaussian_log_prob
 from actors.task import EnvSpec
 from actors.transitions import replay_signature
+from graft.replay_host.process import ReplayProcess
 from learner.td3.builder import make_actor_network
 from learner.td3.config import TD3Config
 from learner.td3.networks import acting_copy
+from minecraft.agent.mission_env import ACTION_SPACE, ENV_ID, observation_space
+from minecraft.malmo.mission import parse_mission
+from minecraft.sim.pool import ServerPool
+from minecraft.sim.timing import IDEAL
 from service.core import as_arrays
 from service.replay.client import ReplayClient
-from service.run.replay_host.process import ReplayProcess
 from service.weights import WeightBroadcaster, WeightSubscriber
-from tests.actors.minecraft.conftest import flat_mission
+from tests.minecraft.conftest import flat_mission
 
 # Real-time clients and world servers (their start-up, pacing, restarts): every test here
 # mostly waits, so all run in the real-time part, beside the CPU-bound parallel part.

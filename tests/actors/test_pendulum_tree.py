@@ -139,8 +139,8 @@ def test_registered_tree_scores_what_the_old_policy_scored() -> None:
 
 @pytest.mark.parametrize("preset", sorted(RECORDED_WARMUP))
 def test_preset_behaviours_act_as_before(preset: str) -> None:
-    from service.run.config import load_preset
-    from service.run.registry import make_builder
+    from graft.config import load_preset
+    from graft.registry import make_builder
 
     rng = np.random.default_rng(7)
     theta = rng.uniform(-np.pi, np.pi, 6)

@@ -11,8 +11,8 @@ from ray.exceptions import RayTaskError
 
 from actors.evaluator import RemoteEvaluator
 from actors.task import EnvSpec
-from service.run.config import load_preset
-from service.run.orchestration.roles import probe
+from graft.config import load_preset
+from graft.orchestration.roles import probe
 
 WORLDS = Path(__file__).resolve().parents[1] / "fixtures" / "worlds"
 TAG = {"env_steps": 0, "updates": 0, "wall_s": 0.0}

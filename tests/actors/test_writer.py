@@ -10,9 +10,9 @@ import time
 import pytest
 
 from actors.writer import BackgroundWriter
+from graft.replay_host.process import ReplayProcess
 from service.replay.client import ReplayClient
 from service.replay.errors import TableNotFound
-from service.run.replay_host.process import ReplayProcess
 from tests.conftest import PENDULUM_SIGNATURE, pendulum_batch
 
 

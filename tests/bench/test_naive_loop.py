@@ -7,11 +7,11 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from actors.minecraft.agent.mission_env import ENV_ID
-from actors.minecraft.sim.server import WorldServer
-from actors.minecraft.sim.timing import IDEAL
 from learner.td3.config import TD3Config
-from tests.actors.minecraft.conftest import flat_mission
+from minecraft.agent.mission_env import ENV_ID
+from minecraft.sim.server import WorldServer
+from minecraft.sim.timing import IDEAL
+from tests.minecraft.conftest import flat_mission
 
 _spec = importlib.util.spec_from_file_location(
     "naive_loop", Path(__file__).resolve().parents[2] / "bench" / "naive_loop.py"

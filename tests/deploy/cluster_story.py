@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "deploy" / "README.md"
 RUN_LIMIT_S = 600.0
 """Only a guard against a hang: how long one run may take on a loaded machine."""
-REPLAY_SERVER = "service.run.cli.replay serve"
+REPLAY_SERVER = "graft.cli.replay serve"
 """What the replay server's command line holds."""
 
 # The commands of deploy/README.md's walk-throughs, with {head}, {worker} and {client} for

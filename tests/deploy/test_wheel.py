@@ -25,13 +25,13 @@ PROCESS_LIMIT_S = 600
 """Bound on each step (a build, an install, the run): a hang fails, never blocks CI."""
 
 WHEEL_FILES = {
-    "service/run/presets/pendulum-td3.yaml",
-    "service/run/presets/minecraft-backbone.yaml",
+    "graft/presets/pendulum-td3.yaml",
+    "graft/presets/minecraft-backbone.yaml",
     "service/replay/_proto/replay.proto",
     "service/replay/_proto/replay_pb2.py",
     "service/replay/_proto/replay_pb2.pyi",
     "service/replay/_proto/replay_pb2_grpc.py",
-    "actors/minecraft/malmo/obtain_diamond.xml",
+    "minecraft/malmo/obtain_diamond.xml",
     "graft/__init__.py",
 }
 SDIST_FILES = {"LICENSE", "pyproject.toml", "protos/graft/replay/v1/replay.proto"}

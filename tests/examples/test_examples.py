@@ -23,8 +23,8 @@ import ray
 import yaml
 
 import graft
-from service.run.cli import main
-from service.run.config import load_preset
+from graft.cli import main
+from graft.config import load_preset
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
@@ -117,7 +117,7 @@ def _graft(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
     """The `graft` command in a fresh process, from `cwd`."""
     path = os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])
     return subprocess.run(
-        [sys.executable, "-m", "service.run.cli", *args],
+        [sys.executable, "-m", "graft.cli", *args],
         cwd=cwd,
         env={**os.environ, "PYTHONPATH": path},
         capture_output=True,

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 import torch
 
+from graft.config import load_preset
+from graft.registry import make_builder
 from learner.agent import update_step
 from learner.pretrain.learning import pretrain_step
-from service.run.config import load_preset
-from service.run.registry import make_builder
 
 
 def pendulum_batch(n: int = 8) -> dict[str, torch.Tensor]:

@@ -161,8 +161,8 @@ def test_eq11_teacher_target():
 
 
 def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_actor_frozen():
-    from service.run.config import load_preset
-    from service.run.registry import make_builder
+    from graft.config import load_preset
+    from graft.registry import make_builder
 
     config = load_preset(
         "pendulum-backbone",

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 import torch
 
+from graft.config import load_preset
+from graft.registry import make_builder
 from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.device import CPU, BatchFeed, learned_from, resolve_compile, resolve_device
 from learner.device_spec import check_compile_mode, check_device_spec
 from learner.loop import to_tensors
 from learner.td3.learning import TD3Learner
-from service.run.config import load_preset
-from service.run.registry import make_builder
 from tests.learner.helpers import ACT_DIM, HIGH, LOW, OBS_DIM, SMALL, flat_params, td3_batch
 
 CUDA = torch.cuda.is_available()

@@ -1,7 +1,7 @@
 """The learner loop drives an algorithm through its phases using only the contracts of
 service/core.py. The contracts are implemented here in-process (a stream over batches
 made up front, a publisher and an evaluator that record what they get); the Ray and
-replay-server implementations run end to end in tests/service/run."""
+replay-server implementations run end to end in tests/graft."""
 
 from __future__ import annotations
 

@@ -78,8 +78,8 @@ def test_spaces_each_method_handles() -> None:
     ],
 )
 def test_builder_refuses_a_task_before_anything_starts(overrides, message: str) -> None:
-    from service.run.config import load_preset
-    from service.run.registry import make_builder
+    from graft.config import load_preset
+    from graft.registry import make_builder
 
     config = load_preset("pendulum-td3")
     config = dataclasses.replace(config, **overrides)  # None unsets the preset's policy

@@ -14,10 +14,10 @@ from collections.abc import Callable, Iterator
 import grpc
 import pytest
 
+from graft.replay_host.process import ReplayProcess
 from service.replay._proto import replay_pb2, replay_pb2_grpc
 from service.replay.client import ReplayClient
 from service.replay.server.allocator import QUIET_PASSES, TRIM_EVERY_S, FreedMemory
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch
 
 TABLE = [

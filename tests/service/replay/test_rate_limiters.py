@@ -115,8 +115,8 @@ def test_ratio_holds_under_concurrent_writers_and_sampler():
 @pytest.mark.service
 def test_ratio_holds_over_grpc_with_concurrent_clients():
     """A real server process: 4 writer clients and a sampling client, ratio 2 ± 40."""
+    from graft.replay_host.process import ReplayProcess
     from service.replay.client import ReplayClient
-    from service.run.replay_host.process import ReplayProcess
     from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
 
     limiter = {"kind": "sample_to_insert_ratio", "samples_per_insert": 2, "min_size": 20,

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from graft.replay_host.process import ReplayProcess
 from service.replay.client import ReplayClient
 from service.replay.errors import DeadlineExceeded
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 
 pytestmark = [pytest.mark.service, pytest.mark.serial]  # servers restarted on their port
@@ -87,7 +87,7 @@ def test_a_stop_signal_any_thread_takes_still_stops_it_at_once(tmp_path):
     ready = tmp_path / "ready.json"
     state = tmp_path / "state"
     command = [
-        sys.executable, "-m", "service.run.cli.replay", "serve", "--config", str(config),
+        sys.executable, "-m", "graft.cli.replay", "serve", "--config", str(config),
         "--port", "0", "--ready-file", str(ready), "--checkpoint-dir", str(state),
     ]  # fmt: skip
     server = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -207,7 +207,7 @@ def test_non_loopback_bind_without_token_is_refused_by_the_cli():
         [
             sys.executable,
             "-m",
-            "service.run.cli.replay",
+            "graft.cli.replay",
             "serve",
             "--host",
             "0.0.0.0",
@@ -239,7 +239,7 @@ def test_sample_stream_reconnects_after_a_server_restart(tmp_path):
 
 LAUNCHER = """
 import sys, time
-from service.run.replay_host.process import ReplayProcess
+from graft.replay_host.process import ReplayProcess
 table = [{"name": "log", "max_size": 100, "sampler": "fifo",
           "signature": {"x": {"dtype": "float32", "shape": []}}}]
 server = ReplayProcess(table, extra_args=["--checkpoint-dir", sys.argv[1]])

@@ -17,10 +17,10 @@ import msgpack
 import numpy as np
 import pytest
 
+from graft.replay_host.process import ReplayProcess
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay import malformed
 from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 

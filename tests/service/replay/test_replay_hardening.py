@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 from grpc_health.v1 import health_pb2, health_pb2_grpc
 
+from graft.replay_host.process import ReplayProcess
 from service.replay._proto import replay_pb2, replay_pb2_grpc
 from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
 from service.replay.server.allocator import QUIET_PASSES, TRIM_EVERY_S
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch
 
 DEADLINE_S = 60.0
@@ -211,7 +211,7 @@ def second_server(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
     """Starts `graft replay serve`; fails the test if it starts listening."""
     config, ready = tmp_path / "tables.json", tmp_path / "second-ready.json"
     config.write_text(json.dumps({"tables": TABLE}))
-    command = [sys.executable, "-m", "service.run.cli.replay", "serve", "--config", str(config)]
+    command = [sys.executable, "-m", "graft.cli.replay", "serve", "--config", str(config)]
     process = subprocess.Popen(
         [*command, "--ready-file", str(ready), *args],
         stdout=subprocess.PIPE,

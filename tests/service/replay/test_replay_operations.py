@@ -10,9 +10,9 @@ import grpc
 import pytest
 from grpc_health.v1 import health_pb2, health_pb2_grpc
 
+from graft.replay_host.process import ReplayProcess
 from service.replay.client import ReplayClient
 from service.replay.errors import Unavailable
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch, self_signed_cert
 
 pytestmark = pytest.mark.service  # real server processes, or Ray
@@ -50,7 +50,7 @@ def test_metrics_health_and_info_command():
         assert status.status == health_pb2.HealthCheckResponse.SERVING
 
         shown = subprocess.run(
-            [sys.executable, "-m", "service.run.cli", "replay", "info", server.address],
+            [sys.executable, "-m", "graft.cli", "replay", "info", server.address],
             capture_output=True, text=True, timeout=60, check=True,
         ).stdout  # fmt: skip
         assert "table t: 7/100 items, 7 inserted, 3 sampled" in shown

@@ -18,12 +18,12 @@ import msgpack
 import numpy as np
 import pytest
 
+from graft.replay_host.process import EXIT_FOLDER_UNUSABLE, ReplayProcess
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
 from service.replay.errors import ReplayError
 from service.replay.server import durability
-from service.run.replay_host.process import EXIT_FOLDER_UNUSABLE, ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, read_all, scalar_batch
 from tests.tools.exec_with import command as exec_with
 
@@ -56,7 +56,7 @@ class Started:
         limited = exec_with(*limit)  # the limit applies to the server only
         with open(self.log_path, "wb") as log:
             self.process = subprocess.Popen(
-                [*limited, sys.executable, "-m", "service.run.cli.replay", "serve",
+                [*limited, sys.executable, "-m", "graft.cli.replay", "serve",
                  "--config", str(config), "--port", "0", "--ready-file", str(ready),
                  "--checkpoint-dir", str(folder), *extra],
                 stdout=log, stderr=subprocess.STDOUT,

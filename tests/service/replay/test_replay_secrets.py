@@ -13,9 +13,9 @@ import urllib.request
 
 import pytest
 
+from graft.replay_host.process import ReplayProcess
 from service.replay.client import ReplayClient
 from service.replay.errors import Unauthenticated, Unavailable
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, free_port, scalar_batch, self_signed_cert
 
 pytestmark = pytest.mark.service  # real server processes, or Ray
@@ -50,7 +50,7 @@ def test_serve_reads_the_token_from_a_file(tmp_path):
 
 def test_a_token_on_the_command_line_is_refused():
     result = subprocess.run(
-        [sys.executable, "-m", "service.run.cli.replay", "serve", "--port", "0", "--token", TOKEN],
+        [sys.executable, "-m", "graft.cli.replay", "serve", "--port", "0", "--token", TOKEN],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert result.returncode != 0

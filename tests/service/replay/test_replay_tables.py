@@ -6,12 +6,12 @@ import grpc
 import numpy as np
 import pytest
 
+from graft.replay_host.process import ReplayProcess
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient
 from service.replay.codec import encode_batch
 from service.replay.errors import DeadlineExceeded, InvalidArgument, TableNotFound
 from service.replay.server.table_config import make_table
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, read_all, scalar_batch
 
 pytestmark = pytest.mark.service  # a real server process per module

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from graft.replay_host.process import ReplayProcess
 from service.replay._proto import replay_pb2
 from service.replay.client import ReplayClient
 from service.replay.codec import CodecError, decode_batch, split_batch
@@ -14,7 +15,6 @@ from service.replay.server.rate_limiters import SampleToInsertRatio
 from service.replay.server.samplers import make_sampler
 from service.replay.server.signature import Signature
 from service.replay.server.table import Table
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
 
 B = 8

@@ -8,9 +8,9 @@ import threading
 import numpy as np
 import pytest
 
+from graft.replay_host.process import ReplayProcess
 from service.replay.errors import DeadlineExceeded
 from service.replay.sharding import ShardedReplayClient
-from service.run.replay_host.process import ReplayProcess
 from tests.service.replay.helpers import SCALAR_SIGNATURE, scalar_batch
 
 pytestmark = pytest.mark.service  # real server processes, or Ray

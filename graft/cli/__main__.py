@@ -1,0 +1,5 @@
+"""``python -m graft.cli``: the `graft` command line."""
+
+from graft.cli import main
+
+main()

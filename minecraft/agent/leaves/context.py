@@ -1,0 +1,118 @@
+"""The blackboard context the tree's leaves share, the per-tick command sheet they write,
+and the leaf base class.
+
+Each tick the runner puts the new ``Percept`` in ``ctx.percept``, clears the one-shot
+commands, ticks the tree, and sends ``ctx.commands.render()`` as one MalmoEnv step.
+Continuous states (move, strafe, turn, pitch, jump, attack, use) are sent in full every
+tick, so a leaf that stops writing them leaves the agent still.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import py_trees
+from py_trees.common import Access
+
+from minecraft.agent.astar import Planner
+from minecraft.agent.leaves.percept import Cell, Percept
+
+CONTEXT_KEY = "ctx"
+_namespaces = itertools.count()
+
+
+def new_namespace() -> str:
+    """A blackboard namespace unique in this process (the blackboard is global)."""
+    return f"/minecraft_{next(_namespaces)}"
+
+
+@dataclass
+class Commands:
+    """ContinuousMovementCommands states plus one-shot commands for one step.
+
+    ``hold`` is how many ticks the commands stay in force (a slow client sends one step
+    every ``hold`` ticks and Malmo keeps continuous commands until the next): the
+    controllers (``control.steer``, ``control.aim``) size a turn or a walk to cover the
+    error left in that many ticks, not in one.
+    """
+
+    move: float = 0.0
+    strafe: float = 0.0
+    turn: float = 0.0
+    pitch: float = 0.0
+    jump: bool = False
+    attack: bool = False
+    use: bool = False
+    once: list[str] = field(default_factory=list)
+    hold: int = 1
+
+    def still(self) -> None:
+        """Stop moving, turning and acting."""
+        self.move = self.strafe = self.turn = self.pitch = 0.0
+        self.jump = self.attack = self.use = False
+
+    def render(self) -> str:
+        """Newline-joined Malmo commands."""
+        lines = [
+            f"move {self.move:.3f}",
+            f"strafe {self.strafe:.3f}",
+            f"turn {self.turn:.3f}",
+            f"pitch {self.pitch:.3f}",
+            f"jump {int(self.jump)}",
+            f"attack {int(self.attack)}",
+            f"use {int(self.use)}",
+        ]
+        return "\n".join(lines + self.once)
+
+
+@dataclass
+class Context:
+    """What the leaves share through the blackboard.
+
+    Attributes:
+        percept: the current observation.
+        commands: the command sheet for this tick.
+        planner: the A* planner (memoising).
+        goals: destination feet cells (world) of the travel sub-tree.
+        target: the block a mining leaf works on (world cell).
+        plan_step: the next A* step, in world coordinates (kind, cell).
+        plan_reached: the last plan ends at a goal.
+        stage: a human-readable name of what the tree is doing.
+        memory: small per-leaf scratch state (exploration heading, failures...).
+    """
+
+    percept: Percept = field(default_factory=lambda: Percept(0.0, 0.0, 0.0))
+    commands: Commands = field(default_factory=Commands)
+    planner: Planner = field(default_factory=lambda: Planner(max_expansions=3000))
+    goals: frozenset[Cell] = frozenset()
+    target: Optional[Cell] = None
+    plan_step: Optional[tuple[str, Cell]] = None
+    plan_reached: bool = False
+    stage: str = ""
+    memory: dict[str, Any] = field(default_factory=dict)
+
+
+class Leaf(py_trees.behaviour.Behaviour):
+    """A leaf that reads and writes the shared ``Context`` on the blackboard.
+
+    Subclasses override ``update()`` (and ``initialise()``/``terminate()`` when needed),
+    nothing else.
+    """
+
+    def __init__(self, name: str, *, namespace: str) -> None:
+        """Attach to the tree's blackboard namespace.
+
+        Args:
+            name: the name shown in the tree.
+            namespace: the tree's blackboard namespace.
+        """
+        super().__init__(name)
+        self.blackboard = self.attach_blackboard_client(name=name, namespace=namespace)
+        self.blackboard.register_key(CONTEXT_KEY, access=Access.WRITE)
+
+    @property
+    def ctx(self) -> Context:
+        """The shared context."""
+        return self.blackboard.get(CONTEXT_KEY)  # type: ignore[no-any-return]

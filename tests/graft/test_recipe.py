@@ -1,0 +1,97 @@
+"""graft's default recipe (graft/recipe.py): a preset that names a hard-coded policy
+and no algorithm trains with it, chosen by the action space; the preset's own fields win."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from graft.cli import main
+from graft.config import load_preset
+from graft.recipe import recipe_description
+
+
+def _preset(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "task.yaml"
+    path.write_text(text)
+    return path
+
+
+PENDULUM = "env_id: Pendulum-v1\nhardcoded_policy: actors.trees.pendulum:swing_up\n"
+CARTPOLE = "env_id: CartPole-v1\nhardcoded_policy: cartpole_example.trees:balance\n"
+
+
+def test_a_tree_with_continuous_actions_gets_the_residual_recipe_scaled_to_its_box(tmp_path):
+    config = load_preset(_preset(tmp_path, PENDULUM + "env_steps: 20000\n"))
+    assert (config.recipe, config.algorithm) == ("continuous", "backbone_td3")
+    assert config.backbone.observe_backbone
+    # Written in half-widths of the action box: Pendulum's torque box [-2, 2] doubles them.
+    assert config.backbone.correction_limit == 4.0 and config.backbone.prefill_noise == 0.6
+    assert config.td3.burn_in_updates > 0 and config.td3.frozen_actor_updates > 0
+    assert config.learning_starts == 2000  # a tenth of the 20,000-step budget
+    # Greedy switching between π and the tree, and a final selection between them.
+    assert config.backbone.switch_margin is not None and config.selection.episodes > 0
+
+
+def test_a_tree_with_discrete_actions_gets_double_dqn_from_its_demonstrations(tmp_path):
+    config = load_preset(_preset(tmp_path, CARTPOLE))
+    assert (config.recipe, config.algorithm, config.dqn.warmup) == ("discrete", "ddqn", "hardcoded")
+    assert config.dqn.margin_after_burn_in and config.dqn.switch_margin is not None
+    assert config.selection.episodes > 0
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "env_id: Pendulum-v1\n",  # TD3 alone: no tree to fall back to
+        PENDULUM + "algorithm: backbone_td3\n",  # μ not observed by the learner
+        CARTPOLE + "algorithm: ddqn\n",  # no demonstrations of the tree
+    ],
+)
+def test_a_final_selection_without_a_tree_to_fall_back_to_is_refused(tmp_path, text):
+    with pytest.raises(ValueError, match=r"selection.episodes=30 falls back to the tree"):
+        load_preset(_preset(tmp_path, text + "selection: {episodes: 30}\n"))
+
+
+def test_the_presets_own_fields_and_overrides_win_over_the_recipe(tmp_path):
+    preset = _preset(tmp_path, PENDULUM + "td3: {batch_size: 32}\nbackbone: {prefill_noise: 0.1}\n")
+    config = load_preset(preset, **{"backbone.correction_limit": 1.5, "learning_starts": 123})
+    assert config.td3.batch_size == 32 and config.td3.hidden_sizes == (128, 128)  # both kept
+    assert config.backbone.prefill_noise == 0.1 and config.backbone.correction_limit == 1.5
+    assert config.learning_starts == 123
+
+
+@pytest.mark.parametrize(
+    "text, overrides, algorithm",
+    [
+        (PENDULUM + "algorithm: td3\n", {}, "td3"),  # the preset chose
+        (PENDULUM, {"algorithm": "pretrain_td3"}, "pretrain_td3"),  # an override chose
+        ("env_id: Pendulum-v1\n", {}, "td3"),  # no tree: TD3, the config's default
+    ],
+)
+def test_no_recipe_when_an_algorithm_is_named_or_there_is_no_tree(
+    tmp_path, text, overrides, algorithm
+):
+    config = load_preset(_preset(tmp_path, text), **overrides)
+    assert config.recipe is None and config.algorithm == algorithm
+
+
+def test_graft_train_says_which_recipe_in_one_line(tmp_path, capsys):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "other.txt").write_text("not empty")  # refused before Ray starts
+    preset = _preset(tmp_path, PENDULUM)
+    with pytest.raises(SystemExit):
+        main(["train", "--preset", str(preset), "--run-dir", str(tmp_path / "run")])
+    first = capsys.readouterr().err.splitlines()[0]
+    assert first == (
+        "graft train: preset task names a hardcoded_policy and no algorithm: graft's default "
+        f"recipe for continuous actions, {recipe_description('continuous')} "
+        "(docs/own-task.md, 'The default recipe'; set algorithm: to choose another)"
+    )
+
+
+def test_a_task_that_does_not_build_is_one_line_before_any_recipe(tmp_path):
+    preset = _preset(tmp_path, "env_id: nowhere_pkg.envs:make\nhardcoded_policy: a.b:c\n")
+    with pytest.raises(ValueError, match=r"^preset .*task.yaml: env_id='nowhere_pkg.envs:make'"):
+        load_preset(preset)
