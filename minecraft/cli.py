@@ -188,6 +188,14 @@ def add_minecraft_commands(
     """
     mc = subparsers.add_parser("minecraft", help="simulated Minecraft (MalmoEnv) worlds")
     sub = mc.add_subparsers(dest="minecraft_command", required=True)
+    _add_serve(sub)
+    _add_view(sub, load_corrections)
+    tree = sub.add_parser("tree", help="print the obtain-diamond behaviour tree, save a PNG")
+    tree.add_argument("--png", default="diamond_tree.png", help="PNG path ('' for none)")
+    tree.set_defaults(func=_tree)
+
+
+def _add_serve(sub: argparse._SubParsersAction) -> None:
     serve = sub.add_parser("serve", help="run one world server speaking MalmoEnv")
     serve.add_argument("--port", type=int, default=P.DEFAULT_PORT, help="TCP port (0: any)")
     serve.add_argument("--seed", type=int, default=0, help="base world seed")
@@ -249,6 +257,12 @@ def add_minecraft_commands(
     for flag, kind, default, what in limit_flags:
         serve.add_argument(flag, type=kind, default=default, help=f"{what} (default {default})")
     serve.set_defaults(func=_serve)
+
+
+def _add_view(
+    sub: argparse._SubParsersAction,
+    load_corrections: Optional[Callable[[list[Path], list[str]], Corrections]],
+) -> None:
     view = sub.add_parser("view", help="save PNG frames of a short episode")
     view.add_argument("--seed", type=int, default=0, help="world seed")
     view.add_argument("--steps", type=int, default=200, help="ticks to run")
@@ -274,9 +288,6 @@ def add_minecraft_commands(
              "searching (repeatable; default: every walk)",
     )  # fmt: skip
     view.set_defaults(func=_view, load_corrections=load_corrections)
-    tree = sub.add_parser("tree", help="print the obtain-diamond behaviour tree, save a PNG")
-    tree.add_argument("--png", default="diamond_tree.png", help="PNG path ('' for none)")
-    tree.set_defaults(func=_tree)
 
 
 def main(argv: Optional[list[str]] = None) -> int:

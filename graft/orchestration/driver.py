@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import secrets
 import signal
 import sys
 import threading
@@ -28,14 +27,11 @@ from tqdm import tqdm
 
 from actors.evaluator import RemoteEvaluator
 from graft.config import TrainConfig
+from graft.orchestration.assembly import RunParts
 from graft.orchestration.budget import StepBudget
 from graft.orchestration.clients import actor_env, evaluator_env, world_clients
 from graft.orchestration.kept import (
-    BROADCASTER,
     BUDGET,
-    ENV_ACTORS,
-    EVALUATOR,
-    KEPT,
     env_actor,
     options_key,
     take_or_start,
@@ -44,7 +40,7 @@ from graft.orchestration.lockstep import ActorRing, deterministic, stalled
 from graft.orchestration.preflight import check_cluster, check_fits_locally, check_run_dir
 from graft.orchestration.progress import FaultLog, say_and_keep, watch
 from graft.orchestration.provenance import config_record
-from graft.orchestration.ray_session import check_head, connect_ray
+from graft.orchestration.ray_session import check_head
 from graft.orchestration.resume import restore, resume_with
 from graft.orchestration.roles import (
     ACTOR_FINISH_S,
@@ -56,7 +52,7 @@ from graft.orchestration.roles import (
 from graft.orchestration.summary import REFERENCE_LEVELS, log_behaviour_stats, summarise
 from graft.orchestration.supervision import ActorFleet, Supervisor
 from graft.orchestration.tables import preset_tables
-from graft.replay_host.folder import open_replay, reusable
+from graft.replay_host.folder import Restored, open_replay, reusable
 from graft.replay_host.shards import RunReplay
 from learner.agent import Phase
 from learner.device import device_name
@@ -95,6 +91,51 @@ def train_here(
     Raises:
         ConfigError: a bad value, a refused run folder or resume, in one line.
     """
+    plan = _plan(config, address, run_dir, resume)
+    with RunParts(address) as parts:
+        sigint = _SigintHold()
+        parts.on_exit(sigint.release)  # last: nothing cuts the teardown short
+        if config.reproducible:
+            parts.on_exit(deterministic(config.seed))
+        parts.connect()
+        check_cluster(config, address)
+        run = _start(parts, config, plan, progress)
+        loop, bar, faults = _learner_loop(config, plan, run, progress)
+        try:
+            final, reports, interrupted = _learn(loop, run, config, bar)
+        finally:
+            # From here on the run only saves and stops: a (second) Ctrl-C must not cut that
+            # short and leave a half-written folder or processes behind.
+            sigint.hold()
+            bar.close()
+        summary = _finish(config, plan, run, (loop, faults), final, reports, interrupted)
+        parts.keep = True
+        parts.keep_actors = not interrupted  # its actors may still be acting: they are ended
+    return RunResult(plan.run_dir, summary, final.evaluations, interrupted=interrupted)
+
+
+@dataclass
+class _Plan:
+    """What a run was checked and set up with before any process starts."""
+
+    run_dir: Path
+    checkpoint: Optional[Path]
+    device: torch.device
+    compile_mode: str
+    clients: Any
+    builder: Any
+    behaviour: Any
+    algorithm: Any
+    state: LoopState
+    phases: list[Phase]
+    tables: Any
+    hardware: dict[str, str]
+    start: float
+
+
+def _plan(config: TrainConfig, address: str, run_dir: Optional[Path], resume: bool) -> _Plan:
+    """Checks everything that can be checked before Ray starts, builds the algorithm
+    (restored from the checkpoint a resume continues from) and writes config.yaml."""
     run_dir, checkpoint = check_run_dir(config, run_dir, resume)
     check_fits_locally(config, address)
     device, compile_mode = learner_device(config)  # a GPU that is not here: refused before Ray
@@ -117,252 +158,274 @@ def train_here(
         print(f"resumed from {checkpoint} at {state.updates} updates, {state.env_steps} env steps")
     if config.learner.device == "auto":  # said once every check passed; stdout stays clean
         print(f"learner.device=auto picked {device} ({device_name(device)})", file=sys.stderr)
-    started_ray = connect_ray(address)
-    actors: Optional[ActorFleet] = None
-    replay: Optional[RunReplay] = None
-    supervisor: Optional[Supervisor] = None
-    publisher: Optional[BroadcastPublisher] = None
-    evaluator: Optional[RemoteEvaluator] = None
-    interrupted, finished, release_sigint = False, False, _no_op
-    restore_torch = deterministic(config.seed) if config.reproducible else _no_op
-    try:
-        check_cluster(config, address)
-        # Beyond one machine the replay server must listen on the network: then it needs
-        # a token.
-        host = "127.0.0.1" if address == "local" else "0.0.0.0"
-        token = None if address == "local" else secrets.token_urlsafe(24)
-        replay, restored = open_replay(
-            lambda: start_replay(tables, config, host=host, token=token, run_dir=run_dir),
-            run_dir=run_dir,
-            tables=tables,
-            token=token,
-            resumed_env_steps=state.env_steps if checkpoint is not None else None,
+    return _Plan(
+        run_dir, checkpoint, device, compile_mode, clients, builder, behaviour, algorithm,
+        state, phases, tables, hardware, start,
+    )  # fmt: skip
+
+
+@dataclass
+class _Started:
+    """A run's parts once started (each registered with the run's `RunParts`)."""
+
+    replay: RunReplay
+    restored: Optional[Restored]
+    phases: list[Phase]
+    publisher: BroadcastPublisher
+    evaluator: RemoteEvaluator
+    actors: ActorFleet
+    supervisor: Supervisor
+    segments: Any
+    say: Callable[[str], None]
+    resumed_env_steps: int
+    """The env steps the run starts from (a restored table's: `resume_with`)."""
+
+
+def _start(parts: RunParts, config: TrainConfig, plan: _Plan, progress: bool) -> _Started:
+    """Starts the replay server(s), the weight broadcaster, the evaluator, the step budget
+    and the env actors, in that order, each registered with `parts` for the teardown."""
+    resumed = plan.checkpoint is not None
+    replay, restored = parts.replay(
+        lambda: open_replay(
+            lambda: start_replay(
+                plan.tables, config, host=parts.host, token=parts.token, run_dir=plan.run_dir
+            ),
+            run_dir=plan.run_dir,
+            tables=plan.tables,
+            token=parts.token,
+            resumed_env_steps=plan.state.env_steps if resumed else None,
             reproducible=config.reproducible,
             shards=config.replay.shards,
             say=_print,
-        )
-        if checkpoint is not None:
-            phases = resume_with(phases, state, config, restored, builder.batch_size)
-        client = replay.sampler()
-        node = ray.get_runtime_context().get_node_id()
-        publisher = BroadcastPublisher(kept=KEPT.take(BROADCASTER, node))
-        notes: list[str] = []
-        say = say_and_keep(notes, progress)
-        evaluator_options = config.evaluator.ray_options()
-        evaluator_key = options_key(evaluator_options)
-        evaluator = RemoteEvaluator(
-            env=evaluator_env(config, clients),
-            behaviour=builder.make_behaviour(num_actors=1),
+        ),
+        stop=lambda opened: opened[0].stop(),
+    )
+    phases = plan.phases
+    if resumed:
+        phases = resume_with(phases, plan.state, config, restored, plan.builder.batch_size)
+    publisher = parts.broadcaster()
+    say = say_and_keep([], progress)
+    evaluator_options = config.evaluator.ray_options()
+    evaluator = parts.evaluator(
+        lambda kept: RemoteEvaluator(
+            env=evaluator_env(config, plan.clients),
+            behaviour=plan.builder.make_behaviour(num_actors=1),
             seed=10_000 + config.seed,
             options=evaluator_options,
             max_restarts=config.evaluator.max_restarts,
             on_restart=say,
-            kept=KEPT.take(EVALUATOR, evaluator_key),
+            kept=kept,
+        ),
+        options_key(evaluator_options),
+    )
+    actor_options = {**config.actors.ray_options(), "max_concurrency": 2}
+
+    def make_actor(i: int, incarnation: int) -> Any:
+        # A dead actor's replacement is a new process, never a kept one.
+        arguments = dict(
+            env=actor_env(config, plan.clients, i),
+            num_envs=config.envs_per_actor,
+            # A replacement explores from other seeds than the actor it replaces.
+            seed=config.seed * 1000 + i * config.envs_per_actor + 100_000 * incarnation,
+            replay=replay.writer(i),
+            weights=publisher.subscriber(),
+            behaviour=plan.behaviour,
+            steps_per_insert=config.steps_per_insert,
+            async_envs=config.async_envs,
+            nice=config.actor_nice,
         )
-        resumed_env_steps = state.env_steps  # a restored table's env steps (resume_with)
+        return env_actor(actor_options, arguments, kept=incarnation == 0)
 
-        actor_options = {**config.actors.ray_options(), "max_concurrency": 2}
+    segments = actor_segments(phases, config.num_actors)
+    budget = _step_budget(config, phases, parts.node)
+    fleet = ActorFleet(
+        make_actor,
+        segments if budget is None else actor_segments(phases, 1),
+        config.num_actors,
+        max_restarts=0 if config.reproducible else config.actors.max_restarts,
+        start=not config.reproducible,
+        budget=budget,
+    )
+    actors = parts.actors(fleet, options_key(actor_options), budget)
+    supervisor = Supervisor(replay, actors, say)
+    parts.on_exit(supervisor.stop)
+    return _Started(
+        replay, restored, phases, publisher, evaluator, actors, supervisor, segments, say,
+        resumed_env_steps=plan.state.env_steps,
+    )  # fmt: skip
 
-        def make_actor(i: int, incarnation: int) -> Any:
-            # A dead actor's replacement is a new process, never a kept one.
-            arguments = dict(
-                env=actor_env(config, clients, i),
-                num_envs=config.envs_per_actor,
-                # A replacement explores from other seeds than the actor it replaces.
-                seed=config.seed * 1000 + i * config.envs_per_actor + 100_000 * incarnation,
-                replay=replay.writer(i),
-                weights=publisher.subscriber(),
-                behaviour=behaviour,
-                steps_per_insert=config.steps_per_insert,
-                async_envs=config.async_envs,
-                nice=config.actor_nice,
-            )
-            return env_actor(actor_options, arguments, kept=incarnation == 0)
 
-        # Asynchronous: every actor claims the steps of each phase from one shared budget,
-        # an insert batch at a time, until the phase's budget is spent (so none idles
-        # while others act); a dead one is replaced. Reproducible: each has a fixed share,
-        # and the learner asks them for one insert batch at a time (ActorRing) and draws
-        # each batch only when it needs it; wall-clock metrics go to timing.csv, not
-        # metrics.csv. A dead actor there ends the run (a replacement would change what
-        # the seed computes).
-        segments = actor_segments(phases, config.num_actors)
-        budget = None
-        if not config.reproducible and config.num_actors > 1:
-            # Shared by the actors (one alone acts its whole share: no process for it).
-            # On the learner's node, as the weight broadcaster: a worker node lost with
-            # its actors must not take the budget along. @ray.remote gives the class
-            # `.options` at run time; mypy sees the plain class.
-            here = NodeAffinitySchedulingStrategy(node, False)
-            totals = {s.table: s.steps for s in actor_segments(phases, 1)}
-            budget = take_or_start(
-                BUDGET,
-                node,
-                lambda: StepBudget.options(scheduling_strategy=here).remote(totals),  # type: ignore[attr-defined]
-                lambda kept: kept.reset.remote(totals),
-            )
-        actors = ActorFleet(
-            make_actor,
-            segments if budget is None else actor_segments(phases, 1),
-            config.num_actors,
-            max_restarts=0 if config.reproducible else config.actors.max_restarts,
-            start=not config.reproducible,
-            budget=budget,
-        )
-        supervisor = Supervisor(replay, actors, say)
-        lockstep = (
-            Lockstep(ActorRing(actors.handles, segments), builder.batch_size)
-            if config.reproducible
-            else None
-        )
-        logger = MetricsLogger(run_dir, wall_clock=not config.reproducible)
-        prefetch = 0 if config.reproducible else config.prefetch
+def _step_budget(config: TrainConfig, phases: list[Phase], node: str) -> Optional[Any]:
+    """The step budget the actors share, or None.
 
-        def open_stream(phase: Phase) -> SampleStream:
-            return client.sample_stream(
-                phase.name, builder.batch_size, prefetch=prefetch, **_window(phase)
-            )
+    Asynchronous: every actor claims the steps of each phase from one shared budget, an
+    insert batch at a time, until the phase's budget is spent (so none idles while others
+    act); a dead one is replaced. One actor alone acts its whole share: no process for it.
+    Reproducible: each has a fixed share, and the learner asks them for one insert batch at
+    a time (ActorRing) and draws each batch only when it needs it; wall-clock metrics go to
+    timing.csv, not metrics.csv. A dead actor there ends the run (a replacement would change
+    what the seed computes).
+    """
+    if config.reproducible or config.num_actors == 1:
+        return None
+    # On the learner's node, as the weight broadcaster: a worker node lost with its actors
+    # must not take the budget along. @ray.remote gives the class `.options` at run time;
+    # mypy sees the plain class.
+    here = NodeAffinitySchedulingStrategy(node, False)
+    totals = {s.table: s.steps for s in actor_segments(phases, 1)}
+    return take_or_start(
+        BUDGET,
+        node,
+        lambda: StepBudget.options(scheduling_strategy=here).remote(totals),  # type: ignore[attr-defined]
+        lambda kept: kept.reset.remote(totals),
+    )
 
-        settings = LoopSettings(
+
+def _learner_loop(
+    config: TrainConfig, plan: _Plan, run: _Started, progress: bool
+) -> tuple[LearnerLoop, tqdm, FaultLog]:
+    """The learner loop over the run's phases, its progress bar and its fault log."""
+    client = run.replay.sampler()
+    batch_size = plan.builder.batch_size
+    prefetch = 0 if config.reproducible else config.prefetch
+    lockstep = (
+        Lockstep(ActorRing(run.actors.handles, run.segments), batch_size)
+        if config.reproducible
+        else None
+    )
+    logger = MetricsLogger(plan.run_dir, wall_clock=not config.reproducible)
+
+    def open_stream(phase: Phase) -> SampleStream:
+        return client.sample_stream(phase.name, batch_size, prefetch=prefetch, **_window(phase))
+
+    bar = tqdm(
+        total=sum(p.updates for p in run.phases),
+        initial=plan.state.updates,
+        unit="upd",
+        disable=not progress,
+        dynamic_ncols=True,
+    )
+    faults = FaultLog(logger, run.supervisor, run.evaluator)
+
+    def on_progress(s: LoopState) -> None:
+        run.supervisor.raise_error()
+        if s.updates % 100 == 0:
+            faults.log(s)
+            bar.update(s.updates - bar.n)
+            last = s.evaluations[-1]["mean"] if s.evaluations else float("nan")
+            bar.set_postfix(env_steps=s.env_steps, eval_return=f"{last:.0f}", version=s.version)
+
+    loop = LearnerLoop(
+        plan.algorithm,
+        phases=run.phases,
+        open_stream=open_stream,
+        publisher=run.publisher,
+        evaluator=run.evaluator,
+        logger=logger,
+        checkpoint_dir=plan.run_dir / "checkpoints",
+        settings=LoopSettings(
             publish_every=config.publish_every,
             eval_every=config.eval_every,
             eval_episodes=config.eval_episodes,
             checkpoint_every=config.checkpoint_every,
             keep_checkpoints=config.keep_checkpoints,
             selection=config.selection,
-        )
-        bar = tqdm(
-            total=sum(p.updates for p in phases),
-            initial=state.updates,
-            unit="upd",
-            disable=not progress,
-            dynamic_ncols=True,
-        )
-
-        faults = FaultLog(logger, supervisor, evaluator)
-
-        def on_progress(s: LoopState) -> None:
-            supervisor.raise_error()
-            if s.updates % 100 == 0:
-                faults.log(s)
-                bar.update(s.updates - bar.n)
-                last = s.evaluations[-1]["mean"] if s.evaluations else float("nan")
-                bar.set_postfix(env_steps=s.env_steps, eval_return=f"{last:.0f}", version=s.version)
-
-        loop = LearnerLoop(
-            algorithm,
-            phases=phases,
-            open_stream=open_stream,
-            publisher=publisher,
-            evaluator=evaluator,
-            logger=logger,
-            checkpoint_dir=run_dir / "checkpoints",
-            settings=settings,
-            state=state,
-            on_progress=on_progress,
-            watchdog=stalled
-            if config.reproducible
-            else lambda: watch(supervisor, actors, faults, loop.state),
-            lockstep=lockstep,
-            env_steps_offset=restored.env_steps_before if restored is not None else None,
-            device=device,
-            prefetch_to_device=config.learner.prefetch_to_device,
-        )
-        try:
-            final = loop.run()
-            bar.update(final.updates - bar.n)
-            publisher.stop()
-            supervisor.stop()
-            supervisor.raise_error()
-            if config.reproducible:
-                finishing = [a.finish.remote() for a in actors.handles]
-                actor_reports = ray.get(finishing, timeout=ACTOR_FINISH_S)
-            else:
-                actor_reports, leftovers = actors.reports(timeout_s=ACTOR_FINISH_S)
-                for line in leftovers:
-                    say(line)
-            # The learner may stop before it sees the actors' last inserts: count them directly.
-            final.env_steps = resumed_env_steps + sum(r["env_steps"] for r in actor_reports)
-        except KeyboardInterrupt:  # Ctrl-C: stop here and keep what was learned
-            interrupted, final, actor_reports = True, loop.state, []
-        finally:
-            # From here on the run only saves and stops: a (second) Ctrl-C must not cut that
-            # short and leave a half-written folder or processes behind.
-            release_sigint = _hold_sigint()
-            bar.close()
-        if interrupted:  # no final selection: the newest in-run evaluation's verdict holds
-            loop.keep_guarded()
-        loop.checkpoint()  # with the env-step count a resume continues from
-        faults.log(final, always=True)
-        log_behaviour_stats(logger, actor_reports, config.num_actors, resumed_env_steps)
-        logger.close()
-        summary = summarise(config, final, actor_reports, time.perf_counter() - start)
-        if config.replay.shards > 1:
-            summary["replay_shard_inserts"] = replay.inserts()
-        summary["interrupted"] = interrupted
-        summary["selection"] = final.selection or None
-        summary["guard"] = final.guard or None
-        summary["replay_restored"] = dataclasses.asdict(restored) if restored else None
-        summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
-        summary.update(hardware, learner_compile=compile_mode)
-        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-        plot_learning_curve(
-            run_dir / "metrics.csv",
-            run_dir / "learning_curve.png",
-            title=f"{config.preset} (seed {config.seed})",
-            reference=REFERENCE_LEVELS.get(config.env_id),
-        )
-        finished = True
-    finally:
-        if supervisor is not None:
-            supervisor.stop()
-        # A run that ended well on a Ray instance that stays hands its helpers on (kept.py).
-        keep = finished and not started_ray
-        if actors is not None:
-            # An interrupted run's actors may still be acting: they are ended, not kept.
-            if keep and not interrupted:
-                KEPT.keep(ENV_ACTORS, options_key(actor_options), *actors.release())
-                if budget is not None:
-                    KEPT.keep(BUDGET, node, budget)
-            else:
-                actors.kill()
-        if evaluator is not None:
-            if keep:
-                KEPT.keep(EVALUATOR, evaluator_key, evaluator.release())
-            else:
-                evaluator.close()
-        if publisher is not None:
-            if keep:
-                KEPT.keep(BROADCASTER, node, publisher.release())
-            else:
-                publisher.close()
-        if replay is not None:
-            replay.stop()
-        if started_ray:
-            ray.shutdown()
-        restore_torch()
-        release_sigint()
-    return RunResult(run_dir, summary, final.evaluations, interrupted=interrupted)
+        ),
+        state=plan.state,
+        on_progress=on_progress,
+        watchdog=stalled
+        if config.reproducible
+        else lambda: watch(run.supervisor, run.actors, faults, loop.state),
+        lockstep=lockstep,
+        env_steps_offset=run.restored.env_steps_before if run.restored is not None else None,
+        device=plan.device,
+        prefetch_to_device=config.learner.prefetch_to_device,
+    )
+    return loop, bar, faults
 
 
-def _no_op() -> None:
-    pass
+def _learn(
+    loop: LearnerLoop, run: _Started, config: TrainConfig, bar: tqdm
+) -> tuple[LoopState, list[dict[str, Any]], bool]:
+    """Runs the loop to its end (or to Ctrl-C); the final state, the actors' reports and
+    whether the run was interrupted."""
+    try:
+        final = loop.run()
+        bar.update(final.updates - bar.n)
+        run.publisher.stop()
+        run.supervisor.stop()
+        run.supervisor.raise_error()
+        if config.reproducible:
+            finishing = [a.finish.remote() for a in run.actors.handles]
+            reports = ray.get(finishing, timeout=ACTOR_FINISH_S)
+        else:
+            reports, leftovers = run.actors.reports(timeout_s=ACTOR_FINISH_S)
+            for line in leftovers:
+                run.say(line)
+    except KeyboardInterrupt:  # Ctrl-C: stop here and keep what was learned
+        return loop.state, [], True
+    # The learner may stop before it sees the actors' last inserts: count them directly.
+    final.env_steps = run.resumed_env_steps + sum(r["env_steps"] for r in reports)
+    return final, reports, False
+
+
+def _finish(
+    config: TrainConfig,
+    plan: _Plan,
+    run: _Started,
+    learning: tuple[LearnerLoop, FaultLog],
+    final: LoopState,
+    reports: list[dict[str, Any]],
+    interrupted: bool,
+) -> dict[str, Any]:
+    """Saves what the run learned: the final checkpoint, metrics, summary.json and the
+    learning curve; returns the summary."""
+    loop, faults = learning
+    if interrupted:  # no final selection: the newest in-run evaluation's verdict holds
+        loop.keep_guarded()
+    loop.checkpoint()  # with the env-step count a resume continues from
+    faults.log(final, always=True)
+    log_behaviour_stats(loop.logger, reports, config.num_actors, run.resumed_env_steps)
+    loop.logger.close()
+    summary = summarise(config, final, reports, time.perf_counter() - plan.start)
+    if config.replay.shards > 1:
+        summary["replay_shard_inserts"] = run.replay.inserts()
+    summary["interrupted"] = interrupted
+    summary["selection"] = final.selection or None
+    summary["guard"] = final.guard or None
+    summary["replay_restored"] = dataclasses.asdict(run.restored) if run.restored else None
+    summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
+    summary.update(plan.hardware, learner_compile=plan.compile_mode)
+    (plan.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    plot_learning_curve(
+        plan.run_dir / "metrics.csv",
+        plan.run_dir / "learning_curve.png",
+        title=f"{config.preset} (seed {config.seed})",
+        reference=REFERENCE_LEVELS.get(config.env_id),
+    )
+    return summary
 
 
 def _print(line: str) -> None:
     print(line, flush=True)
 
 
-def _hold_sigint() -> Callable[[], None]:
-    """Ignores SIGINT (main thread only) until the returned function is called."""
-    if threading.current_thread() is not threading.main_thread():
-        return _no_op
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+class _SigintHold:
+    """Ignores SIGINT (main thread only) from `hold` until `release`."""
 
-    def release() -> None:
-        signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
+    def __init__(self) -> None:
+        self._previous: Optional[Any] = None
+        self._held = False
 
-    return release
+    def hold(self) -> None:
+        if threading.current_thread() is threading.main_thread():
+            self._previous, self._held = signal.signal(signal.SIGINT, signal.SIG_IGN), True
+
+    def release(self) -> None:
+        if self._held:
+            previous = self._previous
+            signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
+            self._held = False
 
 
 def _window(phase: Phase) -> dict[str, int]:

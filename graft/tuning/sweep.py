@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import secrets
 import time
 from collections.abc import Callable
 from typing import Any, Optional
@@ -32,7 +31,8 @@ from actors.env_actor import Segment
 from actors.simulated import ENV_ID, simulated_env_kwargs
 from actors.task import EnvSpec
 from actors.transitions import replay_signature
-from graft.orchestration.kept import BROADCASTER, ENV_ACTORS, KEPT, env_actor, options_key
+from graft.orchestration.assembly import RunParts
+from graft.orchestration.kept import ENV_ACTORS, KEPT, env_actor, options_key
 from graft.orchestration.preflight import check_task
 from graft.orchestration.ray_session import connect_ray
 from graft.orchestration.roles import PENDING_INSERTS
@@ -45,7 +45,6 @@ from graft.tuning.measure import TuningLearner, bottleneck, measure, snapshot
 from service.replay.client import ReplayClient
 from service.replay.errors import ReplayError
 from service.replay.sharding import ShardedReplayClient
-from service.weights import BroadcastPublisher
 
 FILL_TIMEOUT_S = 120.0
 """The longest a point waits for its table to reach the size sampling starts at."""
@@ -66,6 +65,66 @@ def run_point(
     torch.set_num_threads(1)
     builder = make_builder(config)
     behaviour = builder.make_behaviour(num_actors=config.num_actors)
+    phase, table, env_kwargs = _point_table(point, builder, behaviour)
+    with RunParts(address) as parts:
+        replay = [
+            parts.enter(ReplayProcess(tables, host=parts.host, token=parts.token))
+            for tables in shard_tables([table], config.replay.shards)
+        ]
+        addresses = [r.address for r in replay]
+        if parts.host == "0.0.0.0":
+            node_ip = ray.util.get_node_ip_address()
+            addresses = [f"{node_ip}:{a.rsplit(':', 1)[1]}" for a in addresses]
+        shards = [ReplayClient(a, token=parts.token) for a in addresses]
+        client = _replay_client(addresses, parts.token)
+        for c in [client, *shards]:
+            parts.on_exit(c.close)
+        publisher = parts.broadcaster()
+        options = {"num_cpus": costs.actor_cpus, "max_concurrency": 2}
+        actors: list[Any] = []
+        parts.on_exit(lambda: [ray.kill(actor) for actor in actors])  # those not handed on
+        for i in range(config.num_actors):
+            arguments = dict(
+                env=EnvSpec(ENV_ID, env_kwargs),
+                num_envs=config.envs_per_actor,
+                seed=seed * 1000 + i * config.envs_per_actor,
+                replay=_replay_client(addresses, parts.token, home=i),
+                weights=publisher.subscriber(),
+                behaviour=behaviour,
+                steps_per_insert=config.steps_per_insert,
+                nice=0 if costs.tick_ms else None,
+            )
+            actors.append(env_actor(options, arguments))
+        ray.get([a.report.remote() for a in actors])  # started: time from here
+        stream = client.sample_stream(phase.name, builder.batch_size, prefetch=config.prefetch)
+        learner = TuningLearner(point, stream=stream, publisher=publisher, builder=builder)
+        runs = _learn_point(learner, actors, phase, warmup_s=warmup_s)
+        before = snapshot(learner, actors, replay, shards, phase.name)
+        learner.run_until(time.monotonic() + measure_s)
+        after = snapshot(learner, actors, replay, shards, phase.name)
+        _raise_actor_errors(runs)
+        publisher.stop()
+        # Stopped, each actor ends its run: those that did go to the next point.
+        ended = _drain_until_ended(stream, runs, ACTOR_END_S)
+        stream.close()
+        mine = list(zip(actors, runs, strict=True))
+        KEPT.keep(ENV_ACTORS, options_key(options), *(a for a, r in mine if r.hex() in ended))
+        actors[:] = [a for a, r in mine if r.hex() not in ended]
+        parts.keep = True
+    row = measure(before, after, learner.version)
+    row["bottleneck"] = bottleneck(
+        learner_wait=row["learner_wait"],
+        publish=row["publish_fraction"],
+        actor_hold=row["actor_insert_wait"],
+        skipped=None if costs.tick_ms == 0 else row["skipped"],
+    )
+    return {**point.knobs, **row}
+
+
+def _point_table(point: Point, builder: Any, behaviour: Any) -> tuple[Any, dict[str, Any], Any]:
+    """A point's phase (its samples-per-insert knob applied), the table spec it fills and
+    the simulated environment's arguments (the preset's spaces, the point's step costs)."""
+    config, costs = point.config, point.costs
     env = config.make_env()
     env_kwargs = simulated_env_kwargs(
         env,
@@ -85,83 +144,30 @@ def run_point(
         max_size=min(config.replay_max_size, TUNE_MAX_SIZE),
         slack_env_steps=config.slack_env_steps,
     )
-    host = "127.0.0.1" if address == "local" else "0.0.0.0"
-    token = None if address == "local" else secrets.token_urlsafe(24)
-    actors: list[Any] = []
-    with contextlib.ExitStack() as servers:
-        replay = [
-            servers.enter_context(ReplayProcess(tables, host=host, token=token))
-            for tables in shard_tables([table], config.replay.shards)
-        ]
-        addresses = [r.address for r in replay]
-        if host == "0.0.0.0":
-            node = ray.util.get_node_ip_address()
-            addresses = [f"{node}:{a.rsplit(':', 1)[1]}" for a in addresses]
-        shards = [ReplayClient(a, token=token) for a in addresses]
-        client = _replay_client(addresses, token)
-        node = ray.get_runtime_context().get_node_id()
-        publisher = BroadcastPublisher(kept=KEPT.take(BROADCASTER, node))
-        n = config.num_actors
-        segment = Segment(
-            phase.name,
-            steps=10**12,
-            warmup_steps=-(-phase.warmup_steps // n),
-            pending_inserts=0 if phase.samples_per_insert is not None else PENDING_INSERTS,
-        )
-        options = {"num_cpus": costs.actor_cpus, "max_concurrency": 2}
-        handed_on = False
-        try:
-            for i in range(n):
-                arguments = dict(
-                    env=EnvSpec(ENV_ID, env_kwargs),
-                    num_envs=config.envs_per_actor,
-                    seed=seed * 1000 + i * config.envs_per_actor,
-                    replay=_replay_client(addresses, token, home=i),
-                    weights=publisher.subscriber(),
-                    behaviour=behaviour,
-                    steps_per_insert=config.steps_per_insert,
-                    nice=0 if costs.tick_ms else None,
-                )
-                actors.append(env_actor(options, arguments))
-            ray.get([a.report.remote() for a in actors])  # started: time from here
-            stream = client.sample_stream(phase.name, builder.batch_size, prefetch=config.prefetch)
-            learner = TuningLearner(point, stream=stream, publisher=publisher, builder=builder)
-            learner.publish()  # version 0: actors act with it after their warm-up steps
-            runs = [a.run.remote([segment]) for a in actors]
-            filled_by = time.monotonic() + FILL_TIMEOUT_S
-            while learner.counters.updates == 0 and time.monotonic() < filled_by:
-                learner.run_until(time.monotonic() + 0.5)  # the table fills to min_size
-                _raise_actor_errors(runs)
-            learner.run_until(time.monotonic() + warmup_s)
-            ray.get([a.restart_meters.remote() for a in actors])
-            before = snapshot(learner, actors, replay, shards, phase.name)
-            learner.run_until(time.monotonic() + measure_s)
-            after = snapshot(learner, actors, replay, shards, phase.name)
-            _raise_actor_errors(runs)
-            publisher.stop()
-            # Stopped, each actor ends its run: those that did go to the next point.
-            ended = _drain_until_ended(stream, runs, ACTOR_END_S)
-            stream.close()
-            mine = list(zip(actors, runs, strict=True))
-            KEPT.keep(ENV_ACTORS, options_key(options), *(a for a, r in mine if r.hex() in ended))
-            actors = [a for a, r in mine if r.hex() not in ended]
-            KEPT.keep(BROADCASTER, node, publisher.release())
-            handed_on = True
-        finally:
-            for actor in actors:
-                ray.kill(actor)
-            if not handed_on:
-                publisher.close()
-            for c in [client, *shards]:
-                c.close()
-    row = measure(before, after, learner.version)
-    row["bottleneck"] = bottleneck(
-        learner_wait=row["learner_wait"],
-        publish=row["publish_fraction"],
-        actor_hold=row["actor_insert_wait"],
-        skipped=None if costs.tick_ms == 0 else row["skipped"],
+    return phase, table, env_kwargs
+
+
+def _learn_point(
+    learner: TuningLearner, actors: list[Any], phase: Any, *, warmup_s: float
+) -> list[Any]:
+    """Starts the actors' runs, learns until the table has filled to its minimum size and
+    then for `warmup_s`; returns the runs, the actors' meters restarted."""
+    n = len(actors)
+    segment = Segment(
+        phase.name,
+        steps=10**12,
+        warmup_steps=-(-phase.warmup_steps // n),
+        pending_inserts=0 if phase.samples_per_insert is not None else PENDING_INSERTS,
     )
-    return {**point.knobs, **row}
+    learner.publish()  # version 0: actors act with it after their warm-up steps
+    runs = [a.run.remote([segment]) for a in actors]
+    filled_by = time.monotonic() + FILL_TIMEOUT_S
+    while learner.counters.updates == 0 and time.monotonic() < filled_by:
+        learner.run_until(time.monotonic() + 0.5)  # the table fills to min_size
+        _raise_actor_errors(runs)
+    learner.run_until(time.monotonic() + warmup_s)
+    ray.get([a.restart_meters.remote() for a in actors])
+    return runs
 
 
 def _replay_client(

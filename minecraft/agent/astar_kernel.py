@@ -181,6 +181,7 @@ def _open(i, step, goal_solid, goal_solid_pairs, opened):
     return changed
 
 
+# long-function: a compiled kernel (numba), one loop kept whole so that it compiles to one.
 @numba.njit(cache=True, nogil=True)
 def search(
     dims, cells, breakable, zobrist, start, goals, goal_solid_count, goal_solid_pairs,

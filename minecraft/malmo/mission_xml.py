@@ -56,69 +56,17 @@ def mission_xml(
         observations: space-separated producers besides the grid (stats, inventory,
             ray, entities).
     """
-    if flat is not None:
-        gen = f'<FlatWorldGenerator generatorString="{flat}" forceReset="true"/>'
-    else:
-        seed_attr = f' seed="{seed}"' if seed is not None else ""
-        gen = f'<DefaultWorldGenerator forceReset="true"{seed_attr}/>'
+    gen = _world_generator(seed, flat)
     deco = f"<DrawingDecorator>{decorators}</DrawingDecorator>" if decorators else ""
     limit = (
         f'<ServerQuitFromTimeUp timeLimitMs="{time_limit_ms}"/>'
         if time_limit_ms is not None
         else ""
     )
-    place = ""
-    if placement is not None:
-        place = '<Placement x="{}" y="{}" z="{}" yaw="0" pitch="0"/>'.format(*placement)
-    inv = ""
-    if inventory:
-        items = "".join(
-            f'<InventoryItem slot="{s}" type="{t}" quantity="{q}"/>' for s, t, q in inventory
-        )
-        inv = f"<Inventory>{items}</Inventory>"
-    if width is None or height is None:
-        width, height = SMALL_VIDEO
-    video = (
-        f'<VideoProducer want_depth="false"><Width>{width}</Width>'
-        f"<Height>{height}</Height></VideoProducer>"
-    )
-    grid = ""
-    if grid_radius > 0:
-        r = grid_radius
-        grid = (
-            f'<ObservationFromGrid><Grid name="cube"><min x="-{r}" y="-{r}" z="-{r}"/>'
-            f'<max x="{r}" y="{r}" z="{r}"/></Grid></ObservationFromGrid>'
-        )
-    producers = {
-        "stats": "<ObservationFromFullStats/>",
-        "inventory": '<ObservationFromFullInventory flat="false"/>',
-        "ray": "<ObservationFromRay/>",
-        "entities": "<ObservationFromNearbyEntities>"
-        '<Range name="entities" xrange="16" yrange="8" zrange="16"/>'
-        "</ObservationFromNearbyEntities>",
-    }
-    obs = "".join(producers[k] for k in observations.split())
-    keys = set(handlers.split())
-    cmd = ""
-    if "continuous" in keys:
-        cmd += '<ContinuousMovementCommands turnSpeedDegs="180"/>'
-    if "discrete" in keys:
-        cmd += (
-            '<DiscreteMovementCommands><ModifierList type="allow-list">'
-            "<command>movenorth</command><command>movesouth</command>"
-            "<command>moveeast</command><command>movewest</command>"
-            "<command>jumpnorth</command><command>jumpsouth</command>"
-            "<command>jumpeast</command><command>jumpwest</command>"
-            "<command>look</command></ModifierList></DiscreteMovementCommands>"
-        )
-    if "absolute" in keys:
-        cmd += "<AbsoluteMovementCommands/>"
-    if "inventory" in keys:
-        cmd += "<InventoryCommands/>"
-    if "craft" in keys:
-        cmd += "<SimpleCraftCommands/>"
-    if "quit" in keys:
-        cmd += "<MissionQuitCommands/>"
+    place, inv = _agent_start(placement, inventory)
+    obs = "".join(_PRODUCERS[k] for k in observations.split())
+    grid, video = _grid(grid_radius), _video(width, height)
+    cmd = "".join(_COMMANDS[k] for k in _COMMANDS if k in set(handlers.split()))
     return f"""<?xml version="1.0" encoding="UTF-8" standalone="no" ?>
 <Mission xmlns="{NS}" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance">
   <About><Summary>graft: obtain a diamond</Summary></About>
@@ -146,6 +94,76 @@ def mission_xml(
   </AgentSection>
 </Mission>
 """
+
+
+_PRODUCERS = {
+    "stats": "<ObservationFromFullStats/>",
+    "inventory": '<ObservationFromFullInventory flat="false"/>',
+    "ray": "<ObservationFromRay/>",
+    "entities": "<ObservationFromNearbyEntities>"
+    '<Range name="entities" xrange="16" yrange="8" zrange="16"/>'
+    "</ObservationFromNearbyEntities>",
+}
+"""The observation producers `mission_xml` names, as their XML."""
+_COMMANDS = {
+    "continuous": '<ContinuousMovementCommands turnSpeedDegs="180"/>',
+    "discrete": (
+        '<DiscreteMovementCommands><ModifierList type="allow-list">'
+        "<command>movenorth</command><command>movesouth</command>"
+        "<command>moveeast</command><command>movewest</command>"
+        "<command>jumpnorth</command><command>jumpsouth</command>"
+        "<command>jumpeast</command><command>jumpwest</command>"
+        "<command>look</command></ModifierList></DiscreteMovementCommands>"
+    ),
+    "absolute": "<AbsoluteMovementCommands/>",
+    "inventory": "<InventoryCommands/>",
+    "craft": "<SimpleCraftCommands/>",
+    "quit": "<MissionQuitCommands/>",
+}
+"""The command handlers `mission_xml` names, as their XML, in the order they are written."""
+
+
+def _world_generator(seed: Optional[int], flat: Optional[str]) -> str:
+    if flat is not None:
+        return f'<FlatWorldGenerator generatorString="{flat}" forceReset="true"/>'
+    seed_attr = f' seed="{seed}"' if seed is not None else ""
+    return f'<DefaultWorldGenerator forceReset="true"{seed_attr}/>'
+
+
+def _agent_start(
+    placement: Optional[tuple[float, float, float]], inventory: tuple[tuple[int, str, int], ...]
+) -> tuple[str, str]:
+    """The AgentStart's Placement and Inventory elements (empty where not given)."""
+    place = ""
+    if placement is not None:
+        place = '<Placement x="{}" y="{}" z="{}" yaw="0" pitch="0"/>'.format(*placement)
+    inv = ""
+    if inventory:
+        items = "".join(
+            f'<InventoryItem slot="{s}" type="{t}" quantity="{q}"/>' for s, t, q in inventory
+        )
+        inv = f"<Inventory>{items}</Inventory>"
+    return place, inv
+
+
+def _grid(radius: int) -> str:
+    """The ``cube`` grid observation of half-size `radius` (none for 0)."""
+    if radius <= 0:
+        return ""
+    r = radius
+    return (
+        f'<ObservationFromGrid><Grid name="cube"><min x="-{r}" y="-{r}" z="-{r}"/>'
+        f'<max x="{r}" y="{r}" z="{r}"/></Grid></ObservationFromGrid>'
+    )
+
+
+def _video(width: Optional[int], height: Optional[int]) -> str:
+    if width is None or height is None:
+        width, height = SMALL_VIDEO
+    return (
+        f'<VideoProducer want_depth="false"><Width>{width}</Width>'
+        f"<Height>{height}</Height></VideoProducer>"
+    )
 
 
 def obtain_diamond(seed: Optional[int] = None, *, pixels: bool = True) -> str:
