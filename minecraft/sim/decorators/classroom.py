@@ -16,8 +16,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import minecraft.sim.decorators.classroom_draw as draw
 from minecraft.malmo.decorator_specs import ClassroomSpec
-from minecraft.sim.decorators import classroom_draw as draw
 from minecraft.sim.decorators.classroom_rooms import Divider, GridRoom, Room
 from minecraft.sim.decorators.decoration import Decoration, cuboid, seed_or
 from minecraft.sim.decorators.java_random import JavaRandom
