@@ -14,7 +14,7 @@ demo: setup
 # The user-task fixture and each example project are packages of their own, installed the
 # way a user installs theirs.
 TEST_PACKAGES := $(VENV)/.usertask $(VENV)/.example-mountaincar $(VENV)/.example-cartpole \
-	$(VENV)/.example-lunarlander $(VENV)/.example-halfcheetah
+	$(VENV)/.example-lunarlander $(VENV)/.example-halfcheetah $(VENV)/.example-heldout
 # The suite is CPU-bound on 2 cores: two xdist workers (more cost CPU in contention than
 # they save in waits), a file per worker (a module's shared server or cluster stays on one).
 # Tests that measure real-time pacing, or reuse a port across a restart, are marked

@@ -38,6 +38,7 @@ USER_PACKAGES = {
     "cartpole_example": TESTS.parent / "examples" / "cartpole",
     "lunarlander_example": TESTS.parent / "examples" / "lunarlander",
     "halfcheetah_example": TESTS.parent / "examples" / "halfcheetah",
+    "heldout_example": TESTS.parent / "examples" / "heldout",
 }
 """Packages of graft's users (module: project folder), each its own distribution."""
 
