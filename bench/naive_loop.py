@@ -1,4 +1,4 @@
-"""The paper's naive loop, kept only for the decoupling comparison of ``bench/minecraft.py``:
+"""The paper's naive loop, kept only for the decoupling comparison of ``bench/minecraft_suite.py``:
 the acting process trains its own TD3 between two steps (sec. IV-D: "the slower and
 heavier execution of the RL training makes it skipping too many useful frames"). graft's
 actors never do this.

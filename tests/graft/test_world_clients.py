@@ -8,7 +8,7 @@ import pytest
 
 from graft.cli import main
 from graft.config import load_preset
-from graft.orchestration import driver
+from graft.orchestration import assembly
 from graft.orchestration.clients import actor_env, evaluator_env, world_clients
 from graft.orchestration.launcher import train
 from minecraft.malmo.client import MalmoClient
@@ -32,7 +32,7 @@ def _refused(argv: list[str], capsys) -> str:
         raise AssertionError(f"Ray was started ({address}) before the refusal")
 
     with pytest.MonkeyPatch.context() as patch, pytest.raises(SystemExit) as exit:
-        patch.setattr(driver, "connect_ray", no_ray)
+        patch.setattr(assembly, "connect_ray", no_ray)
         main(argv)
     assert exit.value.code == 2
     err = capsys.readouterr().err

@@ -21,9 +21,9 @@
    PNG). First, in the same run, actor CPU per tick before (one client per actor, the
    per-block grid encoding, ``pooled_clients.encode_per_block``) and after.
 
-    python bench/minecraft.py                       # all parts
-    python bench/minecraft.py --part decoupling [--warmup 20 --measure 40 --seed 1]
-    python bench/minecraft.py --part clients [--clients 8 16 24 32 48 --per-actor 8]
+    python bench/minecraft_suite.py                       # all parts
+    python bench/minecraft_suite.py --part decoupling [--warmup 20 --measure 40 --seed 1]
+    python bench/minecraft_suite.py --part clients [--clients 8 16 24 32 48 --per-actor 8]
 """
 
 from __future__ import annotations
