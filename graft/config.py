@@ -14,6 +14,7 @@ from typing import Any, Optional
 import yaml
 
 from actors.task import EnvSpec, split_import_string
+from graft import seeds
 from graft.placement import ActorPlacement, LearnerPlacement, ReplaySettings
 from graft.recipe import with_default_recipe
 from graft.validation import (
@@ -189,6 +190,12 @@ class TrainConfig:
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
+        if self.num_actors * self.envs_per_actor > seeds.BLOCK:
+            raise ValueError(
+                f"num_actors={self.num_actors} x envs_per_actor={self.envs_per_actor} must be "
+                f"<= {seeds.BLOCK}: a run's environments reset from one block of "
+                f"{seeds.BLOCK} seeds (graft/seeds.py)"
+            )
         if not 0 <= self.seed < 2**32:
             raise ValueError(f"seed={self.seed} must lie in [0, 2**32) (numpy's seed range)")
         if self.keep_checkpoints < 0:

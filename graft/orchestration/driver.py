@@ -54,6 +54,7 @@ from graft.orchestration.supervision import ActorFleet, Supervisor
 from graft.orchestration.tables import preset_tables
 from graft.replay_host.folder import Restored, open_replay, reusable
 from graft.replay_host.shards import RunReplay
+from graft.seeds import evaluation_seed, training_seed
 from learner.agent import Phase
 from learner.device import device_name
 from learner.loop import LearnerLoop, Lockstep, LoopSettings, LoopState
@@ -210,7 +211,7 @@ def _start(parts: RunParts, config: TrainConfig, plan: _Plan, progress: bool) ->
         lambda kept: RemoteEvaluator(
             env=evaluator_env(config, plan.clients),
             behaviour=plan.builder.make_behaviour(num_actors=1),
-            seed=10_000 + config.seed,
+            seed=evaluation_seed(config.seed),
             options=evaluator_options,
             max_restarts=config.evaluator.max_restarts,
             on_restart=say,
@@ -225,8 +226,9 @@ def _start(parts: RunParts, config: TrainConfig, plan: _Plan, progress: bool) ->
         arguments = dict(
             env=actor_env(config, plan.clients, i),
             num_envs=config.envs_per_actor,
-            # A replacement explores from other seeds than the actor it replaces.
-            seed=config.seed * 1000 + i * config.envs_per_actor + 100_000 * incarnation,
+            # A replacement explores from other seeds than the actor it replaces, and
+            # none a run evaluates or a benchmark holds out (`graft.seeds`).
+            seed=training_seed(config.seed, i * config.envs_per_actor, incarnation),
             replay=replay.writer(i),
             weights=publisher.subscriber(),
             behaviour=plan.behaviour,
