@@ -12,7 +12,7 @@ its own process (`bench/seeds.py`):
     graft eval --policy OUT/TASK/ARM/sS --episodes 50 --seed 100000+1000·S
 
 and the tree alone on the same 50 episodes (held out: no run resets from them,
-`service.run.seeds`). It prints one row per task (the tree, from scratch, the recipe, and
+`graft.seeds`). It prints one row per task (the tree, from scratch, the recipe, and
 the recipe's margin over the better of the tree and from scratch, paired by seed, with its
 95 % bootstrap CI over seeds, `bench/improve_report.py`) and each arm's seeds against the
 tree; writes OUT/improve*.json (with the commit) and a figure per task,
@@ -57,11 +57,11 @@ from bench.improve_report import (
     worst_drop,
 )
 from bench.seeds import SeedResult, run_seed
+from graft.api import Policy
+from graft.cli.flags import parse_settings
+from graft.config import load_preset
+from graft.seeds import evaluation_seed, held_out_seed
 from service.metrics import read_metric
-from service.run.api import Policy
-from service.run.cli.flags import parse_settings
-from service.run.config import load_preset
-from service.run.seeds import evaluation_seed, held_out_seed
 
 REPO = Path(__file__).resolve().parents[1]
 TASKS = {
@@ -160,7 +160,7 @@ final selection plays 2 episodes each for the policy and the tree, not the recip
 
 def final_seed(seed: int) -> int:
     """First reset seed of training seed `seed`'s final episodes (held out: no run plays
-    them, `service.run.seeds`)."""
+    them, `graft.seeds`)."""
     return held_out_seed(seed)
 
 

@@ -2,7 +2,7 @@
 recipe, the recipe's margin over the better of the two), and a figure per task.
 
 Every comparison pairs seeds: seed S of every arm and the tree are scored on the same
-held-out episodes (`service.run.seeds.held_out_seed`).
+held-out episodes (`graft.seeds.held_out_seed`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from service.run.experiments.stats import MIN_SEEDS, bootstrap_ci, summarize
+from graft.experiments.stats import MIN_SEEDS, bootstrap_ci, summarize
 
 BURN_IN_FRACTION = 0.1
 """In-run evaluations before this fraction of the budget are not held to the tree."""

@@ -101,7 +101,8 @@ def with_default_recipe(
     if "learning_starts" not in data and "learning_starts" not in chosen and budget:
         # A short budget keeps its room to learn: the prefill takes at most a tenth of it.
         merged["learning_starts"] = max(1, min(recipe["learning_starts"], int(budget) // 10))
-    preset_dqn = data.get("dqn") if isinstance(data.get("dqn"), dict) else {}
+    own = data.get("dqn")
+    preset_dqn: dict[str, Any] = own if isinstance(own, dict) else {}
     if kind == "discrete" and budget and "epsilon_decay_env_steps" not in preset_dqn:
         decay = max(1, round(EXPLORATION_FRACTION * int(budget)))
         merged["dqn"] = {**merged["dqn"], "epsilon_decay_env_steps": decay}

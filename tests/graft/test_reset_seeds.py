@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from bench import improve
-from service.run import seeds
-from service.run.config import load_preset
+from graft import seeds
+from graft.config import load_preset
 
 ENVS = seeds.BLOCK  # the most environments a run may have
 EPISODES = 1_000  # evaluation / selection episodes, and held-out episodes
