@@ -48,6 +48,7 @@ from service.metrics import read_metric
 from service.run.config import load_preset
 from service.run.experiments.plots import curves
 from service.run.experiments.stats import MIN_SEEDS, summarize
+from service.run.seeds import evaluation_seed, held_out_seed
 
 REPO = Path(__file__).resolve().parents[1]
 TASKS = {
@@ -59,6 +60,34 @@ TASKS = {
     "halfcheetah": REPO / "examples" / "halfcheetah" / "presets" / "recipe.yaml",
 }
 """Task name -> a user's preset: environment, hard-coded policy, budget, no algorithm."""
+_LAYOUT = ("num_actors=1", "envs_per_actor=4")  # the recipe's actors: only the method differs
+_DQN = (*_LAYOUT, "algorithm=ddqn", "dqn.hidden_sizes=[256,256]")
+_TD3 = (*_LAYOUT, "algorithm=td3", "updates_per_env_step=1.0", "td3.hidden_sizes=[256,256]",
+        "td3.batch_size=256", "td3.actor_lr=0.001", "td3.critic_lr=0.001")  # fmt: skip
+SCRATCH: dict[str, tuple[str, ...]] = {
+    # graft's cartpole-ddqn preset (rl-baselines3-zoo's CartPole DQN, made to hold its policy)
+    "cartpole": (*_DQN, "learning_starts=1000", "updates_per_env_step=0.5",
+                 "dqn.learning_rate=0.0023", "dqn.learning_rate_end=0.0", "dqn.batch_size=128",
+                 "dqn.n_step=3", "dqn.target_update_every=1", "dqn.target_tau=0.005",
+                 "dqn.epsilon_start=1.0", "dqn.epsilon_end=0.01",
+                 "dqn.epsilon_decay_env_steps=8000"),  # fmt: skip
+    # zoo's LunarLander DQN: lr 6.3e-4, batch 128, target every 250 steps, ε → 0.1 over 12 %
+    "lunarlander-discrete": (*_DQN, "learning_starts=1000", "updates_per_env_step=1.0",
+                             "dqn.learning_rate=0.00063", "dqn.batch_size=128",
+                             "dqn.target_update_every=250", "dqn.epsilon_start=1.0",
+                             "dqn.epsilon_end=0.1", "dqn.epsilon_decay_env_steps=3600"),  # fmt: skip
+    # zoo's TD3 (SB3 defaults: lr 1e-3; Pendulum and LunarLanderContinuous: γ 0.98, 10k
+    # random steps first; MountainCarContinuous: noise 0.5; HalfCheetah: 10k random steps)
+    "pendulum": (*_TD3, "learning_starts=10000", "td3.gamma=0.98", "td3.exploration_noise=0.1"),
+    "lunarlander": (*_TD3, "learning_starts=10000", "td3.gamma=0.98",
+                    "td3.exploration_noise=0.1"),  # fmt: skip
+    "mountaincar": (*_TD3, "learning_starts=1000", "td3.exploration_noise=0.5"),
+    "halfcheetah": (*_TD3, "learning_starts=10000", "td3.exploration_noise=0.1"),
+}
+"""Task name -> the from-scratch arm's settings on the task's preset: graft's own Double
+DQN or TD3, no tree, 256x256 networks, rl-baselines3-zoo's hyper-parameters for the task
+where it has them (its LunarLander DQN's ε decays over 12 % of its 100k steps: 3,600 of a
+30k budget). A baseline a user would run, not tuned here."""
 EPISODES = 50
 """Final evaluation episodes per seed (the tree's score uses the same ones)."""
 QUICK_EPISODES = 10
@@ -84,13 +113,14 @@ final selection plays 2 episodes each for the policy and the tree, not the recip
 
 
 def final_seed(seed: int) -> int:
-    """First reset seed of training seed `seed`'s final episodes."""
-    return 100_000 + 1_000 * seed
+    """First reset seed of training seed `seed`'s final episodes (held out: no run plays
+    them, `service.run.seeds`)."""
+    return held_out_seed(seed)
 
 
 def in_run_seed(seed: int) -> int:
-    """First reset seed of a run's in-run evaluations (the evaluator's, in the launcher)."""
-    return 10_000 + seed
+    """First reset seed of a run's in-run evaluations and final selection."""
+    return evaluation_seed(seed)
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from learner.pretrain.config import PretrainConfig
 from learner.selection import SelectionConfig
 from learner.td3.config import TD3Config
 from service.run.placement import ActorPlacement, LearnerPlacement, ReplaySettings
+from service.run import seeds
 from service.run.recipe import with_default_recipe
 from service.run.validation import ConfigError, coerce, unknown_fields, yaml_error
 
@@ -182,6 +183,12 @@ class TrainConfig:
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
+        if self.num_actors * self.envs_per_actor > seeds.BLOCK:
+            raise ValueError(
+                f"num_actors={self.num_actors} x envs_per_actor={self.envs_per_actor} must be "
+                f"<= {seeds.BLOCK}: a run's environments reset from one block of "
+                f"{seeds.BLOCK} seeds (service/run/seeds.py)"
+            )
         if not 0 <= self.seed < 2**32:
             raise ValueError(f"seed={self.seed} must lie in [0, 2**32) (numpy's seed range)")
         if self.keep_checkpoints < 0:

@@ -63,6 +63,7 @@ from service.run.orchestration.supervision import ActorFleet, Supervisor
 from service.run.orchestration.tables import preset_tables
 from service.run.replay_host.folder import open_replay, reusable
 from service.run.replay_host.shards import RunReplay
+from service.run.seeds import evaluation_seed, training_seed
 from service.weights import BroadcastPublisher
 
 
@@ -153,7 +154,7 @@ def train_here(
         evaluator = RemoteEvaluator(
             env=evaluator_env(config, clients),
             behaviour=builder.make_behaviour(num_actors=1),
-            seed=10_000 + config.seed,
+            seed=evaluation_seed(config.seed),
             options=evaluator_options,
             max_restarts=config.evaluator.max_restarts,
             on_restart=say,
@@ -168,8 +169,9 @@ def train_here(
             arguments = dict(
                 env=actor_env(config, clients, i),
                 num_envs=config.envs_per_actor,
-                # A replacement explores from other seeds than the actor it replaces.
-                seed=config.seed * 1000 + i * config.envs_per_actor + 100_000 * incarnation,
+                # A replacement explores from other seeds than the actor it replaces, and
+                # none a run evaluates or a benchmark holds out (`seeds`).
+                seed=training_seed(config.seed, i * config.envs_per_actor, incarnation),
                 replay=replay.writer(i),
                 weights=publisher.subscriber(),
                 behaviour=behaviour,

@@ -1,0 +1,52 @@
+"""The three reset-seed ranges of a run (training, evaluation and selection, held out)
+never share a seed, replacement actors included."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench import improve
+from service.run import seeds
+from service.run.config import load_preset
+
+ENVS = seeds.BLOCK  # the most environments a run may have
+EPISODES = 1_000  # evaluation / selection episodes, and held-out episodes
+
+
+def ranges(seed: int, incarnations: int = 4) -> tuple[set[int], set[int], set[int]]:
+    training = {
+        seeds.training_seed(seed, j, k) for j in range(ENVS) for k in range(incarnations)
+    }
+    evaluation = set(range(seeds.evaluation_seed(seed), seeds.evaluation_seed(seed) + EPISODES))
+    held_out = set(range(seeds.held_out_seed(seed), seeds.held_out_seed(seed) + EPISODES))
+    return training, evaluation, held_out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 4, 10, 11, 99, 100, 899, 900, 12_345, 2**32 - 1])
+def test_a_runs_training_evaluation_and_held_out_seeds_are_disjoint(seed):
+    training, evaluation, held_out = ranges(seed)
+    assert len(training) == ENVS * 4  # every environment of every incarnation its own seed
+    assert not training & evaluation
+    assert not training & held_out
+    assert not evaluation & held_out
+
+
+def test_below_the_bound_no_runs_seeds_are_any_runs_held_out_episodes():
+    top = seeds.MAX_DISJOINT_SEED - 1
+    held_out_low, held_out_high = seeds.held_out_seed(0), seeds.held_out_seed(top) + EPISODES
+    assert seeds.evaluation_seed(top) + EPISODES <= held_out_low
+    assert seeds.training_seed(0, 0) >= held_out_high
+
+
+def test_the_benchmark_scores_on_the_held_out_range_and_the_runs_evaluations():
+    for seed in range(5):
+        assert improve.final_seed(seed) == seeds.held_out_seed(seed)
+        assert improve.in_run_seed(seed) == seeds.evaluation_seed(seed)
+    assert improve.EPISODES <= seeds.BLOCK
+
+
+def test_a_run_with_more_environments_than_its_seed_block_is_refused():
+    with pytest.raises(ValueError, match="envs_per_actor=4 must be <= 1000"):
+        load_preset("pendulum-td3", num_actors=251)
+    with pytest.raises(ValueError, match="at most 1000 environments"):
+        seeds.training_seed(0, 1000)
