@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import ray
 
-from bench import improve
+from bench import improve, improve_report
 
 
 def _row(seed: int, tree: float, final: float, evaluations: list[float]) -> improve.SeedRow:
@@ -43,7 +43,7 @@ def test_summary_pairs_each_seed_with_the_tree_on_the_same_episodes():
     s = improve.summarise("t", rows, budget=2000, algorithm="backbone_td3")
     assert s["tree"] == pytest.approx(100.0) and s["final_mean"] == pytest.approx(335 / 3)
     assert s["improvement"] == pytest.approx((30.0 + 10.0 - 5.0) / 3)  # paired, not pooled
-    assert s["seeds_at_least_tree"] == 2 and not s["every_seed_at_least_tree"]
+    assert s["seeds_above_tree"] == 2 and not s["every_seed_above_tree"]
     low, high = s["improvement_ci"]
     assert -5.0 <= low < s["improvement"] < high <= 30.0  # the bootstrap of the 3 gains
     assert s["worst_in_run"] == pytest.approx(-0.05) and s["never_far_below"]
@@ -52,14 +52,41 @@ def test_summary_pairs_each_seed_with_the_tree_on_the_same_episodes():
     assert line.endswith("| 2/3 | -5 % | - | 10 |")  # runs without a selection: no guard
 
 
+def test_a_seed_that_ties_the_tree_is_not_counted_as_improved():
+    # The selection kept the tree on seed 1: its final is the tree's score exactly.
+    rows = [_row(0, 100.0, 130.0, [100.0]), _row(1, 90.0, 90.0, [100.0])]
+    s = improve.summarise("t", rows, budget=2000, algorithm="ddqn")
+    assert s["seeds_above_tree"] == 1 and not s["every_seed_above_tree"]
+    assert "| 1/2 |" in improve.table([s])
+
+
 def test_the_guarded_column_is_what_runs_stopped_at_each_evaluation_would_play():
     rows = [_row(0, 100.0, 130.0, [100.0, 50.0]), _row(1, 90.0, 100.0, [100.0, 105.0])]
     rows[0] = dataclasses.replace(rows[0], guarded=[100.0, 100.0])  # the tree kept at 1,000
     rows[1] = dataclasses.replace(rows[1], guarded=[100.0, 105.0])
     s = improve.summarise("t", rows, budget=2000, algorithm="backbone_td3")
     assert s["worst_in_run"] == pytest.approx(-0.5) and not s["never_far_below"]
-    assert s["worst_in_run_guarded"] == pytest.approx(0.0) and s["guarded_never_far_below"]
+    # A diagnostic with a floor by construction, never a target.
+    assert s["worst_in_run_guarded"] == pytest.approx(0.0) and "guarded_never_far_below" not in s
+    assert "guarded (a floor by construction)" in improve.table([s]).splitlines()[0]
     assert improve.table([s]).splitlines()[-1].endswith("| 2/2 | -50 % | +0 % | 10 |")
+
+
+def test_the_recipes_margin_is_over_the_better_of_the_tree_and_from_scratch_by_seed():
+    tree = [100.0, 90.0, 110.0]
+    recipe = [_row(s, tree[s], f, [1.0]) for s, f in enumerate([150.0, 140.0, 125.0])]
+    scratch = [_row(s, tree[s], f, [1.0]) for s, f in enumerate([160.0, 120.0, 140.0])]
+    row = improve_report.compare("t", {"scratch": scratch, "recipe": recipe})
+    assert row["better"] == "scratch" and row["tree"] == pytest.approx(100.0)
+    assert row["margin"] == pytest.approx((-10.0 + 20.0 - 15.0) / 3)  # paired by seed
+    low, high = row["margin_ci"]
+    assert -15.0 <= low <= row["margin"] <= high <= 20.0
+    assert row["recipe_seeds_above_tree"] == 3 and not row["margin_met"]
+    weak = [_row(s, t, t - 50.0, [1.0]) for s, t in enumerate(tree)]  # below the tree
+    row = improve_report.compare("t", {"scratch": weak, "recipe": recipe})
+    assert row["better"] == "tree" and row["margin"] == pytest.approx((50 + 50 + 15) / 3)
+    line = improve_report.task_table([row]).splitlines()[-1]
+    assert line.startswith("| t | 3,000 | 100.0 | 50.0 [") and "vs tree | 3/3 |" in line
 
 
 def test_fewer_than_three_seeds_get_no_interval_and_no_ci_target():
@@ -74,27 +101,36 @@ def test_fewer_than_three_seeds_get_no_interval_and_no_ci_target():
 def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, capsys, monkeypatch):
     # Its `graft train` joins the session's cluster, as on a user's (RAY_ADDRESS).
     monkeypatch.setenv("RAY_ADDRESS", ray.get_runtime_context().gcs_address)
-    (summary,) = improve.main(["--task", "pendulum", "--quick", "--out", str(tmp_path)])
-    assert summary["task"] == "pendulum" and summary["algorithm"] == "backbone_td3"
-    assert summary["seeds"] == 1 and np.isfinite(summary["final_mean"])
-    assert -1000.0 < summary["tree"] < -200.0  # the swing-up tree on --quick's 10 episodes
+    (task,) = improve.main(["--task", "pendulum", "--quick", "--out", str(tmp_path)])
+    assert task["task"] == "pendulum" and task["recipe"]["seeds"] == task["scratch"]["seeds"] == [0]
+    assert np.isfinite(task["recipe"]["mean"]) and np.isfinite(task["scratch"]["mean"])
+    assert -1000.0 < task["tree"] < -200.0  # the swing-up tree on --quick's 10 episodes
+    assert np.isfinite(task["margin"])  # one seed: no interval
     saved = json.loads((tmp_path / "improve-pendulum.json").read_text())
-    first = saved["seeds"]["pendulum"][0]
+    assert [(s["arm"], s["algorithm"]) for s in saved["summaries"]] == [
+        ("scratch", "td3"),
+        ("recipe", "backbone_td3"),
+    ]
+    assert saved["commit"]
+    first = saved["seeds"]["pendulum"]["recipe"][0]
     assert first["evaluations"]  # the in-run evaluations were read, each judged by the guard
     assert len(first["guarded"]) == len(first["evaluations"])
     assert (tmp_path / "improve-pendulum.png").stat().st_size > 0
     assert "| pendulum | backbone_td3 |" in capsys.readouterr().out
     # Read back: the selection applied again gives the run's own choice, on the same
     # episodes; each acting part is scored on the final episodes.
-    run = tmp_path / "pendulum" / "s0"
+    run = tmp_path / "pendulum" / "recipe" / "s0"
     before = json.loads((run / "summary.json").read_text())["selection"]
-    improve.main(["--task", "pendulum", "--quick", "--out", str(tmp_path), "--reselect", "--parts"])
+    improve.main(
+        ["--task", "pendulum", "--quick", "--out", str(tmp_path), "--reselect", "--parts"]
+        + ["--arm", "recipe"]
+    )
     after = json.loads((run / "summary.json").read_text())
     assert after["selection"] == pytest.approx(before) and "reselected" not in after
     out = capsys.readouterr().out
     assert "| task | seed | tree | π everywhere | with switching | selected (final) |" in out
     saved = json.loads((tmp_path / "improve-pendulum.json").read_text())
-    assert set(saved["seeds"]["pendulum"][0]["parts"]) == {"switching", "policy"}
+    assert set(saved["seeds"]["pendulum"]["recipe"][0]["parts"]) == {"switching", "policy"}
 
 
 def test_plot_redraws_earlier_runs_from_their_json_without_training(tmp_path):
@@ -106,5 +142,7 @@ def test_plot_redraws_earlier_runs_from_their_json_without_training(tmp_path):
         json.dumps({"summaries": [summary], "seeds": {"t": [dataclasses.asdict(r) for r in rows]}})
     )
     (back,) = improve.main(["--plot", str(saved), "--out", str(tmp_path / "fig")])
-    assert back["task"] == "t" and back["worst_in_run_guarded"] == 0.0
-    assert (tmp_path / "fig" / "improve.png").stat().st_size > 0
+    assert back["task"] == "t" and back["recipe"]["seeds"] == [0, 1]  # an older file: the recipe
+    redrawn = json.loads((tmp_path / "fig" / "improve.json").read_text())
+    assert redrawn["summaries"][0]["worst_in_run_guarded"] == 0.0
+    assert (tmp_path / "fig" / "improve-t.png").stat().st_size > 0
