@@ -72,6 +72,7 @@ class BackboneBehaviour:
         gate: Optional[Callable[[np.ndarray], np.ndarray]] = None,
         critic: Optional[TwinQ] = None,
         switch_margin: Optional[float] = None,
+        propose_tree: bool = False,
     ) -> None:
         """Initialises the behaviour.
 
@@ -93,11 +94,16 @@ class BackboneBehaviour:
                 twin estimate values it above the tree's (c = 0) by this fraction of
                 |Q(s, 0)| (`switch_mask`), else the tree alone. None: no switching.
                 Exploration ignores it.
+            propose_tree: Exploration acts around π's correction or the tree's (c = 0),
+                whichever the critic values higher (IBRL's acting); needs `critic`.
         """
         check_margin("switch_margin", switch_margin)
-        if (critic is None) != (switch_margin is None):
-            raise ValueError("value-based switching needs both a critic and a switch_margin")
+        if critic is None and (switch_margin is not None or propose_tree):
+            raise ValueError("value-based switching and propose_tree need a critic")
+        if critic is not None and switch_margin is None and not propose_tree:
+            raise ValueError("a critic is used by switching (switch_margin) or propose_tree")
         self.critic = critic
+        self.propose_tree = propose_tree
         self.switch_margin = switch_margin
         self.tree_only = False
         self._switched: list[float] = []
@@ -174,7 +180,7 @@ class BackboneBehaviour:
         correction = self._pi(obs, mu)
         if self.gate is not None:
             correction = correction * self.gate(obs)[..., None]
-        if self.critic is not None:
+        if self.switch_margin is not None:
             correction = correction * self._switch(obs, mu, correction)[..., None]
         return compose_action(mu, correction, limit=self.limit, low=self.low, high=self.high)
 
@@ -198,6 +204,15 @@ class BackboneBehaviour:
     ) -> tuple[np.ndarray, Columns]:
         mu = self._mu(obs, envs)
         mean = np.zeros_like(mu) if warmup else self._pi(obs, mu)
+        if self.propose_tree and not warmup:  # IBRL: around whichever the critic values more
+            assert self.critic is not None
+            x = (
+                backbone_input(obs, mu, self.high.astype(np.float32))
+                if self.observe_backbone
+                else obs
+            )
+            better = self.critic(x, mean) > self.critic(x, np.zeros_like(mean))
+            mean = (mean * better[:, None]).astype(np.float32)
         std = self.prefill_std if warmup else self.std
         # Noise on the correction only; the sample is stored unclipped (ratios are taken on it).
         correction = (mean + std * rng.standard_normal(mean.shape)).astype(np.float32)

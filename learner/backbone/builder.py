@@ -86,8 +86,9 @@ class BackboneBuilder:
                 device=device,
                 compile=compile,
                 correction_penalty=self.config.correction_penalty,
-                publish_critic=self.config.switch_margin is not None,
+                publish_critic=self._actors_need_critic(),
                 ramp_actor_updates=self._ramp_actor_updates(),
+                tree_in_target=self.config.tree_in_target,
             )
         else:
             learner = TD3Learner(
@@ -104,6 +105,10 @@ class BackboneBuilder:
         zero_output_(learner.actor)
         learner.target_actor.load_state_dict(learner.actor.state_dict())
         return learner
+
+    def _actors_need_critic(self) -> bool:
+        """Switching (greedy) and the tree's proposal in acting both choose by the critic."""
+        return self.config.switch_margin is not None or self.config.tree_in_acting
 
     def _ramp_actor_updates(self) -> int:
         """The actor's gradient steps over which π's range widens (`correction_ramp`)."""
@@ -122,9 +127,8 @@ class BackboneBuilder:
         t = self.td3
         in_dim = t.obs_dim + (t.act_dim if self.config.observe_backbone else 0)
         correction = make_actor_network(in_dim, t.act_dim, -self.bound, self.bound, t.config)
-        switching = self.config.switch_margin is not None
         critic = None
-        if switching:  # the behaviour's copy of the critic, in numpy as actors run it
+        if self._actors_need_critic():  # the behaviour's copy, in numpy as actors run it
             twin = TwinCritic(in_dim, t.act_dim, t.config.hidden_sizes)
             critic = TwinQ(as_arrays(twin.state_dict()))
         return BackboneBehaviour(
@@ -138,4 +142,5 @@ class BackboneBuilder:
             observe_backbone=self.config.observe_backbone,
             critic=critic,
             switch_margin=self.config.switch_margin,
+            propose_tree=self.config.tree_in_acting,
         )

@@ -41,6 +41,16 @@ class BackboneConfig:
     policy near the tree until the critic has seen where π's corrections lead. Needs
     observe_backbone."""
 
+    tree_in_target: bool = False
+    """The tree as a proposal in the TD target (IBRL, Hu et al. 2023, eq. 3): y = r +
+    γ max(Q'(s', π'(s')), Q'(s', μ(s'))), each the smaller twin estimate, so that the
+    critic values the better of the two continuations and π is pulled up to the tree
+    wherever the tree is worth more. Needs observe_backbone."""
+    tree_in_acting: bool = False
+    """The tree as a proposal in acting (IBRL): each training step acts around π's action
+    or the tree's, whichever min(Q1, Q2) values higher, the exploration noise added to the
+    one chosen. Needs observe_backbone (the actors get the critic with the weights)."""
+
     def __post_init__(self) -> None:
         if not self.correction_limit > 0.0:
             raise ValueError(
@@ -65,6 +75,8 @@ class BackboneConfig:
             "correction_penalty": self.correction_penalty > 0.0,
             "switch_margin": self.switch_margin is not None,
             "correction_ramp": self.correction_ramp > 0.0,
+            "tree_in_target": self.tree_in_target,
+            "tree_in_acting": self.tree_in_acting,
         }
         for name in [n for n, used in residual.items() if used and not self.observe_backbone]:
             raise ValueError(

@@ -48,6 +48,31 @@ def teacher_target(
     return reward + gamma * not_done * (teacher_next_value + next_correction_value)
 
 
+def ibrl_target(
+    reward: torch.Tensor,
+    terminated: torch.Tensor,
+    *,
+    gamma: float,
+    next_policy_value: torch.Tensor,
+    next_tree_value: torch.Tensor,
+) -> torch.Tensor:
+    """IBRL's target (Hu et al. 2023, eq. 3): y = r + γ max(Q'(s', π'(s')), Q'(s', μ(s'))),
+    no bootstrap past a terminal (a time-limit truncation is not one).
+
+    Args:
+        reward: r, [B].
+        terminated: [B] bool.
+        gamma: Discount.
+        next_policy_value: min(Q1', Q2')(s', π'(s') + smoothing noise), [B].
+        next_tree_value: min(Q1', Q2')(s', μ(s')), [B] (the correction 0).
+
+    Returns:
+        y, [B].
+    """
+    not_done = 1.0 - terminated.to(reward.dtype)
+    return reward + gamma * not_done * torch.maximum(next_policy_value, next_tree_value)
+
+
 def conservative_actor_loss(
     critic: TwinCritic,
     actor: nn.Module,
@@ -96,12 +121,14 @@ class ObservingBackboneLearner(TD3Learner):
         correction_penalty: float = 0.0,
         publish_critic: bool = False,
         ramp_actor_updates: int = 0,
+        tree_in_target: bool = False,
     ) -> None:
         """`bound` is L per action dimension; `scale` the half-width of the action box;
         `correction_penalty` β of `conservative_actor_loss` (0: TD3's actor loss);
         `publish_critic`: the published weights carry the critic too (value-based
         switching in the behaviour); `ramp_actor_updates`: π's range grows linearly from
-        0 to [−L, L] over its first that many gradient steps (0: the whole range at once)."""
+        0 to [−L, L] over its first that many gradient steps (0: the whole range at once);
+        `tree_in_target`: the tree is a proposal in the TD target (`ibrl_target`)."""
         act_dim = bound.shape[0]
         super().__init__(
             obs_dim + act_dim,
@@ -118,6 +145,7 @@ class ObservingBackboneLearner(TD3Learner):
         self._penalty = correction_penalty
         self._publish_critic = publish_critic
         self._ramp = ramp_actor_updates
+        self._tree_in_target = tree_in_target
         if self._ramp:
             self._set_range()  # before the first step: π starts at the tree
         self.tree_only = False
@@ -165,6 +193,32 @@ class ObservingBackboneLearner(TD3Learner):
             return super()._actor_loss(obs, batch)
         return conservative_actor_loss(
             self.critic, self.actor, obs, bound=self._bound, penalty=self._penalty
+        )
+
+    def _critic_target(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        if not self._tree_in_target:
+            return super()._critic_target(batch)
+        dev = self.device
+        reward = batch["reward"].to(dev, non_blocking=True)
+        terminated = batch["terminated"].to(dev, non_blocking=True)
+        next_obs = batch["next_obs"].to(dev, non_blocking=True)
+        # min(Q1', Q2')(s', π'(s') + smoothing): TD3's target with r = 0, γ = 1, no terminal.
+        next_policy_value = td3_target(
+            torch.zeros_like(reward),
+            torch.zeros_like(terminated),
+            next_obs,
+            gamma=1.0,
+            **self._smoothing(),
+        )
+        with torch.no_grad():  # the tree's action at s' is μ(s') + 0: the correction 0
+            zero = torch.zeros(len(next_obs), len(self._bound), device=dev)
+            next_tree_value = torch.min(*self.target_critic(next_obs, zero))
+        return ibrl_target(
+            reward,
+            terminated,
+            gamma=self._gamma,
+            next_policy_value=next_policy_value,
+            next_tree_value=next_tree_value,
         )
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
