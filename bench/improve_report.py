@@ -25,6 +25,8 @@ fraction of the tree's |score|."""
 ARMS = ("scratch", "recipe")
 """The arms a task runs: RL without the tree (graft's own TD3 or Double DQN), and graft's
 default recipe with the tree."""
+
+
 def mean_ci(values: Sequence[float] | np.ndarray) -> tuple[float, float]:
     """95 % percentile-bootstrap interval of the mean (NaN below `MIN_SEEDS` values)."""
     return bootstrap_ci(values, np.mean)

@@ -20,8 +20,8 @@ from learner.options.config import OptionsConfig
 from learner.pretrain.config import PretrainConfig
 from learner.selection import SelectionConfig
 from learner.td3.config import TD3Config
-from service.run.placement import ActorPlacement, LearnerPlacement, ReplaySettings
 from service.run import seeds
+from service.run.placement import ActorPlacement, LearnerPlacement, ReplaySettings
 from service.run.recipe import with_default_recipe
 from service.run.validation import ConfigError, coerce, unknown_fields, yaml_error
 

@@ -28,6 +28,9 @@ SECTIONS = ("td3", "dqn", "backbone", "pretrain", "options", "selection")
 """The preset sections a recipe may set (merged field by field with the preset's)."""
 PREFILL_FRACTION = 10
 """A recipe's prefill (``learning_starts``) is at most 1/PREFILL_FRACTION of the budget."""
+EXPLORATION_FRACTION = 0.16
+"""The discrete recipe's ε decays over this share of the budget (rl-baselines3-zoo's
+CartPole DQN: 8,000 of 50,000 steps)."""
 
 
 def recipe_description(kind: str) -> str:
@@ -98,6 +101,10 @@ def with_default_recipe(
     if "learning_starts" not in data and "learning_starts" not in chosen and budget:
         # A short budget keeps its room to learn: the prefill takes at most a tenth of it.
         merged["learning_starts"] = max(1, min(recipe["learning_starts"], int(budget) // 10))
+    preset_dqn = data.get("dqn") if isinstance(data.get("dqn"), dict) else {}
+    if kind == "discrete" and budget and "epsilon_decay_env_steps" not in preset_dqn:
+        decay = max(1, round(EXPLORATION_FRACTION * int(budget)))
+        merged["dqn"] = {**merged["dqn"], "epsilon_decay_env_steps": decay}
     return merged
 
 

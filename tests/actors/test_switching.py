@@ -113,8 +113,53 @@ def test_backbone_switching_reads_the_published_critic_and_the_tree_only_flag():
     assert np.abs(columns["action"] - 0.4).max() < 0.5
 
 
+@pytest.mark.parametrize(
+    "a1, a2, correction, around",
+    [
+        (1.0, 1.0, 0.4, 0.9),  # the critic values π's +0.4 above the tree's 0: around μ + π
+        (1.0, -1.0, 0.4, 0.5),  # the smaller twin says −0.4 < 0: around the tree μ
+        (-1.0, -1.0, -0.4, 0.1),  # +0.4 on both: around μ + π = 0.1
+        (1.0, 1.0, -0.4, 0.5),  # −0.4 < 0: the tree
+    ],
+)
+def test_backbone_exploration_acts_around_the_proposal_the_critic_values_higher(
+    a1, a2, correction, around
+):
+    behaviour = BackboneBehaviour(
+        FixedRows([[correction]]),
+        lambda obs: np.full((len(obs), 1), 0.5, np.float32),
+        limit=1.0,
+        std=0.01,
+        prefill_std=0.1,
+        low=np.array([-2.0]),
+        high=np.array([2.0]),
+        critic=LinearTwin(a1, a2),  # type: ignore[arg-type]
+        propose_tree=True,
+    )
+    obs = np.zeros((200, 2), np.float32)
+    action, columns = behaviour.act(obs, np.random.default_rng(0), warmup=False)
+    assert abs(float(action.mean()) - around) < 0.01 and 0.005 < float(action.std()) < 0.02
+    np.testing.assert_allclose(columns["action"], action - 0.5, atol=1e-6)  # the correction
+    # The prefill ignores it (π is not trained yet), and the greedy policy (no switching
+    # margin) is π's: the choice is exploration's.
+    prefill, _ = behaviour.act(obs, np.random.default_rng(0), warmup=True)
+    assert abs(float(prefill.mean()) - 0.5) < 0.03
+    np.testing.assert_allclose(behaviour.greedy(obs[:2]), [[0.5 + correction]] * 2, atol=1e-6)
+
+
 def test_backbone_switching_needs_a_critic_and_a_margin():
-    with pytest.raises(ValueError, match="needs both a critic and a switch_margin"):
+    with pytest.raises(ValueError, match="switching and propose_tree need a critic"):
+        BackboneBehaviour(
+            FixedRows([[0.0]]),
+            lambda obs: obs,
+            limit=1.0,
+            std=0.1,
+            prefill_std=0.1,
+            low=np.array([-1.0]),
+            high=np.array([1.0]),
+            propose_tree=True,
+        )
+    with pytest.raises(ValueError, match="used by switching .switch_margin. or propose_tree"):
         BackboneBehaviour(
             FixedRows([[0.0]]),
             lambda obs: obs,

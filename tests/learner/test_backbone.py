@@ -13,7 +13,7 @@ from torch import nn
 
 from actors.behaviours.backbone import BackboneBehaviour, compose_action
 from actors.policy_net import ActingNet
-from learner.backbone.learning import teacher_target
+from learner.backbone.learning import ibrl_target, teacher_target
 from learner.backbone.networks import zero_output_
 from learner.td3.networks import Actor, acting_copy
 from tests.learner.helpers import FixedRows
@@ -160,6 +160,43 @@ def test_eq11_teacher_target():
     torch.testing.assert_close(y, torch.tensor([-6.2, -1.0]))
 
 
+def test_ibrl_target_bootstraps_from_the_better_of_pi_and_the_tree():
+    y = ibrl_target(
+        torch.tensor([1.0, 1.0, -1.0]),
+        torch.tensor([False, False, True]),
+        gamma=0.9,
+        next_policy_value=torch.tensor([-10.0, 4.0, 5.0]),
+        next_tree_value=torch.tensor([-2.0, 3.0, 9.0]),
+    )
+    # 1 + 0.9·max(−10, −2) = −0.8; 1 + 0.9·max(4, 3) = 4.6; the terminal row keeps only r.
+    torch.testing.assert_close(y, torch.tensor([-0.8, 4.6, -1.0]))
+
+
+def test_the_learners_tree_proposal_is_the_zero_correction_valued_by_the_target_critic():
+    from learner.backbone.learning import ObservingBackboneLearner
+    from learner.td3.config import TD3Config
+
+    def make(tree_in_target: bool) -> ObservingBackboneLearner:
+        return ObservingBackboneLearner(
+            2,
+            np.array([1.0], np.float32),
+            np.array([1.0]),
+            config=TD3Config(hidden_sizes=(8,), policy_noise=0.0),
+            seed=0,
+            tree_in_target=tree_in_target,
+        )
+
+    plain, ibrl = make(False), make(True)
+    batch = {
+        "reward": torch.zeros(4),
+        "terminated": torch.zeros(4, dtype=torch.bool),
+        "next_obs": torch.randn(4, 3),  # s' and μ(s'), as `update` forms it
+    }
+    policy = plain._critic_target(batch)
+    tree = 0.99 * torch.min(*ibrl.target_critic(batch["next_obs"], torch.zeros(4, 1)))
+    torch.testing.assert_close(ibrl._critic_target(batch), torch.maximum(policy, tree.detach()))
+
+
 def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_actor_frozen():
     from service.run.config import load_preset
     from service.run.registry import make_builder
@@ -273,6 +310,8 @@ def test_correction_penalty_needs_the_residual_learner():
     [
         ({"switch_margin": 0.0}, "switch_margin=0.0 needs observe_backbone=True"),
         ({"switch_margin": -0.1, "observe_backbone": True}, "switch_margin=-0.1 must be >= 0"),
+        ({"tree_in_target": True}, "tree_in_target=True needs observe_backbone=True"),
+        ({"tree_in_acting": True}, "tree_in_acting=True needs observe_backbone=True"),
     ],
 )
 def test_switching_settings_are_refused_by_name(fields, message):

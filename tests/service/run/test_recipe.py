@@ -32,13 +32,34 @@ def test_a_tree_with_continuous_actions_gets_the_residual_recipe_scaled_to_its_b
     assert config.learning_starts == 2000  # a tenth of the 20,000-step budget
     # Greedy switching between π and the tree, and a final selection between them.
     assert config.backbone.switch_margin is not None and config.selection.episodes > 0
+    # The tree a proposal in acting and in the TD target (IBRL); standard network sizes.
+    assert config.backbone.tree_in_acting and config.backbone.tree_in_target
+    assert config.td3.hidden_sizes == (256, 256) and config.td3.batch_size == 256
 
 
 def test_a_tree_with_discrete_actions_gets_double_dqn_from_its_demonstrations(tmp_path):
     config = load_preset(_preset(tmp_path, CARTPOLE))
     assert (config.recipe, config.algorithm, config.dqn.warmup) == ("discrete", "ddqn", "hardcoded")
-    assert config.dqn.margin_after_burn_in and config.dqn.switch_margin is not None
-    assert config.selection.episodes > 0
+    # The margin loss ties Q to the tree in the burn-in only: after it, Q is free to leave.
+    assert not config.dqn.margin_after_burn_in and config.dqn.burn_in_updates > 0
+    assert config.dqn.switch_margin == 0.0 and config.selection.episodes > 0
+
+
+@pytest.mark.parametrize("budget, decay", [(50_000, 8_000), (30_000, 4_800), (1_000, 160)])
+def test_the_discrete_recipes_exploration_decays_over_a_share_of_the_budget(
+    tmp_path, budget, decay
+):
+    config = load_preset(_preset(tmp_path, CARTPOLE + f"env_steps: {budget}\n"))
+    assert config.dqn.epsilon_decay_env_steps == decay
+    assert (
+        load_preset(_preset(tmp_path, CARTPOLE), env_steps=budget).dqn.epsilon_decay_env_steps
+        == decay
+    )
+    # The preset's own or an override wins.
+    own = load_preset(_preset(tmp_path, CARTPOLE + "dqn: {epsilon_decay_env_steps: 7}\n"))
+    assert own.dqn.epsilon_decay_env_steps == 7
+    set_ = load_preset(_preset(tmp_path, CARTPOLE), **{"dqn.epsilon_decay_env_steps": 9})
+    assert set_.dqn.epsilon_decay_env_steps == 9
 
 
 @pytest.mark.parametrize(
@@ -57,7 +78,7 @@ def test_a_final_selection_without_a_tree_to_fall_back_to_is_refused(tmp_path, t
 def test_the_presets_own_fields_and_overrides_win_over_the_recipe(tmp_path):
     preset = _preset(tmp_path, PENDULUM + "td3: {batch_size: 32}\nbackbone: {prefill_noise: 0.1}\n")
     config = load_preset(preset, **{"backbone.correction_limit": 1.5, "learning_starts": 123})
-    assert config.td3.batch_size == 32 and config.td3.hidden_sizes == (128, 128)  # both kept
+    assert config.td3.batch_size == 32 and config.td3.hidden_sizes == (256, 256)  # both kept
     assert config.backbone.prefill_noise == 0.1 and config.backbone.correction_limit == 1.5
     assert config.learning_starts == 123
 

@@ -14,9 +14,7 @@ EPISODES = 1_000  # evaluation / selection episodes, and held-out episodes
 
 
 def ranges(seed: int, incarnations: int = 4) -> tuple[set[int], set[int], set[int]]:
-    training = {
-        seeds.training_seed(seed, j, k) for j in range(ENVS) for k in range(incarnations)
-    }
+    training = {seeds.training_seed(seed, j, k) for j in range(ENVS) for k in range(incarnations)}
     evaluation = set(range(seeds.evaluation_seed(seed), seeds.evaluation_seed(seed) + EPISODES))
     held_out = set(range(seeds.held_out_seed(seed), seeds.held_out_seed(seed) + EPISODES))
     return training, evaluation, held_out
