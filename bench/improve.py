@@ -282,9 +282,10 @@ def commit() -> str:
 
 def report(
     summaries: Sequence[dict[str, Any]], results: Mapping[str, Mapping[str, list[SeedRow]]],
-    out: Path, stem: str, parts: bool = False,
+    out: Path, stem: str, *, code: str, parts: bool = False,
 ) -> list[dict[str, Any]]:  # fmt: skip
-    """Prints the tables, writes OUT/STEM.json and a figure per task; the task rows."""
+    """Prints the tables, writes OUT/STEM.json (with `code`, the commit the runs were
+    made at) and a figure per task; the task rows."""
     tasks = [compare(task, arms) for task, arms in results.items()]
     print()
     print(task_table(tasks))
@@ -297,7 +298,7 @@ def report(
                            for t, rs in recipe.items()}))  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     saved = {
-        "commit": commit(),
+        "commit": code,
         "tasks": tasks,
         "summaries": list(summaries),
         "seeds": {t: {a: [asdict(r) for r in rs] for a, rs in arms.items()}
@@ -357,13 +358,8 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
             summaries.append(summary)
             results.setdefault(task, {})[arm] = rows
             print(f"{task} {arm}: {summary['improvement_line']}", flush=True)
-    return report(
-        summaries,
-        results,
-        args.out,
-        "improve" if args.suite else f"improve-{args.task}",
-        args.parts,
-    )
+    stem = "improve" if args.suite else f"improve-{args.task}"
+    return report(summaries, results, args.out, stem, code=commit(), parts=args.parts)
 
 
 def replot(saved: Sequence[Path], out: Path) -> list[dict[str, Any]]:
@@ -372,8 +368,10 @@ def replot(saved: Sequence[Path], out: Path) -> list[dict[str, Any]]:
     written before the arms existed holds the recipe's seeds); the task rows."""
     results: dict[str, dict[str, list[SeedRow]]] = {}
     method: dict[tuple[str, str], tuple[int, str]] = {}
+    commits: list[str] = []
     for path in saved:
         data = json.loads(path.read_text())
+        commits.append(data.get("commit", "unrecorded"))
         for s in data["summaries"]:
             method[(s["task"], s.get("arm", "recipe"))] = (round(s["env_steps"]), s["algorithm"])
         for task, arms in data["seeds"].items():
@@ -388,7 +386,7 @@ def replot(saved: Sequence[Path], out: Path) -> list[dict[str, Any]]:
             summary = summarise(task, rows, budget=budget, algorithm=algorithm)
             summaries.append({**summary, "arm": arm})
             print(f"{task} {arm}: {summary['improvement_line']}")
-    return report(summaries, results, out, "improve")
+    return report(summaries, results, out, "improve", code=", ".join(dict.fromkeys(commits)))
 
 
 if __name__ == "__main__":

@@ -188,7 +188,8 @@ def table(summaries: Sequence[Mapping[str, Any]]) -> str:
         low, high = s["improvement_ci"]
         ci = f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else " (no CI below 3 seeds)"
         lines.append(
-            f"| {s['task']} | {s['algorithm']} | {s['env_steps']:,} | {s['tree']:.1f} "
+            f"| {s['task']} | {s.get('arm', 'recipe')}: {s['algorithm']} | {s['env_steps']:,} "
+            f"| {s['tree']:.1f} "
             f"| {', '.join(f'{f:.1f}' for f in s['finals'])} | {s['improvement']:+.1f}{ci} "
             f"| {s['seeds_above_tree']}/{s['seeds']} | {_percent(s['worst_in_run'])} "
             f"| {_percent(s['worst_in_run_guarded'])} | {s['wall_s']:.0f} |"

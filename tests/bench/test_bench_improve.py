@@ -48,7 +48,9 @@ def test_summary_pairs_each_seed_with_the_tree_on_the_same_episodes():
     assert -5.0 <= low < s["improvement"] < high <= 30.0  # the bootstrap of the 3 gains
     assert s["worst_in_run"] == pytest.approx(-0.05) and s["never_far_below"]
     line = improve.table([s]).splitlines()[-1]
-    assert line.startswith("| t | backbone_td3 | 3,000 | 100.0 | 130.0, 100.0, 105.0 | +11.7 [")
+    assert line.startswith(
+        "| t | recipe: backbone_td3 | 3,000 | 100.0 | 130.0, 100.0, 105.0 | +11.7 ["
+    )
     assert line.endswith("| 2/3 | -5 % | - | 10 |")  # runs without a selection: no guard
 
 
@@ -116,7 +118,7 @@ def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, caps
     assert first["evaluations"]  # the in-run evaluations were read, each judged by the guard
     assert len(first["guarded"]) == len(first["evaluations"])
     assert (tmp_path / "improve-pendulum.png").stat().st_size > 0
-    assert "| pendulum | backbone_td3 |" in capsys.readouterr().out
+    assert "| pendulum | recipe: backbone_td3 |" in capsys.readouterr().out
     # Read back: the selection applied again gives the run's own choice, on the same
     # episodes; each acting part is scored on the final episodes.
     run = tmp_path / "pendulum" / "recipe" / "s0"
@@ -145,4 +147,5 @@ def test_plot_redraws_earlier_runs_from_their_json_without_training(tmp_path):
     assert back["task"] == "t" and back["recipe"]["seeds"] == [0, 1]  # an older file: the recipe
     redrawn = json.loads((tmp_path / "fig" / "improve.json").read_text())
     assert redrawn["summaries"][0]["worst_in_run_guarded"] == 0.0
+    assert redrawn["commit"] == "unrecorded"  # the runs' commit, carried over from their files
     assert (tmp_path / "fig" / "improve-t.png").stat().st_size > 0
