@@ -252,7 +252,8 @@ def main(argv: list[str] | None = None) -> int:
             done[label[job[3]], r.seed] = (r, secs, prof)
             print(f"[{len(done)}/{len(jobs)}] {label[job[3]]}, seed {r.seed}: {r.stage}, "
                   f"{r.ticks} ticks, {r.deaths} deaths, longest wait {prof.longest_wait} "
-                  f"ticks, {r.watchdog} firings, {secs:.0f} s", file=sys.stderr, flush=True)  # fmt: skip
+                  f"ticks, {r.watchdog} firings, {secs:.0f} s",
+                  file=sys.stderr, flush=True)  # fmt: skip
     wall = time.perf_counter() - t0
     runs = {name: [done[name, s] for s in seeds] for name in agents}
     for name, rows in runs.items():

@@ -4,7 +4,8 @@ the Malmo protocol.
 Shape (``graft minecraft tree`` prints it in full)::
 
     [o] Obtain diamond                        Selector: the first branch that acts wins
-        [o] Survive                           out of water/lava, eat when hungry
+        [o] Survive                           out of water/lava, out of a fallen block,
+                                              eat when hungry
         [o] Re-plan                           the watchdog fired (no progress): go up
                                               for wood when none is held, else explore
                                               elsewhere (``agent.watchdog``)
@@ -49,7 +50,7 @@ from minecraft.agent.leaves.goals import (
 from minecraft.agent.leaves.items import Craft
 from minecraft.agent.leaves.percept import Percept
 from minecraft.agent.leaves.recovery import RECOVER_KEY, EndRecovery, Recovering
-from minecraft.agent.leaves.survival import Eat, EscapeLiquid
+from minecraft.agent.leaves.survival import Buried, DigOut, Eat, EscapeLiquid
 from minecraft.agent.leaves.travel import travel_subtree
 from minecraft.agent.tree_episode import EpisodeResult, TreeEpisode
 from minecraft.agent.tree_profile import TimeProfile
@@ -217,7 +218,12 @@ class _Builder:
             memory=False,
             children=[C.Hungry(namespace=self.ns), Eat(namespace=self.ns)],
         )
-        return Selector("Survive", memory=False, children=[escape, eat])
+        dig_out = Sequence(
+            "Get out of a block",
+            memory=False,
+            children=[Buried(namespace=self.ns), DigOut(namespace=self.ns)],
+        )
+        return Selector("Survive", memory=False, children=[escape, dig_out, eat])
 
     def replan(self) -> Behaviour:
         """The watchdog's re-plans (``agent.watchdog``), each until its aim is reached."""

@@ -19,7 +19,7 @@ from minecraft.agent.leaves.context import Context
 from minecraft.agent.leaves.goals import Ascend, Descend, Explore, MineTarget
 from minecraft.agent.leaves.items import Craft
 from minecraft.agent.leaves.percept import Percept
-from minecraft.agent.leaves.survival import Eat, EscapeLiquid
+from minecraft.agent.leaves.survival import DigOut, Eat, EscapeLiquid
 from minecraft.agent.leaves.travel import STUCK_TICKS, BreakBlock, StepTo
 
 MISSION_START = "(mission start)"
@@ -70,14 +70,15 @@ def classify(tip: Optional[Behaviour]) -> LeafKey:
     subtree = next(
         (n for n in names if n.startswith(_SUBTREE_PREFIXES)), names[-1] if names else tip.name
     )
-    acts = (MineTarget, Craft, Eat, EscapeLiquid, Explore, Descend, Ascend, StepTo, BreakBlock)
+    acts = (MineTarget, Craft, Eat, EscapeLiquid, DigOut, Explore, Descend, Ascend, StepTo,
+            BreakBlock)  # fmt: skip
     if isinstance(tip, acts) and any(n.startswith("Re-plan") for n in names):
         activity = "recovering"
     elif isinstance(tip, MineTarget):
         activity = "digging"
     elif isinstance(tip, Craft):
         activity = "crafting"
-    elif isinstance(tip, (Eat, EscapeLiquid)):
+    elif isinstance(tip, (Eat, EscapeLiquid, DigOut)):
         activity = "survival"
     elif isinstance(tip, (Explore, Ascend)):
         activity = "searching"

@@ -283,3 +283,15 @@ def test_underground_without_wood_for_sticks_it_climbs_to_the_surface() -> None:
     assert status(table, "Break block") == Status.RUNNING
     assert ctx.plan_step is not None and ctx.plan_step[0] == "destroy"
     assert ctx.goals and min(g[1] for g in ctx.goals) > 12
+
+
+def test_gravel_fallen_into_its_feet_cell_is_dug_out_first() -> None:
+    """A body inside a block neither falls nor walks, and A* cannot start there."""
+    los = {"hitType": "block", "inRange": True, "blockX": 0, "blockY": 12, "blockZ": 0}
+    inv = {"planks": 3, "stone_pickaxe": 1}
+    p = scene(inventory=inv, fill="stone", y=12, blocks={(0, 12, 0): "gravel"}, los=los)
+    p.pitch = 90.0
+    table, ctx = tick(p)
+    assert status(table, "Inside a block?") == Status.SUCCESS
+    assert status(table, "Dig out") == Status.RUNNING
+    assert ctx.commands.attack and "Quest" not in table
