@@ -188,7 +188,7 @@ def check_keep(keep: float) -> None:
 def veins(arr: np.ndarray, block: int) -> list[list[tuple[int, int, int]]]:
     """The 6-connected groups of ``block`` cells, each sorted, in the order of their first
     cell (array indices)."""
-    left = {tuple(int(v) for v in c) for c in np.argwhere(arr == block)}
+    left = {(int(x), int(y), int(z)) for x, y, z in np.argwhere(arr == block)}
     groups = []
     for start in sorted(left):
         if start not in left:
