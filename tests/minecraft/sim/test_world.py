@@ -274,3 +274,18 @@ def test_diamond_keep_reaches_the_world_from_the_server_and_the_mission() -> Non
         parse_mission(bad)
     with pytest.raises(ValueError, match="diamond_keep must be within"):
         WorldServer(port=0, diamond_keep=-0.1)
+
+
+def test_serve_refuses_a_diamond_keep_outside_0_1_in_one_line() -> None:
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    cmd = [sys.executable, "-m", "minecraft.cli", "minecraft", "serve", "--port", "0",
+           "--diamond-keep", "1.5"]  # fmt: skip
+    out = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=60)
+    assert out.returncode != 0
+    assert (
+        out.stderr.strip() == "graft minecraft serve: --diamond-keep must be within [0, 1], got 1.5"
+    )
