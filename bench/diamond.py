@@ -9,7 +9,7 @@ reads observations only).
 
     python bench/diamond.py [--worlds 20] [--first-seed 0] [--procs 2]
         [--png diamond_time.png] [--max-ticks 24000] [--ticks-per-step 1]
-        [--controller RUN_DIR ...] [--travel-while ACTIVITY ...]
+        [--controller RUN_DIR ...] [--travel-while ACTIVITY ...] [--diamond-keep 0.25]
 
 ``--ticks-per-step k``: a slow client, deciding every k-th tick and holding its commands
 in between. ``--controller RUN_DIR`` (repeatable, one per leaf: a travel run corrects
@@ -18,6 +18,11 @@ load_corrections``): every world is run twice, the tree alone and the tree with 
 trained corrections, and the two are compared world by world (a sign test on the time to
 diamond, a world without one counting as the time limit). ``--travel-while searching``
 (repeatable) keeps the travel correction to the walks of those activities.
+``--diamond-keep f``: harder worlds, each diamond vein kept with probability f (drawn
+from the world seed; the mission's generatorOptions ``diamondKeep``).
+
+Per world it prints the longest run of consecutive ticks with no action leaf running
+("longest wait", and the waiting leaf it began in) and the watchdog's firings.
 """
 
 from __future__ import annotations
@@ -51,9 +56,10 @@ Agent = tuple[tuple[str, ...], tuple[str, ...]]
 _loaded: dict[Agent, Corrections] = {}
 
 
-def _mission(seed: int) -> str:
+def _mission(seed: int, diamond_keep: float = 1.0) -> str:
     # The tree reads observations only: the small frame real Malmo needs, no 64x64 one.
-    return obtain_diamond(seed=seed, pixels=False)
+    keep = None if diamond_keep == 1.0 else diamond_keep
+    return obtain_diamond(seed=seed, pixels=False, diamond_keep=keep)
 
 
 def corrections_of(agent: Agent) -> Corrections:
@@ -71,6 +77,7 @@ def run_world(
     max_ticks: int = TIME_LIMIT_TICKS + 5,
     ticks_per_step: int = 1,
     agent: Agent = ((), ()),
+    diamond_keep: float = 1.0,
 ) -> tuple[EpisodeResult, float, LeafTimes]:
     """One world: a server on a free port, the tree (with the corrections of the
     ``agent``'s runs) through the client, profiled."""
@@ -79,7 +86,7 @@ def run_world(
     profile = TimeProfile()
     with WorldServer(port=0, seed=seed) as server:
         client = MalmoClient("127.0.0.1", server.port, synchronous=True, seed=seed)
-        client.init(_mission(seed))
+        client.init(_mission(seed, diamond_keep))
         try:
             result = run_episode(
                 client, seed=seed, max_ticks=max_ticks, profile=profile,
@@ -90,7 +97,7 @@ def run_world(
     return result, time.perf_counter() - t0, profile.summary()
 
 
-Job = tuple[int, int, int, Agent]
+Job = tuple[int, int, int, Agent, float]
 
 
 def _run_world(job: Job) -> tuple[Job, EpisodeResult, float, LeafTimes]:
@@ -172,23 +179,29 @@ def _clock(ticks: int) -> str:
     return f"{s // 60}:{s % 60:02d}"
 
 
-def outcome_table(results: list[tuple[EpisodeResult, float]]) -> str:
+def outcome_table(results: list[tuple[EpisodeResult, float, LeafTimes]]) -> str:
     """Markdown: one row per world."""
     lines = ["| world seed | diamond | stage reached | in-game time (m:ss) | ticks | deaths | "
-             "iron pickaxe at | drops left / decided | wall s |",
-             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
-    for r, secs in results:
+             "iron pickaxe at | drops left / decided | longest wait s [leaf] | "
+             "watchdog firings | wall s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r, secs, prof in results:
         iron = r.reached.get("iron_pickaxe")
+        wait = f"{prof.longest_wait / 20:.1f} [{prof.longest_wait_leaf.leaf}]"
         lines.append(
             f"| {r.seed} | {'yes' if r.diamond else 'no'} | {r.stage} | {_clock(r.ticks)} | "
             f"{r.ticks} | {r.deaths} | {_clock(iron) if iron is not None else '-'} | "
-            f"{r.drops_left} / {r.drops_decided} | {secs:.0f} |"
+            f"{r.drops_left} / {r.drops_decided} | {wait} | {sum(prof.watchdog.values())} | "
+            f"{secs:.0f} |"
         )
-    got = [r for r, _ in results if r.diamond]
+    got = [r for r, _, _ in results if r.diamond]
     median = _clock(int(statistics.median(r.ticks for r in got))) if got else "-"
-    deaths = sum(r.deaths for r, _ in results)
+    deaths = sum(r.deaths for r, _, _ in results)
+    longest = max((p.longest_wait for _, _, p in results), default=0)
+    fired = sum(sum(p.watchdog.values()) for _, _, p in results)
     lines += ["", f"diamonds: {len(got)}/{len(results)} worlds; deaths: {deaths}; "
-              f"median time to diamond: {median}"]  # fmt: skip
+              f"median time to diamond: {median}; longest wait: {longest / 20:.1f} s; "
+              f"watchdog firings: {fired}"]  # fmt: skip
     return "\n".join(lines)
 
 
@@ -206,12 +219,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="ticks each decision is held (a slow client; 1: every tick)")  # fmt: skip
     ap.add_argument("--controller", action="append", default=[], metavar="RUN_DIR",
                     help="a run correcting the leaf it trained for (repeatable)")  # fmt: skip
+    ap.add_argument("--diamond-keep", type=float, default=1.0,
+                    help="fraction of diamond veins each world keeps (1: all)")  # fmt: skip
     ap.add_argument("--travel-while", action="append", default=[], metavar="ACTIVITY",
                     help="the travel correction walks only in this activity's walks, "
                          "e.g. searching (repeatable; default: every walk)")  # fmt: skip
     args = ap.parse_args(argv)
     if min(args.worlds, args.procs, args.max_ticks, args.ticks_per_step) < 1:
         ap.error("--worlds, --procs, --max-ticks and --ticks-per-step must be at least 1")
+    if not 0.0 <= args.diamond_keep <= 1.0:
+        ap.error(f"--diamond-keep must be within [0, 1], got {args.diamond_keep}")
     controllers = tuple(args.controller)
     corrected: Agent = (controllers, tuple(args.travel_while))
     if controllers or args.travel_while:
@@ -222,7 +239,11 @@ def main(argv: list[str] | None = None) -> int:
     seeds = list(range(args.first_seed, args.first_seed + args.worlds))
     agents: dict[str, Agent] = {TREE: ((), ())} | ({CORRECTED: corrected} if controllers else {})
     # World by world, the agents of one world together: pairs complete as the run goes.
-    jobs = [(s, args.max_ticks, args.ticks_per_step, c) for s in seeds for c in agents.values()]
+    jobs = [
+        (s, args.max_ticks, args.ticks_per_step, c, args.diamond_keep)
+        for s in seeds
+        for c in agents.values()
+    ]
     t0 = time.perf_counter()
     done: dict[tuple[str, int], tuple[EpisodeResult, float, LeafTimes]] = {}
     label = {c: name for name, c in agents.items()}
@@ -230,12 +251,14 @@ def main(argv: list[str] | None = None) -> int:
         for job, r, secs, prof in pool.imap_unordered(_run_world, jobs, chunksize=1):
             done[label[job[3]], r.seed] = (r, secs, prof)
             print(f"[{len(done)}/{len(jobs)}] {label[job[3]]}, seed {r.seed}: {r.stage}, "
-                  f"{r.ticks} ticks, {secs:.0f} s", file=sys.stderr, flush=True)  # fmt: skip
+                  f"{r.ticks} ticks, {r.deaths} deaths, longest wait {prof.longest_wait} "
+                  f"ticks, {r.watchdog} firings, {secs:.0f} s",
+                  file=sys.stderr, flush=True)  # fmt: skip
     wall = time.perf_counter() - t0
     runs = {name: [done[name, s] for s in seeds] for name in agents}
     for name, rows in runs.items():
         print(f"\n### {name} (one decision every {args.ticks_per_step} ticks)\n")
-        print(outcome_table([(r, secs) for r, secs, _ in rows]))
+        print(outcome_table(rows))
     print(f"\nwall {wall:.0f} s with {args.procs} processes")
     if controllers:
         from diamond_compare import comparison  # bench/, beside this script

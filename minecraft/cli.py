@@ -63,11 +63,16 @@ def _serve(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     if args.instances < 1:
         raise SystemExit(f"graft minecraft serve: --instances must be >= 1, got {args.instances}")
+    if not 0.0 <= args.diamond_keep <= 1.0:
+        raise SystemExit(
+            f"graft minecraft serve: --diamond-keep must be within [0, 1], got {args.diamond_keep}"
+        )
     timing, limits = _timing(args), _limits(args)
     # Several instances in one process: a multi-agent mission's roles join each other.
     servers = [
         WorldServer(args.host, args.port + i if args.port else 0, seed=args.seed + i,
-                    ms_per_tick=args.ms_per_tick, timing=timing, limits=limits)
+                    ms_per_tick=args.ms_per_tick, timing=timing, limits=limits,
+                    diamond_keep=args.diamond_keep)
         for i in range(args.instances)
     ]  # fmt: skip
 
@@ -200,6 +205,13 @@ def _add_serve(sub: argparse._SubParsersAction) -> None:
     serve.add_argument("--port", type=int, default=P.DEFAULT_PORT, help="TCP port (0: any)")
     serve.add_argument("--seed", type=int, default=0, help="base world seed")
     serve.add_argument("--ms-per-tick", type=int, default=50, help="default tick period")
+    serve.add_argument(
+        "--diamond-keep",
+        type=float,
+        default=1.0,
+        help="fraction of diamond veins a default world keeps (drawn per vein from the "
+        "world seed, the rest stone; a mission's generatorOptions diamondKeep overrides it)",
+    )
     serve.add_argument("--host", default="127.0.0.1", help="interface to bind")
     serve.add_argument(
         "--instances",

@@ -4,7 +4,11 @@ the Malmo protocol.
 Shape (``graft minecraft tree`` prints it in full)::
 
     [o] Obtain diamond                        Selector: the first branch that acts wins
-        [o] Survive                           out of water/lava, eat when hungry
+        [o] Survive                           out of water/lava, out of a fallen block,
+                                              eat when hungry
+        [o] Re-plan                           the watchdog fired (no progress): go up
+                                              for wood when none is held, else explore
+                                              elsewhere (``agent.watchdog``)
         [-] Pick up drops                     a wanted item lies near: walk onto it
         [-] Quest                             Sequence of backchained needs:
             [o] Wood                          enough wood for the whole quest, or gather logs
@@ -15,7 +19,9 @@ Shape (``graft minecraft tree`` prints it in full)::
 
 "Ensure X" is ``Selector(Has X?, Sequence(ensure inputs..., act))``: each tick the tree
 re-checks from the top (``memory=False`` everywhere), so it resumes from whatever the
-inventory holds and repairs itself when things are lost. Every move goes through the
+inventory holds and repairs itself when things are lost: a log it lacks is fetched
+wherever it is (up to the surface from a mine, when a worn-out pickaxe needs sticks).
+Every move goes through the
 A* travel sub-tree (``leaves.travel``); the grid observation is x-ray, so ores are
 chosen from it directly, and no block touching a liquid is ever broken.
 """
@@ -33,21 +39,25 @@ from minecraft.agent.corrections import DROP_ITEMS, Corrections
 from minecraft.agent.leaves import conditions as C
 from minecraft.agent.leaves.context import CONTEXT_KEY, Context, new_namespace
 from minecraft.agent.leaves.goals import (
+    Ascend,
     ChooseBlock,
     ChooseDrop,
     Descend,
+    Elsewhere,
     Explore,
     MineTarget,
 )
 from minecraft.agent.leaves.items import Craft
 from minecraft.agent.leaves.percept import Percept
-from minecraft.agent.leaves.survival import Eat, EscapeLiquid
+from minecraft.agent.leaves.recovery import RECOVER_KEY, EndRecovery, Recovering
+from minecraft.agent.leaves.survival import Buried, DigOut, Eat, EscapeLiquid
 from minecraft.agent.leaves.travel import travel_subtree
 from minecraft.agent.tree_episode import EpisodeResult, TreeEpisode
 from minecraft.agent.tree_profile import TimeProfile
 from minecraft.malmo.client import MalmoClient
 
 MINING_Y = 12  # feet height for the diamond search: sees y 5..19 in the grid, above lava
+REPLAN_TICKS = {"wood": 2400, "elsewhere": 600}  # how long a watchdog re-plan may run
 WANTED = DROP_ITEMS
 BETTER = {
     "wooden_pickaxe": ("stone_pickaxe", "iron_pickaxe"),
@@ -110,9 +120,26 @@ class _Builder:
             ],
         )
 
+    def log(self) -> Behaviour:
+        """A log in the inventory: mine a visible one, else climb to the surface (from
+        underground), else explore the surface."""
+        up = Sequence(
+            "Go up for wood",
+            memory=False,
+            children=[
+                C.Underground(namespace=self.ns),
+                Ascend(namespace=self.ns),
+                travel_subtree(self.ns),
+            ],
+        )
+        gather = self.mine(("log",), fallbacks=[up, self.explore(level=False)])
+        return self.ensure("log", 1, [gather])
+
     # ----------------------------------------------------------------- needs
-    def planks(self, n: int) -> Behaviour:
-        return self.ensure("planks", n, [self.has("log"), self.craft("planks")])
+    def planks(self, n: int, *, fetch: bool = True) -> Behaviour:
+        """``fetch``: get a log when none is held (False: only craft from one held)."""
+        log = self.log() if fetch else self.has("log")
+        return self.ensure("planks", n, [log, self.craft("planks")])
 
     def sticks(self, n: int) -> Behaviour:
         return self.ensure("stick", n, [self.planks(2), self.craft("stick")])
@@ -151,7 +178,8 @@ class _Builder:
     def fuel(self) -> Behaviour:
         # Coal from coal_ore (common down to y=5) when the wood has run out underground.
         coal = self.mine(("coal_ore",), fallbacks=[self.explore(level=True)])
-        return Selector("Fuel", memory=False, children=[self.has("coal"), self.planks(1), coal])
+        planks = self.planks(1, fetch=False)
+        return Selector("Fuel", memory=False, children=[self.has("coal"), planks, coal])
 
     def iron_ingots(self) -> Behaviour:
         return self.ensure(
@@ -190,7 +218,40 @@ class _Builder:
             memory=False,
             children=[C.Hungry(namespace=self.ns), Eat(namespace=self.ns)],
         )
-        return Selector("Survive", memory=False, children=[escape, eat])
+        dig_out = Sequence(
+            "Get out of a block",
+            memory=False,
+            children=[Buried(namespace=self.ns), DigOut(namespace=self.ns)],
+        )
+        return Selector("Survive", memory=False, children=[escape, dig_out, eat])
+
+    def replan(self) -> Behaviour:
+        """The watchdog's re-plans (``agent.watchdog``), each until its aim is reached."""
+        away = Sequence(
+            "Move away",
+            memory=False,
+            children=[
+                Elsewhere(namespace=self.ns, key=RECOVER_KEY, seed=self.seed),
+                travel_subtree(self.ns),
+            ],
+        )
+        plans = {"wood": self.log(), "elsewhere": away}
+        return Selector(
+            "Re-plan",
+            memory=False,
+            children=[
+                Sequence(
+                    f"Re-plan ({plan})",
+                    memory=False,
+                    children=[
+                        Recovering(plan, namespace=self.ns, ticks=REPLAN_TICKS[plan]),
+                        node,
+                        EndRecovery(namespace=self.ns),
+                    ],
+                )
+                for plan, node in plans.items()
+            ],
+        )
 
     def logs(self, n: int) -> Behaviour:
         gather = self.mine(("log",), fallbacks=[self.explore(level=False)])
@@ -207,7 +268,11 @@ class _Builder:
         else:
             steps = [self.wood(), self.iron_pickaxe(), self.diamond()]
         quest = Sequence("Quest", memory=False, children=steps)
-        return Selector("Obtain diamond", memory=False, children=[self.survive(), drops, quest])
+        return Selector(
+            "Obtain diamond",
+            memory=False,
+            children=[self.survive(), self.replan(), drops, quest],
+        )
 
 
 GOALS = ("diamond", "planks")

@@ -29,6 +29,7 @@ from minecraft.agent.corrections import (
 from minecraft.agent.leaves.context import Context
 from minecraft.agent.leaves.percept import ItemSeen, Percept, parse
 from minecraft.agent.tree_profile import TimeProfile
+from minecraft.agent.watchdog import Watchdog
 from minecraft.malmo.client import MalmoClient, StepResult
 
 MILESTONES = (
@@ -52,6 +53,7 @@ class EpisodeResult:
         reached: milestone -> tick it was first held.
         drops_left: wanted items a drops correction chose to leave.
         drops_decided: wanted items a drops correction decided on.
+        watchdog: times the watchdog fired (no progress: a re-plan).
     """
 
     seed: int
@@ -64,6 +66,7 @@ class EpisodeResult:
     reached: dict[str, int] = field(default_factory=dict)
     drops_left: int = 0
     drops_decided: int = 0
+    watchdog: int = 0
 
 
 class TreeEpisode:
@@ -81,6 +84,8 @@ class TreeEpisode:
         corrections: learned corrections in place (empty: the tree alone).
         gate_drops: stop at each new wanted item in reach (``pending_drop``) for the
             caller to ``decide``, without a drops policy (the drops environment).
+        watchdog: checked after every tick (``watchdog.Watchdog``; the default one
+            unless given); its firings are counted in the profile.
     """
 
     def __init__(
@@ -96,6 +101,7 @@ class TreeEpisode:
         ticks_per_step: int = 1,
         corrections: Optional[Corrections] = None,
         gate_drops: bool = False,
+        watchdog: Optional[Watchdog] = None,
     ) -> None:
         if ticks_per_step < 1:
             raise ValueError(f"ticks_per_step={ticks_per_step} must be >= 1")
@@ -115,6 +121,7 @@ class TreeEpisode:
         self.best, self.ticks, self.steps, self.end = -1, 0, 0, "time limit"
         self.reached: dict[str, int] = {}
         self._elapsed = 1
+        self.watchdog = watchdog or Watchdog()
 
     def start(self) -> bool:
         """Reset the mission and read the first observation; False if it already ended."""
@@ -178,6 +185,8 @@ class TreeEpisode:
             self.travel.apply(tip, ctx, self._elapsed)
         if self.profile is not None:
             self.profile.acted(tip, ctx)
+        if self.watchdog.check(ctx) is not None and self.profile is not None:
+            self.profile.fired()
         reply = client.step(ctx.commands.render())
         for _ in range(self.k - 1):
             if reply.done or not reply.info:
@@ -230,4 +239,5 @@ class TreeEpisode:
             reached=self.reached,
             drops_left=sum(self.decided.values()),
             drops_decided=len(self.decided),
+            watchdog=self.watchdog.firings,
         )

@@ -16,23 +16,27 @@ from typing import Optional
 from py_trees.behaviour import Behaviour
 
 from minecraft.agent.leaves.context import Context
-from minecraft.agent.leaves.goals import Descend, Explore, MineTarget
+from minecraft.agent.leaves.goals import Ascend, Descend, Explore, MineTarget
 from minecraft.agent.leaves.items import Craft
 from minecraft.agent.leaves.percept import Percept
-from minecraft.agent.leaves.survival import Eat, EscapeLiquid
+from minecraft.agent.leaves.survival import DigOut, Eat, EscapeLiquid
 from minecraft.agent.leaves.travel import STUCK_TICKS, BreakBlock, StepTo
 
 MISSION_START = "(mission start)"
 """Ticks before the tree first acted (the mission's loading, the first observation)."""
 
-ACTIVITIES = ("travel", "digging", "searching", "descending", "crafting", "survival", "waiting")
+ACTIVITIES = (
+    "travel", "digging", "searching", "descending", "crafting", "survival", "recovering",
+    "waiting",
+)  # fmt: skip
 """travel: walking (and breaking blocks in the way) to a chosen block or drop; digging:
 mining the chosen block and waiting for its drop; searching: exploring for blocks not
-in view; descending: digging down to a depth; crafting; survival: eating, leaving a
-liquid; waiting: no action leaf running (mission start, a condition or chooser that
-failed, the goal already held)."""
+in view (climbing to the surface for wood too); descending: digging down to a depth;
+crafting; survival: eating, leaving a liquid; recovering: acting on a watchdog re-plan;
+waiting: no action leaf running (mission start, a condition or chooser that failed, the
+goal already held)."""
 
-_SUBTREE_PREFIXES = ("Ensure ", "Wood", "Diamond", "Fuel", "Survive", "Pick up drops")
+_SUBTREE_PREFIXES = ("Re-plan", "Ensure ", "Wood", "Diamond", "Fuel", "Survive", "Pick up drops")
 
 
 @dataclass(frozen=True)
@@ -66,20 +70,24 @@ def classify(tip: Optional[Behaviour]) -> LeafKey:
     subtree = next(
         (n for n in names if n.startswith(_SUBTREE_PREFIXES)), names[-1] if names else tip.name
     )
-    if isinstance(tip, MineTarget):
+    acts = (MineTarget, Craft, Eat, EscapeLiquid, DigOut, Explore, Descend, Ascend, StepTo,
+            BreakBlock)  # fmt: skip
+    if isinstance(tip, acts) and any(n.startswith("Re-plan") for n in names):
+        activity = "recovering"
+    elif isinstance(tip, MineTarget):
         activity = "digging"
     elif isinstance(tip, Craft):
         activity = "crafting"
-    elif isinstance(tip, (Eat, EscapeLiquid)):
+    elif isinstance(tip, (Eat, EscapeLiquid, DigOut)):
         activity = "survival"
-    elif isinstance(tip, Explore):
+    elif isinstance(tip, (Explore, Ascend)):
         activity = "searching"
     elif isinstance(tip, Descend):
         activity = "descending"
     elif isinstance(tip, (StepTo, BreakBlock)):
         # The travel sub-tree's purpose is the sequence that holds it.
         purpose = names[names.index("Travel") + 1] if "Travel" in names[:-1] else ""
-        if purpose == "Explore":
+        if purpose in ("Explore", "Go up for wood"):
             activity = "searching"
         elif purpose.startswith("Go down to"):
             activity = "descending"
@@ -103,6 +111,11 @@ class LeafTimes:
             stuck threshold (``STUCK_TICKS``).
         given_up: targets abandoned (unreachable, unbreakable or over budget).
         last: the leaf running when the episode ended.
+        longest_wait: the longest run of consecutive ticks spent waiting (no action
+            leaf running; one waiting leaf or several in turn).
+        longest_wait_leaf: the waiting leaf that began that run.
+        watchdog: times the watchdog fired (``watchdog.Watchdog``), per leaf that was
+            running when it did.
     """
 
     ticks: dict[LeafKey, int] = field(default_factory=dict)
@@ -111,6 +124,9 @@ class LeafTimes:
     stuck_ticks: dict[LeafKey, int] = field(default_factory=dict)
     given_up: int = 0
     last: LeafKey = START_KEY
+    longest_wait: int = 0
+    longest_wait_leaf: LeafKey = START_KEY
+    watchdog: dict[LeafKey, int] = field(default_factory=dict)
 
     @property
     def total(self) -> int:
@@ -141,6 +157,11 @@ class TimeProfile:
         self.entries: Counter[LeafKey] = Counter()
         self.idle_entries: Counter[LeafKey] = Counter()
         self.stuck_ticks: Counter[LeafKey] = Counter()
+        self.watchdog: Counter[LeafKey] = Counter()
+        self._wait = 0  # consecutive waiting ticks so far
+        self._wait_leaf = START_KEY
+        self.longest_wait = 0
+        self.longest_wait_leaf = START_KEY
 
     @property
     def current(self) -> LeafKey:
@@ -151,11 +172,26 @@ class TimeProfile:
         """A new observation: the ticks since the last one go to the leaf that acted."""
         dt = p.tick - self._last_tick
         if dt > 0:
-            self.ticks[self._key] += dt
+            self._charge(dt)
             if self._stuck:
                 self.stuck_ticks[self._key] += dt
             self._last_tick = p.tick
         self._inv = tuple(sorted(p.inventory.items()))
+
+    def _charge(self, dt: int) -> None:
+        self.ticks[self._key] += dt
+        if self._key.activity != "waiting":
+            self._wait = 0
+            return
+        if self._wait == 0:
+            self._wait_leaf = self._key
+        self._wait += dt
+        if self._wait > self.longest_wait:
+            self.longest_wait, self.longest_wait_leaf = self._wait, self._wait_leaf
+
+    def fired(self) -> None:
+        """The watchdog fired while the current leaf was running."""
+        self.watchdog[self._key] += 1
 
     def acted(self, tip: Optional[Behaviour], ctx: Context) -> None:
         """The tree was ticked; ``tip`` is its running behaviour, whose action is sent."""
@@ -176,7 +212,7 @@ class TimeProfile:
         """The episode ended at ``tick``: charge what is left to the last leaf."""
         dt = tick - self._last_tick
         if dt > 0:
-            self.ticks[self._key] += dt
+            self._charge(dt)
             self._last_tick = tick
 
     def summary(self) -> LeafTimes:
@@ -188,6 +224,9 @@ class TimeProfile:
             stuck_ticks=dict(self.stuck_ticks),
             given_up=self._given_up,
             last=self._key,
+            longest_wait=self.longest_wait,
+            longest_wait_leaf=self.longest_wait_leaf,
+            watchdog=dict(self.watchdog),
         )
 
 

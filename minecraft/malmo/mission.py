@@ -9,6 +9,7 @@ does not implement instead of ignoring them.
 
 from __future__ import annotations
 
+import json
 import xml.etree.ElementTree as ET
 import zlib
 from dataclasses import dataclass, field
@@ -134,6 +135,9 @@ class Mission:
         allow_spawning: ServerInitialConditions/AllowSpawning.
         flat_generator: FlatWorldGenerator generatorString, or None.
         seed: DefaultWorldGenerator seed, or None (the server chooses).
+        diamond_keep: the fraction of diamond veins the default generator keeps, from
+            its ``generatorOptions`` JSON (``{"diamondKeep": 0.25}``, a key of the
+            simulator's own), or None (the server's setting).
         drawing: DrawingDecorator operations, in order.
         maze: the MazeDecorator, or None.
         classroom: the ClassroomDecorator, or None.
@@ -175,6 +179,7 @@ class Mission:
     allow_spawning: bool = False
     flat_generator: Optional[str] = None
     seed: Optional[int] = None
+    diamond_keep: Optional[float] = None
     drawing: tuple[DrawOp, ...] = ()
     maze: Optional[D.MazeSpec] = None
     classroom: Optional[D.ClassroomSpec] = None
@@ -319,6 +324,29 @@ def parse_mission(xml: str | bytes, role: Optional[int] = None) -> Mission:
     return Mission(**kw)  # type: ignore[arg-type]
 
 
+def _diamond_keep(options: str) -> Optional[float]:
+    """``diamondKeep`` from a DefaultWorldGenerator's generatorOptions JSON (Minecraft's
+    customised-world keys are accepted and not modelled), or None."""
+    if not options.strip():
+        return None
+    try:
+        parsed = json.loads(options)
+    except ValueError:
+        raise MissionError(
+            f"DefaultWorldGenerator generatorOptions is not JSON: {options!r}"
+        ) from None
+    if not isinstance(parsed, dict):
+        raise MissionError(f"DefaultWorldGenerator generatorOptions is not an object: {options!r}")
+    keep = parsed.get("diamondKeep")
+    if keep is None:
+        return None
+    if isinstance(keep, bool) or not isinstance(keep, (int, float)) or not 0 <= keep <= 1:
+        raise MissionError(
+            f"generatorOptions diamondKeep must be a number within [0, 1], got {keep!r}"
+        )
+    return float(keep)
+
+
 def _initial_conditions(init: Optional[ET.Element], kw: dict[str, object]) -> None:
     time_e = _child(init, "Time")
     start = _text(time_e, "StartTime")
@@ -337,8 +365,12 @@ def _server_handlers(handlers: Optional[ET.Element], kw: dict[str, object]) -> N
             kw["flat_generator"] = h.get("generatorString", "3;7,2*3,2;1;village")
             if (h.get("seed") or "").strip():
                 kw["seed"] = seed_from_text(h.get("seed", ""))
-        elif t == "DefaultWorldGenerator" and (h.get("seed") or "").strip():
-            kw["seed"] = seed_from_text(h.get("seed", ""))
+        elif t == "DefaultWorldGenerator":
+            if (h.get("seed") or "").strip():
+                kw["seed"] = seed_from_text(h.get("seed", ""))
+            keep = _diamond_keep(h.get("generatorOptions") or "")
+            if keep is not None:
+                kw["diamond_keep"] = keep
         elif t == "ServerQuitFromTimeUp":
             kw["time_limit_ms"] = _num(h, "timeLimitMs")
             kw["server_quit_description"] = h.get("description", "")

@@ -28,6 +28,7 @@ def mission_xml(
     ms_per_tick: int = 50,
     time_limit_ms: Optional[int] = 1_200_000,
     seed: Optional[int] = None,
+    diamond_keep: Optional[float] = None,
     flat: Optional[str] = None,
     grid_radius: int = 7,
     handlers: str = "continuous discrete inventory craft quit absolute",
@@ -45,6 +46,8 @@ def mission_xml(
         ms_per_tick: ModSettings/MsPerTick.
         time_limit_ms: ServerQuitFromTimeUp in game ms (50 per tick), None for none.
         seed: DefaultWorldGenerator seed (None lets the server choose).
+        diamond_keep: the fraction of diamond veins the simulator's default world keeps
+            (generatorOptions ``diamondKeep``; None: the server's setting).
         flat: a FlatWorldGenerator string instead of the default generator.
         grid_radius: half-size of the ``cube`` grid (0 for no grid).
         handlers: space-separated handler keys (continuous, discrete, inventory, craft,
@@ -56,7 +59,7 @@ def mission_xml(
         observations: space-separated producers besides the grid (stats, inventory,
             ray, entities).
     """
-    gen = _world_generator(seed, flat)
+    gen = _world_generator(seed, flat, diamond_keep)
     deco = f"<DrawingDecorator>{decorators}</DrawingDecorator>" if decorators else ""
     limit = (
         f'<ServerQuitFromTimeUp timeLimitMs="{time_limit_ms}"/>'
@@ -123,10 +126,14 @@ _COMMANDS = {
 """The command handlers `mission_xml` names, as their XML, in the order they are written."""
 
 
-def _world_generator(seed: Optional[int], flat: Optional[str]) -> str:
+def _world_generator(
+    seed: Optional[int], flat: Optional[str], diamond_keep: Optional[float] = None
+) -> str:
     if flat is not None:
         return f'<FlatWorldGenerator generatorString="{flat}" forceReset="true"/>'
     seed_attr = f' seed="{seed}"' if seed is not None else ""
+    if diamond_keep is not None:
+        seed_attr += f" generatorOptions='{{\"diamondKeep\": {float(diamond_keep)!r}}}'"
     return f'<DefaultWorldGenerator forceReset="true"{seed_attr}/>'
 
 
@@ -166,9 +173,12 @@ def _video(width: Optional[int], height: Optional[int]) -> str:
     )
 
 
-def obtain_diamond(seed: Optional[int] = None, *, pixels: bool = True) -> str:
+def obtain_diamond(
+    seed: Optional[int] = None, *, pixels: bool = True, diamond_keep: Optional[float] = None
+) -> str:
     """The sample obtain-diamond mission (reward 1 per log ... 1024 for the diamond);
-    ``pixels=False``: the small frame, for an agent that reads observations only."""
+    ``pixels=False``: the small frame, for an agent that reads observations only;
+    ``diamond_keep``: the fraction of diamond veins the world keeps (``mission_xml``)."""
     rewards = (
         "<RewardForCollectingItem>"
         '<Item type="log" reward="1"/><Item type="planks" reward="2"/>'
@@ -183,6 +193,6 @@ def obtain_diamond(seed: Optional[int] = None, *, pixels: bool = True) -> str:
     # No AbsoluteMovementCommands: teleporting would make the quest trivial.
     size = 64 if pixels else None
     return mission_xml(
-        width=size, height=size, seed=seed, rewards=rewards,
+        width=size, height=size, seed=seed, rewards=rewards, diamond_keep=diamond_keep,
         handlers="continuous discrete inventory craft quit",
     )  # fmt: skip

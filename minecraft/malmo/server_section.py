@@ -91,7 +91,7 @@ _RESET = {"forceReset": BOOL, "destroyAfterUse": BOOL}
 GENERATORS: dict[str, Rule] = {
     "FlatWorldGenerator": el({"generatorString": STRING, "seed": STRING} | _RESET),
     "FileWorldGenerator": el({"src": STRING} | _RESET, "src"),
-    "DefaultWorldGenerator": el({"seed": STRING} | _RESET),
+    "DefaultWorldGenerator": el({"seed": STRING, "generatorOptions": STRING} | _RESET),
     "BiomeGenerator": el({"biome": INT} | _RESET),
 }
 

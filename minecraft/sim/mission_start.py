@@ -38,10 +38,16 @@ class MissionStarter:
             unless the mission or the token names one.
         timing: how long a start waits for the other roles' tokens (``wait_s``).
         limits: what one mission may cost (checked before anything is built).
+        diamond_keep: the fraction of diamond veins a default world keeps unless the
+            mission's generatorOptions say.
     """
 
-    def __init__(self, inst: Instance, *, seed: int, timing: Timing, limits: Limits) -> None:
+    def __init__(
+        self, inst: Instance, *, seed: int, timing: Timing, limits: Limits,
+        diamond_keep: float = 1.0,
+    ) -> None:  # fmt: skip
         self.inst, self.seed, self.timing, self.limits = inst, seed, timing, limits
+        self.diamond_keep = diamond_keep
         self.port = 0  # the server's port once it is bound (what <Find> answers)
         self.session: Optional[S.Session] = None
 
@@ -79,6 +85,8 @@ class MissionStarter:
         )
         if token.seed is not None:
             mission = dataclasses.replace(mission, seed=token.seed)
+        if mission.diamond_keep is None:
+            mission = dataclasses.replace(mission, diamond_keep=self.diamond_keep)
         if token.role == 0:
             return self._init_role0(cid, token, role, mission, also)
         return self._join(cid, token, role, mission)

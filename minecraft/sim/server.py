@@ -37,6 +37,7 @@ from minecraft.sim.instance import LOADING, RUNNING, Instance
 from minecraft.sim.limits import DEFAULT_LIMITS, Limits
 from minecraft.sim.mission_start import MissionStarter
 from minecraft.sim.timing import IDEAL, REAL, Timing
+from minecraft.sim.worldgen import check_keep
 
 log = logging.getLogger("graft.minecraft.server")
 
@@ -53,14 +54,19 @@ class WorldServer:
         timing: real Malmo's pacing (the default) or ``Timing(ideal=True)``.
         limits: what one client may cost the server (frames, grids, messages,
             connections, idle time).
+        diamond_keep: the fraction of diamond veins (6-connected groups of ore) a
+            default world keeps, drawn per vein from the world's seed; the others are
+            stone. A mission's generatorOptions ``diamondKeep`` overrides it.
     """
 
     def __init__(
         self, host: str = "127.0.0.1", port: int = P.DEFAULT_PORT, *, seed: int = 0,
         ms_per_tick: int = 50, timing: Timing = REAL, limits: Limits = DEFAULT_LIMITS,
+        diamond_keep: float = 1.0,
     ) -> None:  # fmt: skip
         if ms_per_tick <= 0:
             raise ValueError(f"ms_per_tick must be positive, got {ms_per_tick}")
+        check_keep(diamond_keep)
         self.host, self.seed, self.default_ms, self.timing = host, seed, ms_per_tick, timing
         self.limits = limits
         self._requested_port = port
@@ -70,7 +76,9 @@ class WorldServer:
         self._listener: Optional[socket.socket] = None
         self._conns: dict[int, socket.socket] = {}
         self._next_conn = 0
-        self._missions = MissionStarter(self.inst, seed=seed, timing=timing, limits=limits)
+        self._missions = MissionStarter(
+            self.inst, seed=seed, timing=timing, limits=limits, diamond_keep=diamond_keep
+        )
         self.protocol_errors = 0
         self.busy_replies = 0
         self.refused_connections = 0

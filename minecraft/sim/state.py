@@ -42,7 +42,8 @@ def _terrain(
     if mission.flat_generator is not None:
         layers = worldgen.flat_layers(mission.flat_generator)
         return worldgen.flat(layers, extent.flat_box(mission, len(layers), also))
-    terrain = worldgen.generate(seed)
+    keep = 1.0 if mission.diamond_keep is None else mission.diamond_keep
+    terrain = worldgen.generate(seed, diamond_keep=keep)
     if mission.placement is not None:
         terrain = worldgen.recentre(terrain, mission.placement[0], mission.placement[2])
     return worldgen.heighten(terrain, extent.height(mission, 0, terrain.blocks.shape[1], also=also))

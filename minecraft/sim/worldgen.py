@@ -114,8 +114,21 @@ def heighten(terrain: Terrain, size_y: int) -> Terrain:
     return Terrain(arr, terrain.x0, terrain.z0, terrain.spawn, terrain.mobs)
 
 
-def generate(seed: int, size_xz: int = SIZE_XZ, size_y: int = SIZE_Y) -> Terrain:
-    """The default world for ``seed`` (same seed, same world)."""
+def generate(
+    seed: int, size_xz: int = SIZE_XZ, size_y: int = SIZE_Y, *, diamond_keep: float = 1.0
+) -> Terrain:
+    """The default world for ``seed`` (same seed, same world).
+
+    Args:
+        seed: the world seed.
+        size_xz: width and depth in blocks.
+        size_y: height in blocks.
+        diamond_keep: the fraction of diamond veins kept (``thin_veins``); 1 keeps all.
+
+    Raises:
+        ValueError: ``diamond_keep`` outside [0, 1].
+    """
+    check_keep(diamond_keep)
     rng = np.random.default_rng(seed & 0xFFFFFFFFFFFFFFFF)
     n = size_xz
     height = (
@@ -157,7 +170,61 @@ def generate(seed: int, size_xz: int = SIZE_XZ, size_y: int = SIZE_Y) -> Terrain
     _trees(rng, arr, h, (sx, sz))
     spawn = (sx + x0 + 0.5, float(h[sx, sz] + 1), sz + z0 + 0.5)
     mobs = _mobs(rng, arr, h, x0, z0, count=max(4, n * n // 700))
+    if diamond_keep < 1.0:
+        thin_veins(arr, B.ID["diamond_ore"], diamond_keep, seed)
     return Terrain(arr, x0, z0, spawn, mobs)
+
+
+def check_keep(keep: float) -> None:
+    """Refuse a vein-keeping fraction outside [0, 1].
+
+    Raises:
+        ValueError: naming the field and the value.
+    """
+    if not 0.0 <= keep <= 1.0:  # NaN fails too
+        raise ValueError(f"diamond_keep must be within [0, 1], got {keep}")
+
+
+def veins(arr: np.ndarray, block: int) -> list[list[tuple[int, int, int]]]:
+    """The 6-connected groups of ``block`` cells, each sorted, in the order of their first
+    cell (array indices)."""
+    left = {(int(x), int(y), int(z)) for x, y, z in np.argwhere(arr == block)}
+    groups = []
+    for start in sorted(left):
+        if start not in left:
+            continue
+        left.discard(start)
+        group, todo = [start], [start]
+        while todo:
+            x, y, z = todo.pop()
+            for dx, dy, dz in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)):
+                c = (x + dx, y + dy, z + dz)
+                if c in left:
+                    left.discard(c)
+                    group.append(c)
+                    todo.append(c)
+        groups.append(sorted(group))
+    return groups
+
+
+def thin_veins(arr: np.ndarray, block: int, keep: float, seed: int) -> int:
+    """Keep each 6-connected vein of ``block`` with probability ``keep`` (one draw per
+    vein, in the order of ``veins``, from a generator of its own seeded by ``seed``: the
+    rest of the world is the same as unthinned); the others become stone.
+
+    Returns:
+        the number of veins kept.
+    """
+    check_keep(keep)
+    rng = np.random.default_rng([seed & 0xFFFFFFFFFFFFFFFF, block])
+    kept = 0
+    for group in veins(arr, block):
+        if rng.random() < keep:
+            kept += 1
+            continue
+        x, y, z = np.array(group).T
+        arr[x, y, z] = B.STONE_ID
+    return kept
 
 
 def _spawn_column(h: np.ndarray, n: int) -> tuple[int, int]:

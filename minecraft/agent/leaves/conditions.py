@@ -8,6 +8,7 @@ from py_trees.common import Status
 
 from minecraft import blocks as B
 from minecraft.agent.leaves.context import Leaf
+from minecraft.agent.leaves.percept import RADIUS
 
 
 class HasItems(Leaf):
@@ -75,6 +76,27 @@ class AboveDepth(Leaf):
     def update(self) -> Status:
         """Compare the feet cell's height."""
         return Status.SUCCESS if self.ctx.percept.cell[1] > self.y else Status.FAILURE
+
+
+class Underground(Leaf):
+    """SUCCESS when rock, ore or earth lies above the head within the grid (trees grow
+    on the surface, under the open sky; logs and leaves above do not count)."""
+
+    OPEN = frozenset({"log", "log2", "leaves", "leaves2"})
+
+    def __init__(self, *, namespace: str) -> None:
+        """Args: namespace: blackboard."""
+        super().__init__("Underground?", namespace=namespace)
+
+    def update(self) -> Status:
+        """Look up the agent's column."""
+        p = self.ctx.percept
+        x, y, z = p.cell
+        for dy in range(2, RADIUS + 1):
+            b = p.block((x, y + dy, z))
+            if b is not None and B.SOLID[b] and B.NAMES[b] not in self.OPEN:
+                return Status.SUCCESS
+        return Status.FAILURE
 
 
 class WoodStock(Leaf):

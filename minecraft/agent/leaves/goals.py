@@ -117,6 +117,46 @@ class MineTarget(Leaf):
         return status
 
 
+def heading_goals(cell: Cell, heading: int, *, level: bool) -> frozenset[Cell]:
+    """Feet cells 6-7 blocks from ``cell`` along ``HEADINGS[heading]``, 5 wide: at the
+    same height (``level``) or within 3 of it."""
+    dx, dz = HEADINGS[heading]
+    x, y, z = cell
+    dys = (0,) if level else (-3, -2, -1, 0, 1, 2, 3)
+    goals = set()
+    for reach in (RADIUS - 1, RADIUS):
+        for side in range(-2, 3):
+            for dy in dys:
+                goals.add((x + dx * reach + dz * side, y + dy, z + dz * reach + dx * side))
+    return frozenset(goals)
+
+
+class Elsewhere(Leaf):
+    """SUCCESS after setting ``ctx.goals`` to cells 6-7 blocks away at the current height
+    along a heading drawn once per watchdog firing (``ctx.memory[key]`` holds the
+    firing's tick and the goals): the travel sub-tree then reaches them once."""
+
+    def __init__(self, *, namespace: str, key: str, seed: int = 0) -> None:
+        """Args: namespace: blackboard; key: the memory key of the firing (its
+        ``tick``); seed: for the headings."""
+        super().__init__("Go elsewhere", namespace=namespace)
+        self.key = key
+        self.rng = random.Random(seed)
+
+    def update(self) -> Status:
+        """Draw the goals for a new firing, keep them otherwise."""
+        ctx = self.ctx
+        fired = ctx.memory.get(self.key)
+        tick = fired.tick if fired is not None else ctx.percept.tick
+        state = ctx.memory.get("elsewhere")
+        if state is None or state[0] != tick:
+            goals = heading_goals(ctx.percept.cell, self.rng.randrange(4), level=True)
+            state = (tick, goals)
+            ctx.memory["elsewhere"] = state
+        ctx.goals = state[1]
+        return Status.SUCCESS
+
+
 class Explore(Leaf):
     """SUCCESS after setting ``ctx.goals`` to cells 6-7 blocks away along a heading:
     on the surface (``level`` False: any height within 3) or in a tunnel at the current
@@ -143,15 +183,8 @@ class Explore(Leaf):
             heading = self.rng.randrange(4) if state is None else state["heading"]
             if state is not None and (p.tick - state["since"] > 300 or mem.get("last_plan_failed")):
                 heading = (heading + self.rng.choice((1, 3))) % 4
-            dx, dz = HEADINGS[heading]
-            x, y, z = p.cell
-            dys = (0,) if self.level else (-3, -2, -1, 0, 1, 2, 3)
-            goals = set()
-            for reach in (RADIUS - 1, RADIUS):
-                for side in range(-2, 3):
-                    for dy in dys:
-                        goals.add((x + dx * reach + dz * side, y + dy, z + dz * reach + dx * side))
-            state = {"heading": heading, "goals": frozenset(goals), "since": p.tick}
+            goals = heading_goals(p.cell, heading, level=self.level)
+            state = {"heading": heading, "goals": goals, "since": p.tick}
             mem[key] = state
             mem["last_plan_failed"] = False
         assert state is not None  # renewed above when there was none
@@ -188,6 +221,32 @@ class Descend(Leaf):
             )
             state = {"y": ty, "goals": goals, "since": p.tick, "shift": shift}
             ctx.memory["descend"] = state
+        ctx.goals = state["goals"]
+        return Status.SUCCESS
+
+
+class Ascend(Leaf):
+    """SUCCESS after setting ``ctx.goals`` to cells ``STRETCH`` blocks higher in a 5×5
+    column around the agent; A* digs a staircase up to them (the way back to the
+    surface, where the trees are)."""
+
+    STRETCH = 4
+
+    def __init__(self, *, namespace: str) -> None:
+        """Args: namespace: blackboard."""
+        super().__init__("Ascend", namespace=namespace)
+
+    def update(self) -> Status:
+        """Set the goals one stretch up (renewed once reached or after 400 ticks)."""
+        ctx = self.ctx
+        p = ctx.percept
+        x, y, z = p.cell
+        state = ctx.memory.get("ascend")
+        if state is None or y >= state["y"] or p.tick - state["since"] > 400:
+            ty = y + self.STRETCH
+            goals = frozenset((x + dx, ty, z + dz) for dx in range(-2, 3) for dz in range(-2, 3))
+            state = {"y": ty, "goals": goals, "since": p.tick}
+            ctx.memory["ascend"] = state
         ctx.goals = state["goals"]
         return Status.SUCCESS
 

@@ -1,5 +1,10 @@
 """Inventory leaves and helpers: holding the right item (``hotbar.N``,
-``swapInventoryItems``) and crafting or smelting (``craft <item>``)."""
+``swapInventoryItems``) and crafting or smelting (``craft <item>``).
+
+Malmo's SimpleCraft smelts without a furnace GUI: it burns fuel whole items at a time
+from the first inventory slot up, whatever the item (sticks, planks, the wooden pickaxe).
+Before smelting, ``Craft`` swaps the fuel it means to burn (``FUEL_ORDER``) into the
+first slot holding any fuel, so coal goes before the wood that later tools need."""
 
 from __future__ import annotations
 
@@ -14,6 +19,10 @@ from minecraft.agent.leaves.percept import Percept
 PICKAXES = ("diamond_pickaxe", "iron_pickaxe", "stone_pickaxe", "wooden_pickaxe")
 HOTBAR = 9
 SWAP_SLOT = 8  # the hotbar slot items from the main inventory are swapped into
+SMELTED = frozenset({"iron_ingot", "gold_ingot"})
+"""Items ``craft`` makes by smelting (burning fuel)."""
+FUEL_ORDER = ("coal", "planks", "log")
+"""The fuel burnt first when smelting: never sticks or wooden tools while these last."""
 
 
 def best_pickaxe(p: Percept, level: int = B.WOOD) -> Optional[str]:
@@ -61,13 +70,35 @@ def hold(p: Percept, cmd: Commands, item: Optional[str]) -> bool:
     return False
 
 
+def fuel_swap(p: Percept) -> Optional[str]:
+    """The ``swapInventoryItems`` command that puts the preferred fuel (``FUEL_ORDER``)
+    in the first slot holding any fuel, or None when it is there already (or there is
+    none of it)."""
+    at = {s: item for item, idx in p.slots.items() for s in idx}
+    fuel_slots = sorted(s for s, item in at.items() if item in B.FUEL)
+    if not fuel_slots:
+        return None
+    first = fuel_slots[0]
+    for item in FUEL_ORDER:
+        slots = p.slots.get(item)
+        if slots:
+            if at[first] == item:
+                return None
+            return f"swapInventoryItems {first} {min(slots)}"
+    return None
+
+
 def _tool_in(p: Percept, slot: int) -> bool:
     return any(slot in idx and item in B.TOOLS for item, idx in p.slots.items())
 
 
 class Craft(Leaf):
     """Action: ``craft <item>`` once; SUCCESS when the inventory shows more of it,
-    FAILURE if it did not after a few ticks (a missing ingredient, table or fuel)."""
+    FAILURE if it did not after a few ticks (a missing ingredient, table or fuel).
+    Before smelting, the preferred fuel is swapped into the first fuel slot
+    (``fuel_swap``, at most ``SWAPS`` tries)."""
+
+    SWAPS = 3
 
     def __init__(self, item: str, *, namespace: str) -> None:
         """Args: item: the Minecraft name to craft or smelt; namespace: blackboard."""
@@ -75,15 +106,23 @@ class Craft(Leaf):
         self.item = item
         self._before = 0
         self._ticks = 0
+        self._swaps = 0
 
     def initialise(self) -> None:
         """Remember the count before crafting."""
         self._before = self.ctx.percept.count(self.item)
-        self._ticks = 0
+        self._ticks = self._swaps = 0
 
     def update(self) -> Status:
-        """Send the craft command, then wait for the inventory to change."""
+        """Arrange the fuel, send the craft command, then wait for the inventory to change."""
         p, cmd = self.ctx.percept, self.ctx.commands
+        if self._ticks == 0 and self.item in SMELTED and self._swaps < self.SWAPS:
+            swap = fuel_swap(p)
+            if swap is not None:
+                cmd.still()
+                cmd.once.append(swap)
+                self._swaps += 1
+                return Status.RUNNING
         if self._ticks == 0:
             cmd.still()
             cmd.once.append(f"craft {self.item}")

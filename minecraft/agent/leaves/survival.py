@@ -1,6 +1,9 @@
-"""Keeping the agent alive: eating when hungry, getting out of water or lava."""
+"""Keeping the agent alive: eating when hungry, getting out of water or lava, digging out
+of a block that fell on it."""
 
 from __future__ import annotations
+
+from typing import Optional
 
 from py_trees.common import Status
 
@@ -8,7 +11,8 @@ from minecraft import blocks as B
 from minecraft.agent.leaves import control
 from minecraft.agent.leaves.context import Leaf
 from minecraft.agent.leaves.items import hold
-from minecraft.agent.leaves.percept import RADIUS
+from minecraft.agent.leaves.percept import RADIUS, Cell, Percept
+from minecraft.agent.leaves.travel import break_block
 
 
 class Eat(Leaf):
@@ -74,3 +78,44 @@ class EscapeLiquid(Leaf):
             control.steer(p, p.to_world(best), cmd)
             cmd.jump = True
         return Status.RUNNING
+
+
+def buried_cell(p: Percept) -> Optional[Cell]:
+    """The solid block the body is in (head first, then feet: a block that fell on the
+    agent, gravel or sand), or None."""
+    x, y, z = p.cell
+    for cell in ((x, y + 1, z), (x, y, z)):
+        b = p.block(cell)
+        if b is not None and B.SOLID[b] and not B.LIQUID[b]:
+            return cell
+    return None
+
+
+class Buried(Leaf):
+    """SUCCESS when a solid block fills the agent's feet or head cell."""
+
+    def __init__(self, *, namespace: str) -> None:
+        """Args: namespace: blackboard."""
+        super().__init__("Inside a block?", namespace=namespace)
+
+    def update(self) -> Status:
+        """Look at the agent's two cells."""
+        return Status.SUCCESS if buried_cell(self.ctx.percept) is not None else Status.FAILURE
+
+
+class DigOut(Leaf):
+    """Action: break the block the agent is in (the planner cannot start from a solid
+    cell, and a body inside a block neither falls nor walks)."""
+
+    def __init__(self, *, namespace: str) -> None:
+        """Args: namespace: blackboard."""
+        super().__init__("Dig out", namespace=namespace)
+
+    def update(self) -> Status:
+        """Aim at the block and dig; SUCCESS once both cells are free."""
+        ctx = self.ctx
+        cell = buried_cell(ctx.percept)
+        if cell is None:
+            return Status.SUCCESS
+        status = break_block(ctx.percept, cell, ctx.commands, ctx.memory)
+        return Status.RUNNING if status == Status.FAILURE else status

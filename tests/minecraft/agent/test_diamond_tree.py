@@ -107,8 +107,9 @@ def test_no_log_in_view_explores_the_surface() -> None:
         # Smelting needs fuel: planks when there is no coal.
         ({"log": 2, "crafting_table": 1, "stick": 2, "furnace": 1, "stone_pickaxe": 1,
           "iron_ore": 1}, "planks"),
-        ({"log": 2, "crafting_table": 1, "stick": 2, "furnace": 1, "stone_pickaxe": 1,
-          "iron_ore": 1, "planks": 1}, "iron_ingot"),
+        # The planks to burn lie first among the fuels (else they are swapped there first).
+        ({"planks": 1, "log": 2, "crafting_table": 1, "stick": 2, "furnace": 1,
+          "stone_pickaxe": 1, "iron_ore": 1}, "iron_ingot"),
         ({"log": 2, "crafting_table": 1, "stick": 2, "furnace": 1, "stone_pickaxe": 1,
           "iron_ingot": 3}, "iron_pickaxe"),
     ],
@@ -260,3 +261,37 @@ def test_digging_reaches_through_an_item_lying_on_the_block(
     cmd = Commands()
     assert break_block(p, (AGENT[0], AGENT[1] - depth, AGENT[2]), cmd, {}) == Status.RUNNING
     assert cmd.attack is attacks
+
+
+def test_smelting_puts_the_coal_first_so_the_sticks_are_not_burnt() -> None:
+    """SimpleCraft burns fuel from the first slot up: the sticks in slot 0 would burn
+    before the coal in slot 3 (and the next iron pickaxe would find none)."""
+    inv = {"stick": 2, "planks": 1, "furnace": 1, "coal": 1, "stone_pickaxe": 1, "iron_ore": 1}
+    table, ctx = tick(scene(inventory=inv, fill="stone", y=12))
+    assert status(table, "Craft iron_ingot") == Status.RUNNING
+    assert ctx.commands.once == ["swapInventoryItems 0 3"]
+
+
+def test_underground_without_wood_for_sticks_it_climbs_to_the_surface() -> None:
+    """A worn-out iron pickaxe, ingots for a new one, no wood left at y=12: the tree
+    digs a staircase up (the trees are on the surface) instead of waiting on a log."""
+    inv = {"furnace": 1, "stone_pickaxe": 1, "iron_ingot": 3, "cobblestone": 40}
+    table, ctx = tick(scene(inventory=inv, fill="stone", y=12))
+    assert status(table, "Has 1 log?") == Status.FAILURE
+    assert status(table, "Underground?") == Status.SUCCESS
+    assert status(table, "Ascend") == Status.SUCCESS
+    assert status(table, "Break block") == Status.RUNNING
+    assert ctx.plan_step is not None and ctx.plan_step[0] == "destroy"
+    assert ctx.goals and min(g[1] for g in ctx.goals) > 12
+
+
+def test_gravel_fallen_into_its_feet_cell_is_dug_out_first() -> None:
+    """A body inside a block neither falls nor walks, and A* cannot start there."""
+    los = {"hitType": "block", "inRange": True, "blockX": 0, "blockY": 12, "blockZ": 0}
+    inv = {"planks": 3, "stone_pickaxe": 1}
+    p = scene(inventory=inv, fill="stone", y=12, blocks={(0, 12, 0): "gravel"}, los=los)
+    p.pitch = 90.0
+    table, ctx = tick(p)
+    assert status(table, "Inside a block?") == Status.SUCCESS
+    assert status(table, "Dig out") == Status.RUNNING
+    assert ctx.commands.attack and "Quest" not in table

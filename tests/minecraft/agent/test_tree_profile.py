@@ -39,10 +39,15 @@ def _find(root: Behaviour, leaf: str, under: str) -> Behaviour:
 @pytest.mark.parametrize(
     ("leaf", "under", "subtree", "activity"),
     [
-        ("Step to cell", "Mine log", "Wood", "travel"),
-        ("Break block", "Mine log", "Wood", "travel"),
-        ("Mine target", "Mine log", "Wood", "digging"),
-        ("Step to cell", "Find log", "Wood", "travel"),
+        ("Step to cell", "Wood/Mine log", "Wood", "travel"),
+        ("Break block", "Wood/Mine log", "Wood", "travel"),
+        ("Mine target", "Wood/Mine log", "Wood", "digging"),
+        ("Step to cell", "Wood/Find log", "Wood", "travel"),
+        ("Ascend", "Ensure iron_pickaxe/Go up for wood", "Ensure log", "searching"),
+        ("Break block", "Ensure iron_pickaxe/Go up for wood", "Ensure log", "searching"),
+        ("Step to cell", "Re-plan (wood)/Mine log", "Ensure log", "recovering"),
+        ("Step to cell", "Re-plan (elsewhere)/Move away", "Re-plan (elsewhere)", "recovering"),
+        ("Re-plan: wood?", "Re-plan", "Re-plan (wood)", "waiting"),
         ("Explore (surface)", "Wood", "Wood", "searching"),
         ("Mine target", "Mine iron_ore", "Ensure iron_ore", "digging"),
         ("Step to cell", "Ensure iron_ore/Go down to y=12", "Ensure iron_ore", "descending"),
@@ -67,8 +72,8 @@ def _p(tick: int, **inventory: int) -> Percept:
 
 def test_profile_charges_ticks_to_the_leaf_that_acted() -> None:
     root, ctx = build_tree(seed=0)
-    walk = _find(root, "Step to cell", "Mine log")
-    dig = _find(root, "Mine target", "Mine log")
+    walk = _find(root, "Step to cell", "Wood/Mine log")
+    dig = _find(root, "Mine target", "Wood/Mine log")
     prof = TimeProfile()
     prof.observed(_p(3))  # 3 ticks of loading before the tree acts
     prof.acted(walk, ctx)
@@ -88,6 +93,31 @@ def test_profile_charges_ticks_to_the_leaf_that_acted() -> None:
     assert t.entries == {walk_key: 2, dig_key: 2}
     assert t.idle_entries == {walk_key: 1}
     assert t.last == dig_key
+
+
+def test_profile_measures_the_longest_wait_and_counts_firings() -> None:
+    """Consecutive waiting ticks add up across waiting leaves and restart when an
+    action leaf runs; each watchdog firing is charged to the leaf running then."""
+    root, ctx = build_tree(seed=0)
+    walk = _find(root, "Step to cell", "Wood/Mine log")
+    has_log = _find(root, "Has 1 log?", "Ensure iron_pickaxe")
+    drop = _find(root, "Drop nearby?", "Pick up drops")
+    prof = TimeProfile()
+    prof.acted(has_log, ctx)
+    prof.observed(_p(30))  # 30 waiting (with the loading tick 0)
+    prof.acted(walk, ctx)
+    prof.observed(_p(40))
+    prof.acted(has_log, ctx)
+    prof.observed(_p(70))
+    prof.fired()
+    prof.acted(drop, ctx)  # another waiting leaf: the same stretch goes on
+    prof.observed(_p(100))
+    prof.acted(walk, ctx)
+    prof.finish(110)
+    t = prof.summary()
+    assert t.longest_wait == 60
+    assert t.longest_wait_leaf == classify(has_log)
+    assert t.watchdog == {classify(has_log): 1}
 
 
 def test_aggregate_shares_and_per_world_figures() -> None:

@@ -233,3 +233,59 @@ def test_the_agents_of_one_mission_share_blocks_items_and_animals() -> None:
     guest.tick([])
     assert host.items == [] and guest.player.inventory.count("dirt") == 2
     assert host.player.inventory.count("dirt") == 1  # its own start inventory only
+
+
+def test_diamond_keep_turns_whole_veins_to_stone_and_nothing_else() -> None:
+    full = worldgen.generate(3)
+    thin = worldgen.generate(3, diamond_keep=0.25)
+    ore = B.ID["diamond_ore"]
+    veins = {tuple(v) for v in worldgen.veins(full.blocks, ore)}
+    kept = {tuple(v) for v in worldgen.veins(thin.blocks, ore)}
+    assert kept < veins  # whole veins kept, none cut
+    assert 0.1 < len(kept) / len(veins) < 0.45
+    changed = full.blocks != thin.blocks
+    assert (full.blocks[changed] == ore).all() and (thin.blocks[changed] == B.STONE_ID).all()
+    assert np.array_equal(thin.blocks, worldgen.generate(3, diamond_keep=0.25).blocks)
+    assert not (worldgen.generate(3, diamond_keep=0.0).blocks == ore).any()
+    with pytest.raises(ValueError, match="diamond_keep must be within"):
+        worldgen.generate(3, diamond_keep=1.5)
+
+
+def test_diamond_keep_reaches_the_world_from_the_server_and_the_mission() -> None:
+    """The server's setting, and the mission's generatorOptions over it."""
+    from minecraft.malmo.client import MalmoClient
+    from minecraft.malmo.mission import MissionError, parse_mission
+    from minecraft.malmo.mission_xml import obtain_diamond
+    from minecraft.sim.server import WorldServer
+    from minecraft.sim.timing import IDEAL
+
+    ore = B.ID["diamond_ore"]
+    with WorldServer(port=0, seed=3, timing=IDEAL, diamond_keep=0.0) as server:
+        client = MalmoClient("127.0.0.1", server.port, synchronous=True, seed=3, timeout=10)
+        for xml, diamonds in ((obtain_diamond(seed=3), False),
+                              (obtain_diamond(seed=3, diamond_keep=1.0), True)):  # fmt: skip
+            client.init(xml)
+            client.reset()
+            world = server.inst.world
+            assert world is not None and bool((world.blocks == ore).any()) is diamonds
+        client.close()
+    bad = obtain_diamond(seed=3, diamond_keep=0.5).replace("0.5}", "2}")
+    with pytest.raises(MissionError, match="diamondKeep must be a number within"):
+        parse_mission(bad)
+    with pytest.raises(ValueError, match="diamond_keep must be within"):
+        WorldServer(port=0, diamond_keep=-0.1)
+
+
+def test_serve_refuses_a_diamond_keep_outside_0_1_in_one_line() -> None:
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    cmd = [sys.executable, "-m", "minecraft.cli", "minecraft", "serve", "--port", "0",
+           "--diamond-keep", "1.5"]  # fmt: skip
+    out = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=60)
+    assert out.returncode != 0
+    assert (
+        out.stderr.strip() == "graft minecraft serve: --diamond-keep must be within [0, 1], got 1.5"
+    )
