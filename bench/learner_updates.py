@@ -3,12 +3,17 @@
 Each row builds a preset's learner as `graft train` does (`make_learner(device=...,
 compile=...)`), feeds it sampled-shaped batches (numpy columns of the preset's replay
 signature, turned into tensors on the device the way the learner loop does it) and
-counts its updates for `--seconds`. Beside them, in the same process, the ceiling: a
-minimal TD3 step in plain torch at Pendulum shapes (batch 256, 256 x 256 networks), with
-no replay columns, counters or metrics. Writes ``learner.csv`` to `--out`; prints a table.
+counts its updates for `--seconds`. Beside them, in the same process, a minimal TD3 step
+in plain torch at Pendulum shapes (batch 256, 256 x 256 networks), with no replay
+columns, counters or metrics, fed as the learners are; and on CUDA the ceiling: that step
+captured whole, one CUDA graph per delay cycle, its batch already on the device (on the
+CPU it is skipped, with the reason printed). Each row's ``vs_ceiling`` is its rate over
+the ceiling's (over the plain-torch row's where there is no ceiling). Writes
+``learner.csv`` to `--out`; prints a table.
 
     python bench/learner_updates.py [--device cpu] [--seconds 10] [--compile off,compile]
         [--learners td3,ddqn] [--compiled-learners td3]
+    python bench/learner_updates.py --device cuda --compile off,captured
 """
 
 # ruff: noqa: E402 (the folder fix below must run before graft's packages are imported)
@@ -44,6 +49,7 @@ from learner.device import (
     resolve_compile,
     resolve_device,
 )
+from learner.feed import make_feed
 from learner.loop import to_tensors
 from learner.td3.learning import TD3Learner
 from service.core import Columns
@@ -152,8 +158,12 @@ def learner_row(
         for _ in range(POOL)
     ]
     drawn = iter(range(10**12))
-    feed = BatchFeed(
-        lambda: pool[next(drawn) % POOL], device=device, depth=2, to_tensors=to_tensors
+    feed = make_feed(
+        lambda: pool[next(drawn) % POOL],
+        device=device,
+        depth=2,
+        to_tensors=to_tensors,
+        packed=mode == "captured",
     )
 
     def step() -> None:
@@ -259,12 +269,74 @@ def ceiling_row(*, device: torch.device, seconds: float) -> dict[str, Any]:
 
     warm, rate = timed(step, seconds=seconds, device=device, warmup=20)
     return {
-        "learner": "plain-torch TD3 step (ceiling)",
+        "learner": "plain-torch TD3 step",
         "preset": "-",
         "batch": batch,
         "window": 1,
         "compile": "off",
         "updates_per_s": round(rate, 1),
+        "warmup_s": round(warm, 1),
+    }
+
+
+def captured_ceiling_row(*, device: torch.device, seconds: float) -> dict[str, Any]:
+    """The ceiling: the plain-torch TD3 step captured whole, one CUDA graph per delay cycle
+    of 2 updates (capturable fused Adam, the batch already on the device)."""
+    obs_dim, act_dim, hidden, batch = 3, 1, 256, 256
+    torch.manual_seed(0)
+    actor, critic = _Actor(obs_dim, act_dim, hidden).to(device), _Critic(obs_dim, act_dim, hidden)
+    critic.to(device)
+    actor_t, critic_t = copy.deepcopy(actor), copy.deepcopy(critic)
+    options = {"lr": torch.tensor(3e-4, device=device), "capturable": True, "fused": True}
+    actor_opt = torch.optim.Adam(actor.parameters(), **options)
+    critic_opt = torch.optim.Adam(critic.parameters(), **options)
+    b = {
+        "obs": torch.randn(batch, obs_dim, device=device),
+        "action": torch.randn(batch, act_dim, device=device),
+        "reward": torch.randn(batch, device=device),
+        "done": torch.zeros(batch, device=device),
+        "next_obs": torch.randn(batch, obs_dim, device=device),
+    }
+
+    def critic_step() -> None:
+        with torch.no_grad():
+            noise = (torch.randn_like(b["action"]) * 0.4).clamp(-1.0, 1.0)
+            next_action = (actor_t(b["next_obs"]) + noise).clamp(-2.0, 2.0)
+            y = b["reward"] + 0.99 * (1.0 - b["done"]) * torch.min(
+                *critic_t(b["next_obs"], next_action)
+            )
+        q1, q2 = critic(b["obs"], b["action"])
+        critic_opt.zero_grad(set_to_none=False)
+        (F.mse_loss(q1, y) + F.mse_loss(q2, y)).backward()
+        critic_opt.step()
+
+    def cycle() -> None:
+        critic_step()
+        critic_step()
+        actor_opt.zero_grad(set_to_none=False)
+        (-critic(b["obs"], actor(b["obs"]))[0].mean()).backward()
+        actor_opt.step()
+        with torch.no_grad():
+            for target, source in ((actor_t, actor), (critic_t, critic)):
+                torch._foreach_lerp_(list(target.parameters()), list(source.parameters()), 0.005)
+
+    side = torch.cuda.Stream(device)
+    side.wait_stream(torch.cuda.current_stream(device))
+    with torch.cuda.stream(side):
+        for _ in range(3):  # warm-up: the optimisers' state, cuBLAS's handles
+            cycle()
+    torch.cuda.current_stream(device).wait_stream(side)
+    graph = torch.cuda.CUDAGraph()
+    with torch.cuda.graph(graph):
+        cycle()
+    warm, rate = timed(graph.replay, seconds=seconds, device=device, warmup=20)
+    return {
+        "learner": "TD3 step captured whole (ceiling)",
+        "preset": "-",
+        "batch": batch,
+        "window": 1,
+        "compile": "cuda graph",
+        "updates_per_s": round(2 * rate, 1),
         "warmup_s": round(warm, 1),
     }
 
@@ -276,7 +348,8 @@ def main() -> None:
     parser.add_argument(
         "--compile",
         default="off,compile",
-        help="comma-separated learner.compile modes per algorithm (off, compile, cuda_graphs)",
+        help="comma-separated learner.compile modes per algorithm (off, compile, cuda_graphs, "
+        "captured)",
     )
     parser.add_argument(
         "--learners",
@@ -304,6 +377,11 @@ def main() -> None:
     print(f"learner updates/s on {where}, {args.seconds:g} s per row", flush=True)
     rows = [ceiling_row(device=device, seconds=args.seconds)]
     print(rows[-1], flush=True)
+    if device.type == "cuda":
+        rows.insert(0, captured_ceiling_row(device=device, seconds=args.seconds))
+        print(rows[0], flush=True)
+    else:
+        print("ceiling row skipped: a CUDA graph needs a CUDA device, this run is on the CPU")
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             for mode in modes:

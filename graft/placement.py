@@ -99,9 +99,9 @@ class LearnerPlacement(Placement):
     """Where the learner computes: auto (CUDA when this process sees a GPU, else the CPU),
     cpu, cuda or cuda:N; a ``ray://`` run's learner sees a GPU only with ``num_gpus: 1``."""
     compile: str = "auto"
-    """The update's networks: off (eager), compile (torch.compile), cuda_graphs (compiled
-    and replayed as CUDA graphs) or auto (eager: compiling these small networks lost on
-    an H200 and gained nothing on the CPU, README, "The learner alone")."""
+    """The update: off (eager), compile (the networks' forward passes by torch.compile),
+    cuda_graphs (those replayed as CUDA graphs), captured (the whole update one CUDA graph,
+    metrics read per log interval) or auto (captured on CUDA, eager on the CPU)."""
     prefetch_to_device: int = 2
     """Sampled batches copied to a CUDA device ahead of their update (none on the CPU)."""
 

@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
+
+if TYPE_CHECKING:
+    import torch
 
 KEEP = 3
 
@@ -55,3 +58,15 @@ def find_checkpoint(path: Path) -> tuple[Path, Path]:
     if not path.is_file():
         raise FileNotFoundError(f"{path} is neither a run folder nor a checkpoint")
     return path, path.parent.parent
+
+
+def load_generator_state(generator: torch.Generator, saved: torch.Tensor) -> None:
+    """Restores a generator's state, or, when it was saved on another kind of device
+    (CPU and CUDA generators keep different states), reseeds it from that state: the noise
+    goes on from a fixed point, not the same stream."""
+    saved = saved.cpu()
+    try:
+        generator.set_state(saved)
+    except RuntimeError:
+        seed = int.from_bytes(bytes(saved.tolist())[:8], "little") & (2**63 - 1)
+        generator.manual_seed(seed)

@@ -68,31 +68,39 @@ def device_name(device: torch.device) -> str:
 
 
 def resolve_compile(mode: str, device: torch.device) -> CompileMode:
-    """The compile mode ``learner.compile`` means on `device`: ``auto`` is eager everywhere.
-    Compiling the paper's small networks gains nothing on the CPU and loses on a GPU, where
-    each update is a few dozen small kernels: TD3 on an H200 made 227 updates/s compiled,
-    267 eager and 282 as CUDA graphs, each after 4-5 s of warm-up
-    (bench/learner_updates.py --device cuda; README, "The learner alone").
+    """The compile mode ``learner.compile`` means on `device`: ``auto`` is the captured
+    update (`learner.captured`: each update one CUDA graph, no host sync) on CUDA, and eager
+    on the CPU, where a run computes what it always did. (Compiling only the networks'
+    forward passes left each update a few dozen small kernels launched from Python: TD3 on
+    an H200 made 227 updates/s compiled, 267 eager and 282 as CUDA graphs;
+    bench/learner_updates.py --device cuda.)
 
     Raises:
-        ValueError: ``cuda_graphs`` on a device that is not CUDA.
+        ValueError: ``cuda_graphs`` or ``captured`` on a device that is not CUDA.
     """
     check_compile_mode(mode)
     if mode == "auto":
-        return "off"
-    if mode == "cuda_graphs" and device.type != "cuda":
+        return "captured" if device.type == "cuda" else "off"
+    if mode in ("cuda_graphs", "captured") and device.type != "cuda":
         raise ValueError(
-            f"learner.compile=cuda_graphs needs a CUDA device, the learner runs on {device}; "
+            f"learner.compile={mode} needs a CUDA device, the learner runs on {device}; "
             "use compile, auto or off"
         )
-    return "off" if mode == "off" else "compile" if mode == "compile" else "cuda_graphs"
+    modes: dict[str, CompileMode] = {
+        "off": "off",
+        "compile": "compile",
+        "cuda_graphs": "cuda_graphs",
+        "captured": "captured",
+    }
+    return modes[mode]
 
 
 def compile_networks(modules: Iterable[nn.Module], mode: CompileMode) -> None:
     """Compiles each module's forward in place (`nn.Module.compile`: parameters, state-dict
     keys and checkpoints stay as they are); ``cuda_graphs`` replays them as CUDA graphs
-    (torch.compile's reduce-overhead mode). ``off`` leaves them eager."""
-    if mode == "off":
+    (torch.compile's reduce-overhead mode). ``off`` leaves them eager, and so does
+    ``captured``, whose update is captured whole instead."""
+    if mode in ("off", "captured"):
         return
     options = {"mode": "reduce-overhead"} if mode == "cuda_graphs" else {}
     for module in modules:

@@ -11,10 +11,11 @@ from typing import Literal
 
 DEVICE_SPEC = re.compile(r"auto|cpu|cuda(:\d+)?")
 """The spellings of ``learner.device``."""
-COMPILE_MODES = ("off", "auto", "compile", "cuda_graphs")
+COMPILE_MODES = ("off", "auto", "compile", "cuda_graphs", "captured")
 """The values of ``learner.compile``."""
-CompileMode = Literal["off", "compile", "cuda_graphs"]
-"""A resolved compile mode: eager, ``torch.compile``, or ``torch.compile`` with CUDA graphs."""
+CompileMode = Literal["off", "compile", "cuda_graphs", "captured"]
+"""A resolved compile mode: eager, ``torch.compile``, ``torch.compile`` with CUDA graphs
+(the networks' forward passes), or the whole update captured as one CUDA graph."""
 
 
 def check_device_spec(spec: str) -> None:

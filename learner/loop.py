@@ -32,8 +32,11 @@ from typing import Optional, Protocol, runtime_checkable
 import torch
 
 from learner.agent import Phase
+from learner.captured import ReadsMetrics
 from learner.checkpoint import save_checkpoint
-from learner.device import CPU, BatchFeed, learned_from
+from learner.device import CPU, learned_from
+from learner.feed import make_feed
+from learner.lockstep import Lockstep, LockstepFeed, updates_allowed  # noqa: F401 (re-exported)
 from learner.selection import SelectionConfig, tree_wins
 from service.core import (
     Algorithm,
@@ -41,7 +44,6 @@ from service.core import (
     EvalTag,
     Evaluation,
     Evaluator,
-    LockstepActors,
     SampleStream,
     TensorBatch,
     WeightPublisher,
@@ -109,25 +111,6 @@ class LoopSettings:
     keep_checkpoints: int = 3
     log_every: int = 250
     selection: SelectionConfig = SelectionConfig()
-
-
-@dataclass(frozen=True)
-class Lockstep:
-    """Reproducible mode: the actors the loop advances, and the batch size that turns the
-    table's held samples-per-insert into updates."""
-
-    actors: LockstepActors
-    batch_size: int
-
-
-def updates_allowed(phase: Phase, inserted: int, *, batch_size: int) -> int:
-    """Updates of `phase` its table's rate limiter holds for `inserted` items: none below
-    `min_size`, then `samples_per_insert` items per insert beyond it plus the burn-in
-    credit. (A phase without a ratio updates once its actors have finished.)"""
-    if phase.samples_per_insert is None or inserted < phase.min_size:
-        return 0
-    samples = (inserted - phase.min_size) * phase.samples_per_insert + phase.sample_credit
-    return int(samples // batch_size)
 
 
 class LearnerLoop:
@@ -330,12 +313,15 @@ class LearnerLoop:
         offset = self._env_steps_offset
         window_start, window_updates = time.perf_counter(), 0
         first_batch = True
-        feed = None if self.lockstep is None else _Feed(self.lockstep, phase, first=s.updates)
-        batches = BatchFeed(
+        feed = (
+            None if self.lockstep is None else LockstepFeed(self.lockstep, phase, first=s.updates)
+        )
+        batches = make_feed(
             lambda: self._next_batch(stream),
             device=self.device,
             depth=self.prefetch_to_device,
             to_tensors=to_tensors,
+            packed=isinstance(self.algorithm, ReadsMetrics) and self.algorithm.captures,
         )
         try:
             while s.updates < end:
@@ -367,6 +353,8 @@ class LearnerLoop:
                 # metrics.csv must not depend on how long the episodes took.
                 self._collect_evaluations(wait=feed is not None)
                 if s.updates % cfg.log_every == 0:
+                    if isinstance(self.algorithm, ReadsMetrics):  # captured: summed on device
+                        metrics = {**self.algorithm.read_metrics(), **metrics}
                     elapsed = time.perf_counter() - window_start
                     metrics["perf/updates_per_s"] = window_updates / elapsed
                     metrics["perf/learner_wait_fraction"] = s.wait_s / max(
@@ -387,28 +375,3 @@ class LearnerLoop:
             weights = self.publish() if self._published else self.algorithm.policy_state()
             self._evaluate(weights)
         return weights
-
-
-class _Feed:
-    """One phase's lock-step schedule: the actors insert, one batch at a time in a fixed
-    order, until the held ratio admits the next update."""
-
-    def __init__(self, lockstep: Lockstep, phase: Phase, *, first: int) -> None:
-        self.lockstep, self.phase, self.first = lockstep, phase, first
-        self.inserted = 0
-        self.finished = False
-
-    def until_allowed(self, update: int, version: int) -> int:
-        """Advances the actors until the run's update number `update` is allowed (or
-        they have finished the phase); returns the items in the phase's table."""
-        version = version if self.phase.acts_with_weights else -1
-        batch_size = self.lockstep.batch_size
-        while (
-            not self.finished
-            and updates_allowed(self.phase, self.inserted, batch_size=batch_size)
-            < update - self.first
-        ):
-            steps = self.lockstep.actors.advance(self.phase.name, version)
-            self.inserted += steps
-            self.finished = steps == 0
-        return self.inserted

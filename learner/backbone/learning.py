@@ -188,6 +188,15 @@ class ObservingBackboneLearner(TD3Learner):
             self._set_range()
         return super()._actor_step(obs, batch)
 
+    def _ramp_range(self, actor_steps: torch.Tensor) -> None:
+        """`_set_range` inside a captured step, from the actor steps counted on the device
+        (past the ramp it sets the whole range, as the last eager `_set_range` did)."""
+        if self._ramp:
+            share = torch.clamp((actor_steps + 1).to(torch.float32) / self._ramp, max=1.0)
+            for actor in (self.actor, self.target_actor):
+                actor.action_high.copy_(self._bound * share)
+                actor.action_low.copy_(-self._bound * share)
+
     def _actor_loss(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         if self._penalty == 0.0:
             return super()._actor_loss(obs, batch)
@@ -228,12 +237,17 @@ class ObservingBackboneLearner(TD3Learner):
                     f"batch has no {name!r} column: actors of a backbone run with "
                     "observe_backbone=True record it (a table written by another run?)"
                 )
-        observed = dict(
+        if self.captures:  # the captured step makes the inputs itself (`_observe`)
+            return super().update(batch)
+        return super().update(self._observe(batch))
+
+    def _observe(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """[s, μ(s) / scale] and [s', μ(s') / scale] in place of ``obs`` and ``next_obs``."""
+        return dict(
             batch,
             obs=backbone_input(batch["obs"], batch["backbone_action"], self._scale),
             next_obs=backbone_input(batch["next_obs"], batch["next_backbone_action"], self._scale),
         )
-        return super().update(observed)
 
 
 class TeacherBackboneLearner(TD3Learner):

@@ -11,6 +11,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from learner.device import CPU, VALID, Adam, CompileMode, compile_networks
+from learner.dqn.captured import CapturedDQN
 from learner.dqn.config import DQNConfig
 from learner.dqn.networks import make_q_network
 from learner.selection import with_tree_only
@@ -166,6 +167,8 @@ class DQNLearner:
         self.target_q = copy.deepcopy(self.q).requires_grad_(False)
         self.optimizer = Adam(self.q.parameters(), lr=config.learning_rate, device=self.device)
         compile_networks([self.q, self.target_q], compile)
+        self._capturing = compile == "captured"
+        self._captured: Optional[CapturedDQN] = None
         self._gamma = config.gamma
         self._target_every = config.target_update_every
         self._target_tau = config.target_tau
@@ -209,17 +212,50 @@ class DQNLearner:
                 burn-in with warmup: hardcoded, also ``backbone_action`` (μ(s), int64) of
                 the same shape as ``action``.
         """
+        if self.captures:
+            return self._captured_step(batch)
         batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
-        expert = None
-        if self._margin > 0.0 and self._margin_weight() > 0.0:
-            expert = batch["backbone_action"]
+        obs, action, y, expert, weight = self.fit_inputs(batch, expert=self._with_margin())
+        return self.fit(obs, action, y, expert_action=expert, weight=weight)
+
+    @property
+    def captures(self) -> bool:
+        """Updates run as captured steps (`learner.dqn.captured`)."""
+        return self._capturing or self._captured is not None
+
+    def capture(self, *, compiled: Optional[str] = None) -> CapturedDQN:
+        """The captured update, made at its first use; `compiled` (on the CPU) compiles
+        each step whole with that ``torch.compile`` backend."""
+        if self._captured is None or self._captured.compiled != compiled:
+            self._captured = CapturedDQN(self, compiled=compiled)
+        return self._captured
+
+    def _captured_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        return (self._captured or self.capture()).step(batch)
+
+    def read_metrics(self) -> dict[str, float]:
+        """The captured updates' metrics since the last read, averaged (none when eager)."""
+        return {} if self._captured is None else self._captured.read_metrics()
+
+    def _with_margin(self) -> bool:
+        """The next update adds the large-margin loss (it reads ``backbone_action``)."""
+        return self._margin > 0.0 and self._margin_weight() > 0.0
+
+    def fit_inputs(
+        self, batch: dict[str, torch.Tensor], *, expert: bool
+    ) -> tuple[
+        torch.Tensor, torch.Tensor, torch.Tensor, Optional[torch.Tensor], Optional[torch.Tensor]
+    ]:
+        """(obs, action, y, expert action or None, row weight or None) of `fit` for a batch
+        of transitions or of windows (`update` has its columns)."""
+        expert_action = batch["backbone_action"] if expert else None
         if batch["reward"].dim() == 1:
             # Truncation is not termination: only a terminal s' stops the bootstrap.
             discount = self._gamma * (1.0 - batch["terminated"].float())
             y = double_q_target(
                 batch["reward"], discount, batch["next_obs"], online=self.q, target=self.target_q
             )
-            return self.fit(batch["obs"], batch["action"], y, expert_action=expert)
+            return batch["obs"], batch["action"], y, expert_action, None
         valid = batch.get(VALID)
         returns, discounts = window_returns(
             batch["reward"], batch["terminated"], self._gamma, valid
@@ -233,13 +269,13 @@ class DQNLearner:
             target=self.target_q,
         )
         y = returns + discounts * bootstrap.unsqueeze(1)
-        return self.fit(
+        return (
             batch["obs"].flatten(0, 1),
             batch["action"].flatten(),
             y.flatten(),
-            expert_action=None if expert is None else expert.flatten(),
+            None if expert_action is None else expert_action.flatten(),
             # The episode's steps only: padding after its end repeats its last step.
-            weight=None if valid is None else valid.flatten().to(y.dtype),
+            None if valid is None else valid.flatten().to(y.dtype),
         )
 
     def fit(
@@ -254,16 +290,9 @@ class DQNLearner:
         """One Huber-loss step of Q(obs, action) towards a target y (plus the large-margin
         loss towards `expert_action` when given), over the rows `weight` keeps (all when
         None); counts an update."""
-        q_all = self.q(obs)
-        q = q_all.gather(1, action.long().unsqueeze(1)).squeeze(1)
-        if weight is None:
-            loss = F.smooth_l1_loss(q, y)
-        else:
-            loss = mean_over(F.smooth_l1_loss(q, y, reduction="none"), weight)
-        margin_loss = None
-        if expert_action is not None:
-            margin_loss = large_margin_loss(q_all, expert_action, self._margin, weight)
-            loss = loss + self._margin_weight() * margin_loss
+        loss, q, margin_loss = self.loss(
+            obs, action, y, expert_action, weight, margin_weight=self._margin_weight()
+        )
         scalars = [loss.detach(), mean_over(q.detach(), weight)]
         if margin_loss is not None:
             scalars.append(margin_loss.detach())
@@ -284,9 +313,34 @@ class DQNLearner:
             metrics["losses/margin"] = values[2]
         return metrics
 
+    def loss(
+        self,
+        obs: torch.Tensor,
+        action: torch.Tensor,
+        y: torch.Tensor,
+        expert_action: Optional[torch.Tensor],
+        weight: Optional[torch.Tensor],
+        *,
+        margin_weight: float | torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, Optional[torch.Tensor]]:
+        """(the loss `fit` descends, Q(obs, action), the large-margin loss or None)."""
+        q_all = self.q(obs)
+        q = q_all.gather(1, action.long().unsqueeze(1)).squeeze(1)
+        if weight is None:
+            loss = F.smooth_l1_loss(q, y)
+        else:
+            loss = mean_over(F.smooth_l1_loss(q, y, reduction="none"), weight)
+        margin_loss = None
+        if expert_action is not None:
+            margin_loss = large_margin_loss(q_all, expert_action, self._margin, weight)
+            loss = loss + margin_weight * margin_loss
+        return loss, q, margin_loss
+
     def policy_state(self) -> dict[str, torch.Tensor]:
         """The Q network's weights as detached CPU copies, for broadcasting to actors, and
         the tree-only flag."""
+        if self._captured is not None:
+            return with_tree_only(self._captured.policy_state(), self.tree_only)
         weights = {k: v.detach().to("cpu", copy=True) for k, v in self.q.state_dict().items()}
         return with_tree_only(weights, self.tree_only)
 
@@ -313,3 +367,5 @@ class DQNLearner:
         self.optimizer.load_state_dict(state["optimizer"])
         self.num_updates = int(state["num_updates"])
         self.tree_only = bool(state.get("tree_only", False))
+        if self._captured is not None:  # its graphs hold the old optimiser state
+            self._captured = CapturedDQN(self, compiled=self._captured.compiled)

@@ -27,6 +27,7 @@ from actors.behaviours.options import RL
 from learner.backbone.networks import backbone_input
 from learner.device import VALID
 from learner.dqn.learning import DQNLearner, double_q_target
+from learner.options.captured import CapturedOptions
 from learner.options.targets import importance_ratio, k_step_return, retrace_targets, retrace_traces
 from learner.td3.learning import TD3Learner
 
@@ -81,11 +82,29 @@ class OptionsLearner:
         self.intra_option = intra_option
         self.k, self.lam, self.std, self.gamma = option_length, retrace_lambda, behaviour_std, gamma
         self.num_updates = 0
+        self._captured: Optional[CapturedOptions] = None
+
+    def capture(self, *, compiled: Optional[str] = None) -> CapturedOptions:
+        """The captured update (`learner.options.captured`), made at its first use."""
+        if self._captured is None or self._captured.compiled != compiled:
+            self._captured = CapturedOptions(self, compiled=compiled)
+        return self._captured
+
+    @property
+    def captures(self) -> bool:
+        """Updates run as captured steps (as the RL option's learner's do)."""
+        return self.rl.captures
+
+    def read_metrics(self) -> dict[str, float]:
+        """The captured updates' metrics since the last read, averaged (none when eager)."""
+        return {} if self._captured is None else self._captured.read_metrics()
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         """One step of each learner on a batch of windows [B, k, ...] (and ``_valid``
         [B, k], which steps are the episode's: replay repeats an episode's last step after
         its end to fill a window)."""
+        if self.rl.captures:
+            return self.capture().step(batch)
         device = self.rl.device  # both learners live on it
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
         self.num_updates += 1
@@ -189,6 +208,8 @@ class OptionsLearner:
         return {**options, **actor}
 
     def state_dict(self) -> dict[str, Any]:
+        if self._captured is not None:
+            self._captured.settle()
         return {
             "options": self.options.state_dict(),
             "rl": self.rl.state_dict(),
@@ -199,3 +220,6 @@ class OptionsLearner:
         self.options.load_state_dict(state["options"])
         self.rl.load_state_dict(state["rl"])
         self.num_updates = int(state["num_updates"])
+        if self._captured is not None:  # its graphs hold the old optimiser state
+            self._captured = None
+            self.capture()

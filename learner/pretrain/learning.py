@@ -76,7 +76,7 @@ class PretrainLearner(TD3Learner):
         """One step on the demonstrations; the online counters (and actor freeze) wait."""
         self._objective = self._losses["pretrain"]
         self.num_pretrain_updates += 1
-        return self._step(batch, step=self.num_pretrain_updates, train_actor=True)
+        return self._step(batch, step=self.num_pretrain_updates, train_actor=True, key="pretrain")
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         """One online TD3 step; `frozen_actor_updates` counts from the first of these."""

@@ -14,7 +14,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from learner.captured import NoiseSource
+from learner.checkpoint import load_generator_state
 from learner.device import Adam, CompileMode, compile_networks
+from learner.td3.captured import CapturedTD3
 from learner.td3.config import TD3Config
 from learner.td3.networks import Actor, TwinCritic
 
@@ -32,7 +35,7 @@ def td3_target(
     noise_clip: float,
     action_low: torch.Tensor,
     action_high: torch.Tensor,
-    generator: torch.Generator | None = None,
+    generator: torch.Generator | NoiseSource | None = None,
 ) -> torch.Tensor:
     """Clipped double-Q target with target-policy smoothing, eq. (5).
 
@@ -51,7 +54,8 @@ def td3_target(
         noise_clip: Smoothing noise bound, as a fraction of max action.
         action_low: Lower action bounds, shape [act_dim].
         action_high: Upper action bounds, shape [act_dim].
-        generator: Source of the smoothing noise; the global RNG if None.
+        generator: Source of the smoothing noise (a `NoiseSource` inside a captured
+            step); the global RNG if None.
 
     Returns:
         The target y, shape [B], with no gradient.
@@ -60,6 +64,8 @@ def td3_target(
     next_action = target_actor(next_obs)
     if generator is None:
         eps = torch.randn_like(next_action)
+    elif isinstance(generator, NoiseSource):
+        eps = generator.normal_like(next_action)
     else:
         eps = torch.randn(
             next_action.shape,
@@ -155,7 +161,9 @@ class TD3Learner:
             seed: Seeds the network initialisation and the smoothing noise.
             device: Where the networks live and the update runs (the initial weights
                 are drawn on the CPU, so every device starts from the same ones).
-            compile: Compile the networks' forward passes (`learner.device.compile_networks`).
+            compile: Compile the networks' forward passes (`learner.device.compile_networks`),
+                or run each delay cycle as one captured step (``captured``,
+                `learner.td3.captured`).
         """
         self.device = torch.device(device)
         self._gamma = config.gamma
@@ -181,7 +189,9 @@ class TD3Learner:
         self.critic_optimizer = Adam(
             self.critic.parameters(), lr=config.critic_lr, device=self.device
         )
-        compile_networks(self._networks(), compile)
+        compile_networks(self._networks(), "off" if compile == "captured" else compile)
+        self._capturing = compile == "captured"
+        self._captured: Optional[CapturedTD3] = None
         self._generator = torch.Generator(device=self.device)
         self._generator.manual_seed(int(noise_seed))
 
@@ -216,10 +226,37 @@ class TD3Learner:
             train_actor=self.num_updates > self._frozen_actor_updates,
         )
 
+    def capture(self, *, compiled: Optional[str] = None) -> CapturedTD3:
+        """The captured update (`learner.td3.captured`), made at its first use; `compiled`
+        (on the CPU) compiles each cycle whole with that ``torch.compile`` backend."""
+        if self._captured is None or self._captured.compiled != compiled:
+            self._settle()
+            self._captured = CapturedTD3(self, compiled=compiled)
+        return self._captured
+
+    @property
+    def captures(self) -> bool:
+        """Updates run as captured steps."""
+        return self._capturing or self._captured is not None
+
+    def _settle(self) -> None:
+        """Applies the updates a captured cycle holds (before weights are read)."""
+        if self._captured is not None:
+            self._captured.settle()
+
+    def read_metrics(self) -> dict[str, float]:
+        """The captured updates' metrics since the last read, averaged (none when eager:
+        each update returns its own)."""
+        return {} if self._captured is None else self._captured.read_metrics()
+
     def _step(
-        self, batch: dict[str, torch.Tensor], *, step: int, train_actor: bool
+        self, batch: dict[str, torch.Tensor], *, step: int, train_actor: bool, key: str = "online"
     ) -> dict[str, float]:
-        """Critic step; actor (if `train_actor`) and targets when `step % policy_delay == 0`."""
+        """Critic step; actor (if `train_actor`) and targets when `step % policy_delay == 0`.
+        Captured, the step joins its delay cycle (`key` names the counter `step` is of)."""
+        if self.captures:
+            captured = self._captured or self.capture()
+            return captured.step(batch, step=step, train_actor=train_actor, key=key)
         dev = self.device
         obs = batch["obs"].to(dev, non_blocking=True)
         # Actors store the *unclipped* sampled action, so that importance ratios can be
@@ -259,7 +296,8 @@ class TD3Learner:
         )
 
     def _smoothing(self) -> dict[str, Any]:
-        """The target networks and target-policy smoothing that `td3_target` needs."""
+        """The target networks and target-policy smoothing that `td3_target` needs (the
+        noise from inside the captured step when there is one)."""
         return {
             "target_actor": self.target_actor,
             "target_critic": self.target_critic,
@@ -267,15 +305,29 @@ class TD3Learner:
             "noise_clip": self._noise_clip,
             "action_low": self.action_box[0],
             "action_high": self.action_box[1],
-            "generator": self._generator,
+            "generator": self._generator if self._captured is None else self._captured.noise,
         }
+
+    def _observe(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The batch as the networks see it, inside a captured step (hook: the backbone's
+        [s, μ(s)] inputs; an eager update makes them before `_step`)."""
+        return batch
+
+    def _ramp_range(self, actor_steps: torch.Tensor) -> None:
+        """Before a captured actor step, with the actor steps so far on the device (hook:
+        the backbone's growing range)."""
 
     def _critic_baseline(self, batch: dict[str, torch.Tensor]) -> Optional[torch.Tensor]:
         """A fixed value added to both critics' outputs before the loss (hook: eq. 11)."""
         return None
 
     def _actor_loss(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        """The actor's loss (hook: imitation eq. 8, TD3+BC)."""
+        """The actor's loss (hook: imitation eq. 8, TD3+BC); inside a captured step over
+        the rows ``_rows`` keeps, when the batch has them."""
+        rows = batch.get("_rows")
+        if rows is not None:
+            q = self.critic.q1(obs, self.actor(obs))
+            return -(q * rows).sum() / rows.sum().clamp_min(1.0)
         return actor_loss(self.critic, self.actor, obs)
 
     def _actor_step(self, obs: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -293,11 +345,14 @@ class TD3Learner:
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic action pi(obs), shape [act_dim] or [B, act_dim], float32."""
+        self._settle()
         x = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
         return self.actor(x).cpu().numpy()
 
     def policy_state(self) -> dict[str, torch.Tensor]:
         """Actor weights as detached CPU copies, for broadcasting to actors."""
+        if self._captured is not None:
+            return self._captured.policy_state()
         return {k: v.detach().to("cpu", copy=True) for k, v in self.actor.state_dict().items()}
 
     def state_dict(self) -> dict[str, Any]:
@@ -307,6 +362,7 @@ class TD3Learner:
         Like `nn.Module.state_dict`, tensors are references to live state: serialise
         (e.g. `torch.save`) or deep-copy before training on.
         """
+        self._settle()
         return {
             "actor": self.actor.state_dict(),
             "critic": self.critic.state_dict(),
@@ -334,15 +390,5 @@ class TD3Learner:
         self.num_updates = int(state["num_updates"])
         self.num_actor_updates = int(state["num_actor_updates"])
         load_generator_state(self._generator, state["noise_rng"])
-
-
-def load_generator_state(generator: torch.Generator, saved: torch.Tensor) -> None:
-    """Restores a generator's state, or, when it was saved on another kind of device
-    (CPU and CUDA generators keep different states), reseeds it from that state: the noise
-    goes on from a fixed point, not the same stream."""
-    saved = saved.cpu()
-    try:
-        generator.set_state(saved)
-    except RuntimeError:
-        seed = int.from_bytes(bytes(saved.tolist())[:8], "little") & (2**63 - 1)
-        generator.manual_seed(seed)
+        if self._captured is not None:  # its graphs hold the old optimiser state
+            self._captured = CapturedTD3(self, compiled=self._captured.compiled)

@@ -70,12 +70,14 @@ def test_cuda_asked_for_without_cuda_is_refused_in_one_line(spec: str) -> None:
     assert "learner.device=auto or cpu" in message and "\n" not in message
 
 
-def test_compile_auto_is_eager_everywhere_and_cuda_graphs_need_cuda() -> None:
+def test_compile_auto_is_captured_on_cuda_and_eager_on_the_cpu() -> None:
     assert resolve_compile("auto", CPU) == "off"
     assert resolve_compile("compile", CPU) == "compile"
-    assert resolve_compile("auto", torch.device("cuda", 0)) == "off"
-    with pytest.raises(ValueError, match="cuda_graphs needs a CUDA device"):
-        resolve_compile("cuda_graphs", CPU)
+    assert resolve_compile("auto", torch.device("cuda", 0)) == "captured"
+    assert resolve_compile("captured", torch.device("cuda", 0)) == "captured"
+    for mode in ("cuda_graphs", "captured"):
+        with pytest.raises(ValueError, match=f"compile={mode} needs a CUDA device"):
+            resolve_compile(mode, CPU)
 
 
 # One preset per learner class: TD3, pre-training, backbone (with and without a teacher),
