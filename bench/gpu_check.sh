@@ -42,7 +42,7 @@ step tests 180 python3 -m pytest -q -p no:cacheprovider -rs tests/learner/test_c
 step learner 200 python3 bench/learner_updates.py --device cuda --compile off,captured \
   --seconds 5 --out "$out"
 rm -rf /tmp/graft-gpu-captured  # a machine still warm from an earlier try keeps its folder
-step train 240 python3 -m service.run.cli train --preset pendulum-td3 --no-progress \
+step train 240 python3 -m graft.cli train --preset pendulum-td3 --no-progress \
   --actors 14 --env-steps 20000 --set learner.device=cuda --set learner.compile=auto \
   --set eval_every=2000 --run-dir /tmp/graft-gpu-captured
 cp /tmp/graft-gpu-captured/summary.json "$out/" 2>/dev/null

@@ -20,12 +20,12 @@ import torch
 
 from actors.transitions import replay_signature
 from bench import learner_updates as bench
+from graft.config import load_preset
+from graft.registry import make_builder
 from learner.captured import PACKED, DeviceMetrics
 from learner.feed import Layout
 from learner.loop import to_tensors
 from service.core import Algorithm, Columns, Metrics
-from service.run.config import load_preset
-from service.run.registry import make_builder
 
 CUDA = torch.cuda.is_available()
 needs_cuda = pytest.mark.skipif(not CUDA, reason="needs a CUDA device; torch sees none here")
