@@ -287,9 +287,9 @@ def captured_ceiling_row(*, device: torch.device, seconds: float) -> dict[str, A
     actor, critic = _Actor(obs_dim, act_dim, hidden).to(device), _Critic(obs_dim, act_dim, hidden)
     critic.to(device)
     actor_t, critic_t = copy.deepcopy(actor), copy.deepcopy(critic)
-    options = {"lr": torch.tensor(3e-4, device=device), "capturable": True, "fused": True}
-    actor_opt = torch.optim.Adam(actor.parameters(), **options)
-    critic_opt = torch.optim.Adam(critic.parameters(), **options)
+    lr = torch.tensor(3e-4, device=device)
+    actor_opt = torch.optim.Adam(actor.parameters(), lr=lr, capturable=True, fused=True)
+    critic_opt = torch.optim.Adam(critic.parameters(), lr=lr, capturable=True, fused=True)
     b = {
         "obs": torch.randn(batch, obs_dim, device=device),
         "action": torch.randn(batch, act_dim, device=device),

@@ -36,7 +36,9 @@ from learner.captured import ReadsMetrics
 from learner.checkpoint import save_checkpoint
 from learner.device import CPU, learned_from
 from learner.feed import make_feed
-from learner.lockstep import Lockstep, LockstepFeed, updates_allowed  # noqa: F401 (re-exported)
+from learner.lockstep import Lockstep as Lockstep  # re-exported: the run builds one
+from learner.lockstep import LockstepFeed
+from learner.lockstep import updates_allowed as updates_allowed  # re-exported
 from learner.selection import SelectionConfig, tree_wins
 from service.core import (
     Algorithm,

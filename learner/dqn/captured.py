@@ -25,7 +25,7 @@ def clipped(grads: tuple[torch.Tensor, ...], max_norm: float) -> list[torch.Tens
     norms = torch._foreach_norm(list(grads))
     total = torch.linalg.vector_norm(torch.stack(norms))
     coef = torch.clamp(max_norm / (total + 1e-6), max=1.0)
-    return torch._foreach_mul(list(grads), coef)
+    return list(torch._foreach_mul(list(grads), coef))
 
 
 def scheduled(
@@ -123,7 +123,8 @@ class CapturedDQN:
         """Polyak averaging of the target network; `due` (a device bool) gates it."""
         learner = self.learner
         tau = learner._target_tau
-        targets, sources = list(learner.target_q.parameters()), list(learner.q.parameters())
+        targets: list[torch.Tensor] = list(learner.target_q.parameters())
+        sources: list[torch.Tensor] = list(learner.q.parameters())
         if due is None:
             torch._foreach_lerp_(targets, sources, tau)
             return

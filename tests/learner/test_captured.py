@@ -36,6 +36,8 @@ ROWS = {
 }
 """Every learner class: TD3, pre-training, backbone (with and without a teacher), Double
 DQN, options with intra-option learning and with Retrace (eq. 14)."""
+SMALL = {"hidden_sizes": [32, 32], "batch_size": 32}
+"""Networks and batches small enough for a quick test."""
 ACTOR_NOW = {"td3.frozen_actor_updates": 0, "td3.policy_delay": 2}
 """TD3's actor trains from the first cycle (the presets freeze it for thousands)."""
 
@@ -46,8 +48,11 @@ def _setup(row: str, tmp: Path) -> tuple[Any, Any, Any]:
     pair of steps, the eager one for the kept pairs only: same generator, other draws)."""
     preset = ROWS[row]
     overrides: dict[str, Any] = {} if preset == "cartpole-ddqn" else dict(ACTOR_NOW)
+    sections = [s for s in ("td3", "dqn") if getattr(load_preset(preset), s, None) is not None]
+    overrides.update({f"{s}.{k}": v for s in sections for k, v in SMALL.items()})
     if preset == "pendulum-backbone-teacher":
-        overrides["backbone.teacher"] = bench._teacher(tmp / "teacher", load_preset(preset))
+        teacher = load_preset(preset, **overrides)
+        overrides["backbone.teacher"] = bench._teacher(tmp / "teacher", teacher)
     if preset == "pendulum-options-residual":
         overrides["td3.policy_noise"] = 0.0
     config = load_preset(preset, **overrides)
