@@ -3,9 +3,10 @@ numbers as the eager update over 50 updates, for every algorithm; one graph for
 ``torch.compile(fullgraph=True)`` on the CPU; on CUDA, capture, replay and no host sync.
 
 Tolerance: after 50 updates every weight, target weight and Adam moment of the captured
-learner is within 1e-5 + 1e-4 · |value| of the eager learner's (measured here: under 1e-6;
-the two differ only in rounding, e.g. Adam's rate as a float32 tensor), and the metrics
-it averaged on the device within 1e-4 relative of the mean of the eager ones.
+learner is within 1e-5 + 1e-4 · |value| of the eager learner's (the two differ only in
+rounding, e.g. Adam's rate as a float32 tensor: at the presets' own sizes the largest
+weight difference measured was 6e-8 for pendulum-td3 and 8e-8 for cartpole-ddqn), and
+the metrics it averaged on the device within 1e-4 relative of the mean of the eager ones.
 """
 
 from __future__ import annotations
