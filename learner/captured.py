@@ -151,40 +151,63 @@ class ReadsMetrics(Protocol):
 
 class DeviceMetrics:
     """Metrics summed on the device, each with its count; `read` moves them all to the host
-    in one transfer (the only sync) and starts the next window."""
+    in one transfer (the only sync) and starts the next window.
+
+    A step function `add`s its metrics; `collect` (at the step's end) stacks them into one
+    tensor the step returns, and `accumulate` adds that to the sums outside the step: a
+    compiled step's in-place changes reach only its inputs, not tensors it merely reads.
+    """
 
     def __init__(self, device: torch.device) -> None:
         self.device = device
-        self._sums: dict[str, torch.Tensor] = {}
-        self._counts: dict[str, torch.Tensor] = {}
+        self._pending: list[tuple[str, torch.Tensor, Optional[torch.Tensor]]] = []
+        self.names: tuple[str, ...] = ()
+        """The names of the last `collect`, in its order."""
+        self._windows: dict[tuple[str, ...], torch.Tensor] = {}
 
     def add(self, name: str, value: torch.Tensor, weight: Optional[torch.Tensor] = None) -> None:
         """Adds `value` (a scalar) to `name`'s window; `weight` (a device bool) counts it
-        only where true. A name first seen here is created now: a step function's first
-        call is eager (`StepGraph`), so its accumulators exist before any capture."""
-        if name not in self._sums:
-            self._sums[name] = torch.zeros((), dtype=torch.float64, device=self.device)
-            self._counts[name] = torch.zeros((), dtype=torch.float64, device=self.device)
-        value = value.detach().to(torch.float64)
-        if weight is None:
-            self._sums[name].add_(value)
-            self._counts[name].add_(1.0)
-        else:
-            # A step without rows may have a NaN mean (0 / 0): it must not reach the sum.
-            self._sums[name].add_(torch.where(weight, value, 0.0))
-            self._counts[name].add_(weight.to(torch.float64))
+        only where true."""
+        self._pending.append((name, value.detach().to(torch.float64), weight))
+
+    def collect(self) -> Optional[torch.Tensor]:
+        """[sums, counts] of the metrics added since the last collect (None: none were)."""
+        pending, self._pending = self._pending, []
+        if not pending:
+            return None
+        self.names = tuple(name for name, _, _ in pending)
+        # A step without rows may have a NaN mean (0 / 0): it must not reach the sum.
+        sums = [v if w is None else torch.where(w, v, 0.0) for _, v, w in pending]
+        counts = [torch.ones_like(v) if w is None else w.to(v.dtype) for _, v, w in pending]
+        return torch.stack([torch.stack(sums), torch.stack(counts)])
+
+    def accumulate(self, names: tuple[str, ...], collected: torch.Tensor) -> None:
+        """Adds a step's `collect`ed metrics (of `names`) to the window."""
+        if names not in self._windows:
+            self._windows[names] = torch.zeros_like(collected)
+        self._windows[names].add_(collected)
+
+    def flush(self) -> None:
+        """Accumulates what was added outside a step function (an eager step)."""
+        collected = self.collect()
+        if collected is not None:
+            self.accumulate(self.names, collected)
 
     def read(self) -> dict[str, float]:
         """The mean of each metric over its window (those counted at least once)."""
-        if not self._sums:
+        if not self._windows:
             return {}
-        names = list(self._sums)
-        both = torch.stack([self._sums[n] for n in names] + [self._counts[n] for n in names])
-        values = both.tolist()
-        for tensor in (*self._sums.values(), *self._counts.values()):
-            tensor.zero_()
-        sums, counts = values[: len(names)], values[len(names) :]
-        return {n: s / c for n, s, c in zip(names, sums, counts, strict=True) if c > 0}
+        keys = list(self._windows)
+        values = torch.cat([self._windows[k] for k in keys], dim=1).tolist()
+        for window in self._windows.values():
+            window.zero_()
+        sums: dict[str, float] = {}
+        counts: dict[str, float] = {}
+        names = [name for key in keys for name in key]
+        for name, total, count in zip(names, values[0], values[1], strict=True):
+            sums[name] = sums.get(name, 0.0) + total
+            counts[name] = counts.get(name, 0.0) + count
+        return {n: sums[n] / counts[n] for n in sums if counts[n] > 0}
 
 
 class StepGraph:
@@ -194,26 +217,43 @@ class StepGraph:
     lazy state happen there), the second captures one CUDA graph, and every run after it
     replays the graph. On the CPU: `load` keeps the tensors, and the step runs eagerly, or
     compiled whole (``torch.compile(fullgraph=True, backend=compiled)``: ``inductor``, or
-    ``eager`` to check only that it traces as one graph) from its second run on."""
+    ``eager`` to check only that it traces as one graph) from its second run on. The
+    metrics the step adds to `metrics` are its outputs, accumulated after each run."""
 
     def __init__(
         self,
         fn: StepFn,
         *,
         device: torch.device,
+        metrics: Sequence[DeviceMetrics],
         sources: Sequence[NoiseSource] = (),
         compiled: Optional[str] = None,
     ) -> None:
-        self.fn, self.device, self.sources = fn, device, list(sources)
+        self.step, self.device, self.sources = fn, device, list(sources)
+        self.metrics = list(metrics)
+        self._names: list[tuple[str, ...]] = []
+        self._outputs: list[Optional[torch.Tensor]] = []
         self.on_cuda = device.type == "cuda"
         self.runs = 0
         self.inputs: dict[str, torch.Tensor] = {}
         """The static inputs (on CUDA; on the CPU the last batches loaded)."""
         self._graph: Optional[torch.cuda.CUDAGraph] = None
-        self._run: StepFn = fn
+        self._run = self.fn
         if compiled is not None and not self.on_cuda:
             with tracing():
-                self._run = torch.compile(fn, fullgraph=True, backend=compiled)
+                self._run = torch.compile(self.fn, fullgraph=True, backend=compiled)
+
+    def fn(self, inputs: dict[str, torch.Tensor]) -> list[Optional[torch.Tensor]]:
+        """The step, returning each of `metrics`' collected metrics."""
+        self.step(inputs)
+        return [m.collect() for m in self.metrics]
+
+    def _accumulate(self, outputs: list[Optional[torch.Tensor]]) -> None:
+        if not self._names:  # the first run is eager: its names are every run's
+            self._names = [m.names for m in self.metrics]
+        for m, names, out in zip(self.metrics, self._names, outputs, strict=True):
+            if out is not None:
+                m.accumulate(names, out)
 
     def load(self, prefix: str, batch: dict[str, torch.Tensor]) -> None:
         """`batch`'s columns as inputs ``prefix + column``."""
@@ -230,23 +270,25 @@ class StepGraph:
         self.runs += 1
         if not self.on_cuda:
             with tracing():
-                (self.fn if self.runs == 1 else self._run)(self.inputs)
+                self._accumulate((self.fn if self.runs == 1 else self._run)(self.inputs))
             return
         if self.runs == 1:
             side = torch.cuda.Stream(self.device)
             side.wait_stream(torch.cuda.current_stream(self.device))
             with torch.cuda.stream(side):
-                self.fn(self.inputs)
+                outputs = self.fn(self.inputs)
             torch.cuda.current_stream(self.device).wait_stream(side)
+            self._accumulate(outputs)
             return
         if self._graph is None:
             graph = torch.cuda.CUDAGraph()
             for source in self.sources:
                 graph.register_generator_state(source.generator)
             with torch.cuda.graph(graph):
-                self.fn(self.inputs)
+                self._outputs = self.fn(self.inputs)
             self._graph = graph
         self._graph.replay()
+        self._accumulate(self._outputs)
 
 
 def fill(static: dict[str, torch.Tensor], named: dict[str, torch.Tensor]) -> None:

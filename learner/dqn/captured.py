@@ -66,6 +66,7 @@ class CapturedDQN:
             self._graphs[key] = StepGraph(
                 lambda inputs: self._step(inputs, expert=key[0], move_target=key[1]),
                 device=learner.device,
+                metrics=[self.metrics],
                 compiled=self.compiled,
             )
         graph = self._graphs[key]

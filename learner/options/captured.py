@@ -41,7 +41,11 @@ class CapturedOptions:
         """The RL option's updates so far (updates that had any of its rows)."""
         self.metrics = DeviceMetrics(device)
         self.graph = StepGraph(
-            self._step, device=device, sources=[self.td3.noise], compiled=compiled
+            self._step,
+            device=device,
+            metrics=[self.q.metrics, self.td3.metrics, self.metrics],
+            sources=[self.td3.noise],
+            compiled=compiled,
         )
 
     def step(self, batch: TensorBatch) -> Metrics:

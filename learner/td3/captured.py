@@ -105,6 +105,7 @@ class CapturedTD3:
             self._graphs[(key, train_actor)] = StepGraph(
                 lambda inputs: self._cycle(inputs, train_actor=train_actor),
                 device=self.learner.device,
+                metrics=[self.metrics],
                 sources=[self.noise],
                 compiled=self.compiled,
             )
@@ -170,6 +171,7 @@ class CapturedTD3:
                 actor_step(learner, last, self.actor_adam, self.metrics, count=self.actor_count)
             soft_update(learner.target_critic, learner.critic, learner._tau)
             soft_update(learner.target_actor, learner.actor, learner._tau)
+        self.metrics.flush()
 
     def settle(self) -> None:
         """Applies the loaded slots of an unfinished cycle (critic steps only: the actor

@@ -152,10 +152,12 @@ def test_captured_update_compiled_whole_computes_what_the_eager_one_does(
 def test_device_metrics_average_each_metric_over_the_updates_that_had_it() -> None:
     metrics = DeviceMetrics(torch.device("cpu"))
     metrics.add("a", torch.tensor(1.0))
-    metrics.add("a", torch.tensor(3.0))
     metrics.add("b", torch.tensor(5.0), torch.tensor(False))
+    metrics.add("c", torch.tensor(float("nan")), torch.tensor(False))
+    metrics.flush()
+    metrics.add("a", torch.tensor(3.0))
     metrics.add("b", torch.tensor(7.0), torch.tensor(True))
-    metrics.add("c", torch.tensor(9.0), torch.tensor(False))
+    metrics.flush()
     assert metrics.read() == {"a": 2.0, "b": 7.0}
     assert metrics.read() == {}
 
