@@ -42,7 +42,7 @@ SLOPE_LIMITS = {
 by design (the replay log and checkpoints of a table filling to max_size, metrics.csv):
 its limit is what pendulum-td3 writes at full speed, well under a leak of every sample."""
 ROLES = (
-    ("learner", "service.run.cli train"),
+    ("learner", "graft.cli train"),
     ("replay server", "replay serve"),
     ("env actors", "ray::EnvActor"),
     ("evaluator", "ray::Evaluator"),
@@ -201,7 +201,7 @@ def plot(rows: list[tuple[float, str, str, float]], path: Path) -> None:
 
 def start_run(run_dir: Path, preset: str) -> subprocess.Popen:
     argv = [
-        sys.executable, "-m", "service.run.cli", "train", "--preset", preset, "--address",
+        sys.executable, "-m", "graft.cli", "train", "--preset", preset, "--address",
         "local", "--run-dir", str(run_dir), "--no-progress", "--env-steps", str(10**9),
         "--set", "actors.max_restarts=1000", "--set", "replay.max_restarts=100",
     ]  # fmt: skip
