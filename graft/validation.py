@@ -230,7 +230,7 @@ def _import(where: str, module_name: str) -> types.ModuleType:
 
 # Modules that moved (graft 0.1 -> 0.2): an import string a user wrote with the old path
 # keeps working for one release, with a warning naming the new one.
-MOVED_MODULES = {"graft": "graft", "minecraft": "minecraft"}
+MOVED_MODULES = {"service.run": "graft", "actors.minecraft": "minecraft"}
 IMPORT_STRING_FIELDS = ("env_id", "hardcoded_policy", "obs_wrapper")
 
 
