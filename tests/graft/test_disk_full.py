@@ -24,7 +24,7 @@ from tests.tools.small_disk import small_disk
 
 pytestmark = [pytest.mark.service, pytest.mark.serial, pytest.mark.long]
 
-ROOT = Path(__file__).resolve().parents[3]
+ROOT = Path(__file__).resolve().parents[2]
 LEFT_FREE = 100 * 1024
 """What the test leaves free: less than one checkpoint (about 220 KB), more than the replay
 log and metrics.csv grow by before the learner's next checkpoint."""
