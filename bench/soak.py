@@ -46,9 +46,15 @@ ROLES = (
     ("replay server", "replay serve"),
     ("env actors", "ray::EnvActor"),
     ("evaluator", "ray::Evaluator"),
-    ("weights", "ray::_Latest"),
+    ("weight broadcaster", "ray::WeightBroadcaster"),
+    ("step budget", "ray::StepBudget"),
     ("ray idle workers", "ray::IDLE"),
-    ("ray", ""),
+    ("ray gcs", "gcs_server"),
+    ("ray raylet", "raylet/raylet"),
+    ("ray dashboard agent", "dashboard/agent.py"),
+    ("ray dashboard", "dashboard/dashboard.py"),
+    ("ray other actors", "ray::"),
+    ("ray other", ""),
 )
 """A process's role: the first whose text its command line holds ('ray': the rest)."""
 
@@ -140,7 +146,7 @@ def sample(root: int, run_dir: Path) -> dict[tuple[str, str], float]:
             role = role_of(pid)
             for metric, value in got.items():
                 figures[(role, metric)] += value
-    figures[("ray", "object_store_mib")] = object_store_mib(pids)
+    figures[("ray raylet", "object_store_mib")] = object_store_mib(pids)
     figures[("run folder", "run_dir_mib")] = folder_mib(run_dir)
     return dict(figures)
 

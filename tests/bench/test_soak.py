@@ -51,10 +51,10 @@ def test_a_two_minute_soak_survives_its_faults_and_samples_every_series(tmp_path
     with open(out / "soak.csv") as f:
         rows = list(csv.DictReader(f))
     seen = {(r["role"], r["metric"]) for r in rows}
-    for role in ("learner", "replay server", "env actors", "evaluator", "ray"):
+    for role in ("learner", "replay server", "env actors", "evaluator", "ray gcs", "ray raylet"):
         for metric in ("rss_mib", "fds", "threads", "processes"):
             assert (role, metric) in seen, (role, metric)
-    assert ("ray", "object_store_mib") in seen and ("run folder", "run_dir_mib") in seen
+    assert ("ray raylet", "object_store_mib") in seen and ("run folder", "run_dir_mib") in seen
     assert (out / "soak.png").stat().st_size > 0
     # Two minutes are too short for the slopes to mean much; the verdict is still made.
     assert status == (0 if all(v["ok"] for v in report["slopes"]) else 1)
