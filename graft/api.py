@@ -40,6 +40,9 @@ class Run:
     interrupted: bool = False
     """Ctrl-C stopped the run; its last checkpoint holds the state at
     ``summary['env_steps']``."""
+    stopped: Optional[str] = None
+    """Why the run stopped before its budget (the disk filled), in one line; None when it
+    finished or was interrupted."""
 
     def policy(self) -> Policy:
         """The run's greedy policy (its latest checkpoint)."""
@@ -154,6 +157,7 @@ def train(
         result.summary,
         result.evaluations,
         interrupted=result.interrupted,
+        stopped=result.stopped,
     )
 
 

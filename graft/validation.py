@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import importlib
+import math
 import types
 import typing
 import warnings
@@ -48,6 +49,8 @@ def _coerce(value: Any, hint: Any) -> Any:
     if origin in (Union, types.UnionType):
         if value is None and type(None) in args:
             return None
+        if _nonfinite(value) and any(a in (int, float) for a in args):
+            raise _Mismatch("a finite number" + (" or null" if type(None) in args else ""))
         for option in (a for a in args if a is not type(None)):
             try:
                 return _coerce(value, option)
@@ -60,6 +63,8 @@ def _coerce(value: Any, hint: Any) -> Any:
         raise _Mismatch(describe(hint))
     if hint in (int, float):
         number = _number(value)
+        if _nonfinite(value):  # nan passes every range check (nan < 0 is False)
+            raise _Mismatch("a finite number")
         if number is None or (hint is int and not float(number).is_integer()):
             raise _Mismatch(describe(hint))
         return int(number) if hint is int else number
@@ -83,6 +88,12 @@ def _coerce(value: Any, hint: Any) -> Any:
     if isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(value, hint):
         return value
     return value  # an annotation this check does not know: the dataclass decides
+
+
+def _nonfinite(value: Any) -> bool:
+    """Whether `value` reads as a number that is not finite (nan, inf, -inf, 1e999)."""
+    number = _number(value)
+    return isinstance(number, float) and not math.isfinite(number)
 
 
 def _number(value: Any) -> Optional[float]:

@@ -58,7 +58,11 @@ class MetricsLogger:
         if self._tb is not None:
             for key, value in scalars.items():
                 self._tb.add_scalar(key, float(value), env_steps)
-        self._file.flush()  # so a running job can be followed (tail, plots)
+        try:
+            self._file.flush()  # so a running job can be followed (tail, plots)
+        except OSError as error:  # e.g. a full disk: say which file
+            error.filename = error.filename or str(self.csv_path)
+            raise
         if self._timing is not None:
             self._timing[0].flush()
 

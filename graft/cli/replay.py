@@ -71,6 +71,14 @@ def add_replay_commands(subparsers: argparse._SubParsersAction) -> None:
         help="bind address of the metrics port, which answers without a token (default "
         "loopback, whatever --host is)",
     )
+    serve.add_argument(
+        "--max-memory",
+        type=_byte_size,
+        metavar="SIZE",
+        help="what the tables may fill together, e.g. 2G or 512M (default: the cgroup's "
+        "memory limit, else the machine's memory, less a tenth); a table that cannot fit "
+        "is refused at start",
+    )
     serve.add_argument("--ready-file", help="write {'address': ...} here once listening")
     serve.add_argument(
         "--exit-with-parent",
@@ -139,18 +147,21 @@ def warm_up() -> None:
 
 
 def _serve(args: argparse.Namespace) -> None:
+    from service.memory import memory_budget
     from service.replay.server.grpc_server import ServerOptions
     from service.replay.server.serve import serve_forever
     from service.replay.server.store import FolderUnusable, ReplayCore
-    from service.replay.server.table_config import make_table
+    from service.replay.server.table_config import make_tables
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     try:
+        budget = memory_budget(args.max_memory)
         core = ReplayCore(
-            (make_table(spec) for spec in _table_specs(args)),
+            make_tables(_table_specs(args), budget=budget),
             checkpoint_dir=args.checkpoint_dir,
             fsync=args.fsync,
             max_writers=args.max_writers,
+            memory_budget=budget,
         )
         options = ServerOptions(
             host=args.host,
@@ -175,9 +186,30 @@ def _serve(args: argparse.Namespace) -> None:
         raise SystemExit(EXIT_FOLDER_UNUSABLE) from None
     except (ValueError, OSError) as error:
         raise SystemExit(f"graft replay serve: {error}") from None
+    except MemoryError as error:  # past the budget's estimate: still one line
+        message = f"graft replay serve: out of memory building the tables: {error}"
+        raise SystemExit(message) from None
+
+
+_SIZE_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+
+
+def _byte_size(text: str) -> int:
+    """``2G``, ``512M``, ``1.5GiB`` or a number of bytes, as bytes (argparse's type)."""
+    value = text.strip().upper().removesuffix("IB").removesuffix("B")
+    unit = value[-1:] if value[-1:] in _SIZE_UNITS else ""
+    try:
+        number = float(value.removesuffix(unit) if unit else value)
+    except ValueError:
+        message = f"{text!r} is not a size like 2G, 512M or 1000000"
+        raise argparse.ArgumentTypeError(message) from None
+    if not (number > 0 and number * _SIZE_UNITS[unit] < 2**63):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a size > 0")
+    return int(number * _SIZE_UNITS[unit])
 
 
 def _info(args: argparse.Namespace) -> None:
+    from service.memory import gib
     from service.replay.client import ReplayClient
     from service.replay.errors import ReplayError
 
@@ -186,10 +218,18 @@ def _info(args: argparse.Namespace) -> None:
         tables = client.info()
     except ReplayError as error:
         raise SystemExit(f"graft replay info: {error}") from None
+    if tables and tables[0].memory_budget_bytes:
+        total = sum(t.bytes_in_memory for t in tables)
+        print(
+            f"memory: tables {gib(sum(t.bytes_used for t in tables))} used, {gib(total)} at "
+            f"max_size, of a budget of {gib(tables[0].memory_budget_bytes)} "
+            f"({tables[0].memory_budget})"
+        )
     for t in tables:
         print(
             f"table {t.name}: {t.size}/{t.max_size} items, {t.inserts} inserted, "
-            f"{t.samples} sampled, {t.bytes_in_memory / 2**20:.1f} MiB"
+            f"{t.samples} sampled, {gib(t.bytes_used)} used of {gib(t.bytes_in_memory)} "
+            "at max_size"
         )
         print(
             f"  sampler={t.sampler} remover={t.remover} rate_limiter={t.rate_limiter} "

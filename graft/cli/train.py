@@ -128,6 +128,9 @@ def _train(args: argparse.Namespace) -> None:
         )
         raise SystemExit(TERMINATED if terminated else INTERRUPTED) from None
     s = result.summary
+    if result.stopped is not None:  # the disk filled: the line says what and where
+        print(f"graft train: stopped: {result.stopped}", file=sys.stderr)
+        raise SystemExit(1)
     if result.interrupted:
         checkpoint = latest_checkpoint(result.run_dir / "checkpoints")
         print(

@@ -9,6 +9,7 @@ instead (`lockstep`). What differs between algorithms comes from the algorithm's
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import signal
@@ -29,7 +30,8 @@ from actors.evaluator import RemoteEvaluator
 from graft.config import TrainConfig
 from graft.orchestration.assembly import RunParts
 from graft.orchestration.budget import StepBudget
-from graft.orchestration.clients import actor_env, evaluator_env, world_clients
+from graft.orchestration.checks import check_run
+from graft.orchestration.clients import actor_env, evaluator_env
 from graft.orchestration.kept import (
     BUDGET,
     env_actor,
@@ -37,7 +39,7 @@ from graft.orchestration.kept import (
     take_or_start,
 )
 from graft.orchestration.lockstep import ActorRing, deterministic, stalled
-from graft.orchestration.preflight import check_cluster, check_fits_locally, check_run_dir
+from graft.orchestration.preflight import check_cluster, check_run_dir
 from graft.orchestration.progress import FaultLog, say_and_keep, watch
 from graft.orchestration.provenance import config_record
 from graft.orchestration.ray_session import check_head
@@ -45,20 +47,25 @@ from graft.orchestration.resume import restore, resume_with
 from graft.orchestration.roles import (
     ACTOR_FINISH_S,
     actor_segments,
-    learner_device,
-    probe,
     start_replay,
 )
 from graft.orchestration.summary import REFERENCE_LEVELS, log_behaviour_stats, summarise
 from graft.orchestration.supervision import ActorFleet, Supervisor
-from graft.orchestration.tables import preset_tables
 from graft.replay_host.folder import Restored, open_replay, reusable
 from graft.replay_host.shards import RunReplay
 from graft.seeds import evaluation_seed, training_seed
 from learner.agent import Phase
+from learner.checkpoint import (
+    DiskFull,
+    disk_full,
+    latest_checkpoint,
+    remove_stale_temporaries,
+    write_atomically,
+)
 from learner.device import device_name
 from learner.loop import LearnerLoop, Lockstep, LoopSettings, LoopState
 from service.core import Evaluation, SampleStream
+from service.memory import gib
 from service.metrics import MetricsLogger, plot_learning_curve
 from service.weights import BroadcastPublisher
 
@@ -72,6 +79,9 @@ class RunResult:
     evaluations: list[Evaluation]
     interrupted: bool = False
     """Ctrl-C stopped the run; its last checkpoint holds the state at `summary['env_steps']`."""
+    stopped: Optional[str] = None
+    """Why the run stopped before its budget, in one line (e.g. the disk filled); None when
+    it finished or was interrupted."""
 
 
 def train_here(
@@ -103,12 +113,15 @@ def train_here(
         run = _start(parts, config, plan, progress)
         loop, bar, faults = _learner_loop(config, plan, run, progress)
         try:
-            final, reports, interrupted = _learn(loop, run, config, bar)
+            final, reports, interrupted, full = _learn(loop, run, config, bar)
         finally:
             # From here on the run only saves and stops: a (second) Ctrl-C must not cut that
             # short and leave a half-written folder or processes behind.
             sigint.hold()
             bar.close()
+        if full is not None:  # the disk filled: its parts are ended, not handed on
+            summary = _stop_on_full_disk(full, config, plan, final, loop.logger)
+            return RunResult(plan.run_dir, summary, final.evaluations, stopped=summary["stopped"])
         summary = _finish(config, plan, run, (loop, faults), final, reports, interrupted)
         parts.keep = True
         parts.keep_actors = not interrupted  # its actors may still be acting: they are ended
@@ -138,16 +151,15 @@ def _plan(config: TrainConfig, address: str, run_dir: Optional[Path], resume: bo
     """Checks everything that can be checked before Ray starts, builds the algorithm
     (restored from the checkpoint a resume continues from) and writes config.yaml."""
     run_dir, checkpoint = check_run_dir(config, run_dir, resume)
-    check_fits_locally(config, address)
-    device, compile_mode = learner_device(config)  # a GPU that is not here: refused before Ray
-    clients = world_clients(config)
+    for stale in remove_stale_temporaries(run_dir / "checkpoints"):
+        print(f"removed {stale}, left half-written by a run that stopped mid-write")
     torch.set_num_threads(1)  # the learner shares 2 cores with actors and the replay server
     start = time.perf_counter()
-    builder, behaviour, signature = probe(config)
+    checked = check_run(config, address)
+    device, compile_mode, clients = checked.device, checked.compile_mode, checked.clients
+    builder, behaviour, phases = checked.builder, checked.behaviour, checked.phases
+    tables, state = checked.tables, LoopState()
     algorithm = builder.make_learner(device=device, compile=compile_mode)
-    state, phases = LoopState(), builder.phases()
-    # A phase's table does not depend on its budget: a resumed run serves the same one.
-    tables = preset_tables(config, phases=phases, signature=signature)
     if checkpoint is not None:
         refill = config.reproducible or not reusable(run_dir, tables)
         state = restore(algorithm, checkpoint, phases, config, refill=refill)
@@ -348,9 +360,10 @@ def _learner_loop(
 
 def _learn(
     loop: LearnerLoop, run: _Started, config: TrainConfig, bar: tqdm
-) -> tuple[LoopState, list[dict[str, Any]], bool]:
-    """Runs the loop to its end (or to Ctrl-C); the final state, the actors' reports and
-    whether the run was interrupted."""
+) -> tuple[LoopState, list[dict[str, Any]], bool, Optional[DiskFull]]:
+    """Runs the loop to its end (or to Ctrl-C, or to a full disk); the final state, the
+    actors' reports, whether the run was interrupted and the disk-full error that stopped
+    it."""
     try:
         final = loop.run()
         bar.update(final.updates - bar.n)
@@ -365,10 +378,15 @@ def _learn(
             for line in leftovers:
                 run.say(line)
     except KeyboardInterrupt:  # Ctrl-C: stop here and keep what was learned
-        return loop.state, [], True
+        return loop.state, [], True, None
+    except OSError as error:  # a full disk stops the run; the last checkpoint stands
+        full = disk_full(error, loop.checkpoint_dir)
+        if full is None:
+            raise
+        return loop.state, [], False, full
     # The learner may stop before it sees the actors' last inserts: count them directly.
     final.env_steps = run.resumed_env_steps + sum(r["env_steps"] for r in reports)
-    return final, reports, False
+    return final, reports, False, None
 
 
 def _finish(
@@ -398,13 +416,36 @@ def _finish(
     summary["replay_restored"] = dataclasses.asdict(run.restored) if run.restored else None
     summary["mode"] = "reproducible" if config.reproducible else "asynchronous"
     summary.update(plan.hardware, learner_compile=plan.compile_mode)
-    (plan.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_atomically(plan.run_dir / "summary.json", json.dumps(summary, indent=2))
     plot_learning_curve(
         plan.run_dir / "metrics.csv",
         plan.run_dir / "learning_curve.png",
         title=f"{config.preset} (seed {config.seed})",
         reference=REFERENCE_LEVELS.get(config.env_id),
     )
+    return summary
+
+
+def _stop_on_full_disk(
+    full: DiskFull, config: TrainConfig, plan: _Plan, final: LoopState, logger: MetricsLogger
+) -> dict[str, Any]:
+    """A run the disk stopped: its summary (written where it fits) says so in one line,
+    naming the file, the space left, the env steps reached and the last good checkpoint;
+    no temporary file is left behind."""
+    with contextlib.suppress(OSError):  # its buffered rows may not fit either
+        logger.close()
+    checkpoints = plan.run_dir / "checkpoints"
+    remove_stale_temporaries(checkpoints)
+    last = latest_checkpoint(checkpoints)
+    summary = summarise(config, final, [], time.perf_counter() - plan.start)
+    summary["stopped"] = (
+        f"disk full writing {full.path} ({gib(full.free)} free) at {final.env_steps} env "
+        f"steps; the last good checkpoint is {last or 'none (none was written)'}"
+    )
+    summary["interrupted"] = False
+    summary["last_checkpoint"] = str(last) if last else None
+    with contextlib.suppress(OSError):
+        write_atomically(plan.run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 
 

@@ -51,7 +51,14 @@ class TableStatus:
     rate_limiter: str
     signature: dict[str, Any]
     bytes_in_memory: int
+    """What the table may fill at max_size."""
     rate_limiter_blocked_s: float
+    bytes_used: int = 0
+    """What its stored items fill now."""
+    memory_budget_bytes: int = 0
+    """What the server's tables may fill together (0: the server checked no budget)."""
+    memory_budget: str = ""
+    """Where that budget comes from (the cgroup limit, the machine's memory, --max-memory)."""
 
 
 class ReplayClient:
@@ -250,6 +257,9 @@ class ReplayClient:
                 signature=json.loads(t.signature_json),
                 bytes_in_memory=t.bytes_in_memory,
                 rate_limiter_blocked_s=t.rate_limiter_blocked_s,
+                bytes_used=t.bytes_used,
+                memory_budget_bytes=response.memory_budget_bytes,
+                memory_budget=response.memory_budget,
             )
             for t in response.tables
         ]

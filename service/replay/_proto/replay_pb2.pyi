@@ -86,7 +86,7 @@ class InfoRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class TableInfo(_message.Message):
-    __slots__ = ("name", "size", "max_size", "inserts", "samples", "sampler", "remover", "rate_limiter", "signature_json", "bytes_in_memory", "rate_limiter_blocked_s")
+    __slots__ = ("name", "size", "max_size", "inserts", "samples", "sampler", "remover", "rate_limiter", "signature_json", "bytes_in_memory", "rate_limiter_blocked_s", "bytes_used")
     NAME_FIELD_NUMBER: _ClassVar[int]
     SIZE_FIELD_NUMBER: _ClassVar[int]
     MAX_SIZE_FIELD_NUMBER: _ClassVar[int]
@@ -98,6 +98,7 @@ class TableInfo(_message.Message):
     SIGNATURE_JSON_FIELD_NUMBER: _ClassVar[int]
     BYTES_IN_MEMORY_FIELD_NUMBER: _ClassVar[int]
     RATE_LIMITER_BLOCKED_S_FIELD_NUMBER: _ClassVar[int]
+    BYTES_USED_FIELD_NUMBER: _ClassVar[int]
     name: str
     size: int
     max_size: int
@@ -109,15 +110,20 @@ class TableInfo(_message.Message):
     signature_json: str
     bytes_in_memory: int
     rate_limiter_blocked_s: float
-    def __init__(self, name: _Optional[str] = ..., size: _Optional[int] = ..., max_size: _Optional[int] = ..., inserts: _Optional[int] = ..., samples: _Optional[int] = ..., sampler: _Optional[str] = ..., remover: _Optional[str] = ..., rate_limiter: _Optional[str] = ..., signature_json: _Optional[str] = ..., bytes_in_memory: _Optional[int] = ..., rate_limiter_blocked_s: _Optional[float] = ...) -> None: ...
+    bytes_used: int
+    def __init__(self, name: _Optional[str] = ..., size: _Optional[int] = ..., max_size: _Optional[int] = ..., inserts: _Optional[int] = ..., samples: _Optional[int] = ..., sampler: _Optional[str] = ..., remover: _Optional[str] = ..., rate_limiter: _Optional[str] = ..., signature_json: _Optional[str] = ..., bytes_in_memory: _Optional[int] = ..., rate_limiter_blocked_s: _Optional[float] = ..., bytes_used: _Optional[int] = ...) -> None: ...
 
 class InfoResponse(_message.Message):
-    __slots__ = ("tables", "uptime_s")
+    __slots__ = ("tables", "uptime_s", "memory_budget_bytes", "memory_budget")
     TABLES_FIELD_NUMBER: _ClassVar[int]
     UPTIME_S_FIELD_NUMBER: _ClassVar[int]
+    MEMORY_BUDGET_BYTES_FIELD_NUMBER: _ClassVar[int]
+    MEMORY_BUDGET_FIELD_NUMBER: _ClassVar[int]
     tables: _containers.RepeatedCompositeFieldContainer[TableInfo]
     uptime_s: float
-    def __init__(self, tables: _Optional[_Iterable[_Union[TableInfo, _Mapping]]] = ..., uptime_s: _Optional[float] = ...) -> None: ...
+    memory_budget_bytes: int
+    memory_budget: str
+    def __init__(self, tables: _Optional[_Iterable[_Union[TableInfo, _Mapping]]] = ..., uptime_s: _Optional[float] = ..., memory_budget_bytes: _Optional[int] = ..., memory_budget: _Optional[str] = ...) -> None: ...
 
 class CheckpointRequest(_message.Message):
     __slots__ = ()

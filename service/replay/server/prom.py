@@ -35,7 +35,10 @@ class ReplayMetrics:
             "graft_replay_table_size": ("Items stored", lambda t: t.size),
             "graft_replay_table_inserts": ("Items ever inserted", lambda t: t.stats.inserts),
             "graft_replay_table_samples": ("Items ever sampled", lambda t: t.stats.samples),
-            "graft_replay_table_bytes": ("Bytes of table storage", lambda t: t.bytes_in_memory),
+            "graft_replay_table_bytes": (
+                "Bytes of table storage at max_size", lambda t: t.bytes_in_memory),
+            "graft_replay_table_bytes_used": (
+                "Bytes the stored items fill", lambda t: t.bytes_used),
             "graft_replay_insert_blocked_seconds": (
                 "Time inserts waited on the rate limiter", lambda t: t.stats.insert_blocked_s),
             "graft_replay_sample_blocked_seconds": (
@@ -45,6 +48,12 @@ class ReplayMetrics:
             gauge = Gauge(name, help_text, ["table"], registry=r)
             for table in core.tables.values():
                 gauge.labels(table.name).set_function(functools.partial(read, table))
+        if core.memory_budget is not None:
+            Gauge(
+                "graft_replay_memory_budget_bytes",
+                "What the tables may fill together",
+                registry=r,
+            ).set(core.memory_budget.bytes)
         r.register(_DurabilityCollector(core))
         r.register(_FreedMemoryCollector(freed))
 

@@ -377,7 +377,14 @@ class ReplayServicer(replay_pb2_grpc.ReplayServiceServicer):
                     rate_limiter=described["rate_limiter"],
                     signature_json=t.signature.to_json(),
                     bytes_in_memory=t.bytes_in_memory,
+                    bytes_used=t.bytes_used,
                     rate_limiter_blocked_s=t.stats.insert_blocked_s + t.stats.sample_blocked_s,
                 )
             )
-        return replay_pb2.InfoResponse(tables=tables, uptime_s=time.monotonic() - self.core.started)
+        budget = self.core.memory_budget
+        return replay_pb2.InfoResponse(
+            tables=tables,
+            uptime_s=time.monotonic() - self.core.started,
+            memory_budget_bytes=budget.bytes if budget else 0,
+            memory_budget=budget.source if budget else "",
+        )

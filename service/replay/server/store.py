@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Optional
 
+from service.memory import MemoryBudget
 from service.replay.codec import decode_batch
 from service.replay.server import durability
 from service.replay.server.durability import StorageError
@@ -89,8 +90,11 @@ class ReplayCore:
         checkpoint_dir: Optional[Path] = None,
         fsync: bool = False,
         max_writers: int = DEFAULT_MAX_WRITERS,
+        memory_budget: Optional[MemoryBudget] = None,
     ) -> None:
         self.tables: dict[str, Table] = {}
+        self.memory_budget = memory_budget
+        """What the tables were checked against (`table_config.make_tables`), if anything."""
         for table in tables:
             if table.name in self.tables:
                 raise ValueError(f"two tables are named '{table.name}'")

@@ -23,6 +23,7 @@ from service.replay.server.samplers import Prioritized, Sampler, Uniform
 from service.replay.server.signature import Signature
 from service.replay.server.slots import FreeListSlots, RingSlots
 from service.replay.server.table_checks import check_configuration
+from service.replay.server.table_memory import sampled_bytes
 
 
 class RateLimitTimeout(TimeoutError):
@@ -113,6 +114,11 @@ class Table:
         if isinstance(self.slots, FreeListSlots):
             arrays.append(self.slots.keys)
         return sum(a.nbytes for a in arrays)
+
+    @property
+    def bytes_used(self) -> int:
+        """Bytes the stored items fill: their share of the arrays sized by max_size."""
+        return self.bytes_in_memory * self.size // self.max_size
 
     def describe(self) -> dict[str, str]:
         return {
@@ -233,10 +239,8 @@ class Table:
     # ---------------------------------------------------------------- sample
 
     def sampled_bytes(self, batch_size: int, sequence_length: int = 1) -> int:
-        """Bytes of the columns a sample of `batch_size` items returns: data and `_key` per
-        step, `_probability` and `_weight` per item (the encoded payload adds a little)."""
-        per_item = sequence_length * (self._item_bytes + 8) + 8 + 8
-        return batch_size * per_item
+        """Bytes of the columns a sample of `batch_size` items returns (`sampled_bytes`)."""
+        return sampled_bytes(self._item_bytes, batch_size, sequence_length)
 
     def check_sample(self, batch_size: int, sequence_length: int) -> None:
         """Refuses a sample request this table can never serve, before anything is drawn."""
