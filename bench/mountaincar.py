@@ -116,7 +116,7 @@ def summarise(
 
 
 def table(rows: Sequence[dict[str, Any]], *, env_steps: int, episodes: int) -> str:
-    """The Markdown table the README quotes."""
+    """The Markdown table docs/results.md quotes."""
     lines = [
         f"MountainCarContinuous-v0, {env_steps} env steps per run, final policy scored on "
         f"{episodes} deterministic episodes per seed",
