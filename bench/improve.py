@@ -77,6 +77,18 @@ TASKS = {
 """Task name -> a user's preset: environment, hard-coded policy, budget, no algorithm."""
 _LAYOUT = ("num_actors=1", "envs_per_actor=4")  # the recipe's actors: only the method differs
 _DQN = (*_LAYOUT, "algorithm=ddqn", "dqn.hidden_sizes=[256,256]")
+_ZOO_LANDER_DQN = (
+    *_DQN,
+    "learning_starts=1000",
+    "updates_per_env_step=1.0",
+    "dqn.learning_rate=0.00063",
+    "dqn.batch_size=128",
+    "dqn.target_update_every=250",
+    "dqn.epsilon_start=1.0",
+    "dqn.epsilon_end=0.1",
+    "dqn.epsilon_decay_env_steps=3600",
+)
+"""rl-baselines3-zoo's DQN for LunarLander, which it uses for Acrobot too."""
 _TD3 = (*_LAYOUT, "algorithm=td3", "updates_per_env_step=1.0", "td3.hidden_sizes=[256,256]",
         "td3.batch_size=256", "td3.actor_lr=0.001", "td3.critic_lr=0.001")  # fmt: skip
 SCRATCH: dict[str, tuple[str, ...]] = {
@@ -96,29 +108,9 @@ SCRATCH: dict[str, tuple[str, ...]] = {
         "dqn.epsilon_decay_env_steps=8000",
     ),
     # zoo's LunarLander DQN: lr 6.3e-4, batch 128, target every 250 steps, ε → 0.1 over 12 %
-    "lunarlander-discrete": (
-        *_DQN,
-        "learning_starts=1000",
-        "updates_per_env_step=1.0",
-        "dqn.learning_rate=0.00063",
-        "dqn.batch_size=128",
-        "dqn.target_update_every=250",
-        "dqn.epsilon_start=1.0",
-        "dqn.epsilon_end=0.1",
-        "dqn.epsilon_decay_env_steps=3600",
-    ),
+    "lunarlander-discrete": _ZOO_LANDER_DQN,
     # zoo's Acrobot DQN: as its LunarLander's (ε → 0.1 over 12 % of 100k: 3,600 of 30k)
-    "acrobot": (
-        *_DQN,
-        "learning_starts=1000",
-        "updates_per_env_step=1.0",
-        "dqn.learning_rate=0.00063",
-        "dqn.batch_size=128",
-        "dqn.target_update_every=250",
-        "dqn.epsilon_start=1.0",
-        "dqn.epsilon_end=0.1",
-        "dqn.epsilon_decay_env_steps=3600",
-    ),
+    "acrobot": _ZOO_LANDER_DQN,
     # zoo's TD3 (SB3 defaults: lr 1e-3; Pendulum and LunarLanderContinuous: γ 0.98, 10k
     # random steps first; MountainCarContinuous: noise 0.5; HalfCheetah: 10k random steps)
     "pendulum": (*_TD3, "learning_starts=10000", "td3.gamma=0.98", "td3.exploration_noise=0.1"),
