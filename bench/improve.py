@@ -73,6 +73,9 @@ TASKS = {
     "halfcheetah": REPO / "examples" / "halfcheetah" / "presets" / "recipe.yaml",
     # Held out: each tree written and scored before any recipe run on it (docs/results.md).
     "acrobot": REPO / "bench" / "tasks" / "acrobot.yaml",
+    "reacher": REPO / "examples" / "heldout" / "presets" / "reacher.yaml",
+    "hopper": REPO / "examples" / "heldout" / "presets" / "hopper.yaml",
+    "walker2d": REPO / "examples" / "heldout" / "presets" / "walker2d.yaml",
 }
 """Task name -> a user's preset: environment, hard-coded policy, budget, no algorithm."""
 _LAYOUT = ("num_actors=1", "envs_per_actor=4")  # the recipe's actors: only the method differs
@@ -130,6 +133,10 @@ SCRATCH: dict[str, tuple[str, ...]] = {
     ),
     "mountaincar": (*_TD3, "learning_starts=1000", "td3.exploration_noise=0.5"),
     "halfcheetah": (*_TD3, "learning_starts=10000", "td3.exploration_noise=0.1"),
+    # held out: zoo's MuJoCo TD3 defaults, as HalfCheetah's (zoo has no Reacher entry)
+    "reacher": (*_TD3, "learning_starts=10000", "td3.exploration_noise=0.1"),
+    "hopper": (*_TD3, "learning_starts=10000", "td3.exploration_noise=0.1"),
+    "walker2d": (*_TD3, "learning_starts=10000", "td3.exploration_noise=0.1"),
 }
 """Task name -> the from-scratch arm's settings on the task's preset: graft's own Double
 DQN or TD3, no tree, 256x256 networks, rl-baselines3-zoo's hyper-parameters for the task
