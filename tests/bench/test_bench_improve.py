@@ -27,6 +27,16 @@ def _row(seed: int, tree: float, final: float, evaluations: list[float]) -> impr
     )
 
 
+@pytest.mark.parametrize("task", sorted(improve.TASKS))
+def test_every_task_has_a_from_scratch_arm_on_its_own_preset(task):
+    scratch = improve.load_preset(
+        improve.TASKS[task], **improve.parse_settings(list(improve.SCRATCH[task]))
+    )
+    recipe = improve.load_preset(improve.TASKS[task])
+    assert scratch.algorithm in ("td3", "ddqn")
+    assert (recipe.env_id, recipe.env_steps) == (scratch.env_id, scratch.env_steps)
+
+
 def test_worst_drop_ignores_the_first_tenth_of_the_budget_and_is_relative_to_the_tree():
     row = _row(0, 100.0, 120.0, [-500.0, 95.0, 130.0, 80.0])  # in-run tree score 100
     # At 0 env steps (within the first tenth of 10,000): not held. Worst after: 80.
