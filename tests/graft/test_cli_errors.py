@@ -168,7 +168,8 @@ BAD_INPUTS = {
     ),
     "learner.compile unknown": (
         [*TRAIN, "--set", "learner.compile=fast"],
-        "graft train: learner.compile='fast' must be one of off, auto, compile, cuda_graphs",
+        "graft train: learner.compile='fast' must be one of off, auto, compile, cuda_graphs, "
+        "captured",
     ),
     "--actors 0": ([*TRAIN, "--actors", "0"], "graft train: --actors=0 must be >= 1"),
     "--env-steps 0": ([*TRAIN, "--env-steps", "0"], "graft train: --env-steps=0 must be >= 1"),
