@@ -129,8 +129,10 @@ def test_make_tables_refuses_before_allocating() -> None:
 
 
 def _cgroup(limit: int) -> Path:
-    """A new memory cgroup (v1 or v2) with `limit`, or a skip where none can be made
-    (not root, or cgroups not delegated here)."""
+    """A new memory cgroup (v1 or v2) with `limit`. Skipped only for a user who is not root
+    (who may not make one); as root, a cgroup that cannot be made fails the test."""
+    if os.geteuid() != 0:
+        pytest.skip("making a memory cgroup needs root")
     for root, name in ((Path("/sys/fs/cgroup/memory"), "memory.limit_in_bytes"),
                        (Path("/sys/fs/cgroup"), "memory.max")):  # fmt: skip
         folder = root / f"graft-test-{os.getpid()}"
@@ -143,7 +145,7 @@ def _cgroup(limit: int) -> Path:
             return folder
         except OSError:
             folder.rmdir()
-    pytest.skip("cannot create a memory cgroup here (needs root and a writable cgroup fs)")
+    raise AssertionError("root could not make a memory cgroup (v1 or v2) under /sys/fs/cgroup")
 
 
 def test_a_table_larger_than_the_cgroup_limit_is_refused_naming_it() -> None:
