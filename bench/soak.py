@@ -9,6 +9,8 @@ after the first tenth of the run, and exits 1 if any grows faster than its state
 (`SLOPE_LIMITS`, per hour) or the run does not survive to a clean Ctrl-C stop.
 
     nice -n 5 python bench/soak.py --minutes 30 --out runs/soak
+    nice -n 5 python bench/soak.py --minutes 30 --preset minecraft-backbone --clients 4 \
+        --out runs/soak-minecraft     # 4 simulated Minecraft clients, real time
 """
 
 from __future__ import annotations
@@ -205,11 +207,13 @@ def plot(rows: list[tuple[float, str, str, float]], path: Path) -> None:
     fig.savefig(path, dpi=80)
 
 
-def start_run(run_dir: Path, preset: str) -> subprocess.Popen:
+def start_run(run_dir: Path, preset: str, clients: int = 0) -> subprocess.Popen:
+    """`graft train` of `preset` with an endless budget (and `--clients` for Minecraft)."""
     argv = [
         sys.executable, "-m", "graft.cli", "train", "--preset", preset, "--address",
         "local", "--run-dir", str(run_dir), "--no-progress", "--env-steps", str(10**9),
         "--set", "actors.max_restarts=1000", "--set", "replay.max_restarts=100",
+        *(["--clients", str(clients)] if clients else []),
     ]  # fmt: skip
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("RAY_ADDRESS", None)
@@ -223,13 +227,15 @@ RAY_STARTS = 3
 """Tries at a run whose local Ray did not come up (a busy machine: Ray's start timeout)."""
 
 
-def start_and_wait(run_dir: Path, preset: str, limit_s: float = 900.0) -> subprocess.Popen:
+def start_and_wait(
+    run_dir: Path, preset: str, clients: int = 0, limit_s: float = 900.0
+) -> subprocess.Popen:
     """The run, once its learner has updated; a run whose Ray failed to start is tried
     again (`RAY_STARTS` in all)."""
     for attempt in range(1, RAY_STARTS + 1):
         if run_dir.exists():
             shutil.rmtree(run_dir)
-        process = start_run(run_dir, preset)
+        process = start_run(run_dir, preset, clients)
         metrics, deadline = run_dir / "metrics.csv", time.monotonic() + limit_s
         while not (metrics.exists() and "losses/" in metrics.read_text()):
             if process.poll() is not None:
@@ -251,7 +257,7 @@ def soak(args: argparse.Namespace) -> tuple[list[tuple[float, str, str, float]],
     """Runs the soak; returns the samples and what happened to the run."""
     out: Path = args.out
     run_dir = out / "run"
-    process = start_and_wait(run_dir, args.preset)
+    process = start_and_wait(run_dir, args.preset, args.clients)
     rows: list[tuple[float, str, str, float]] = []
     events = {"actor_kills": 0, "replay_kills": 0}
     try:
@@ -295,6 +301,9 @@ def main(argv: Optional[list[str]] = None) -> int:
     parser.add_argument("--sample-every-s", type=float, default=60.0)
     parser.add_argument("--kill-every-s", type=float, default=120.0, help="env actor kills")
     parser.add_argument("--preset", default="pendulum-td3")
+    parser.add_argument(
+        "--clients", type=int, default=0, help="Minecraft presets: simulated clients (0: none)"
+    )
     parser.add_argument("--out", type=Path, default=Path("runs/soak"))
     args = parser.parse_args(argv)
     args.out = args.out.resolve()
@@ -308,7 +317,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     verdicts = slopes(rows)
     report = {"events": events, "slopes": verdicts}
     (args.out / "soak.json").write_text(json.dumps(report, indent=1))
-    print(f"soak: {args.minutes:g} min of {args.preset}; {json.dumps(events)}")
+    clients = f" with {args.clients} clients" if args.clients else ""
+    print(f"soak: {args.minutes:g} min of {args.preset}{clients}; {json.dumps(events)}")
     print(f"{'role':<18} {'metric':<17} {'first':>9} {'last':>9} {'slope/h':>9} {'limit/h':>8}")
     for v in verdicts:
         print(

@@ -21,6 +21,11 @@ broadcaster however many subscribers the process holds: it long-polls, fetches e
 announced version as it comes (versions announced while a fetch runs are skipped, not
 queued) and hands it to every subscriber of the process. The acting thread's `poll()`
 only compares two integers unless new weights have arrived.
+
+A follower (a relay's, or a process's) that cannot reach its parent, its node cut off
+from the head's network for a while, keeps asking for up to UNREACHABLE_S and goes on
+from the newest version once the parent answers again; only a parent that died, or one
+unreachable for longer, ends the broadcast for it.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from typing import TYPE_CHECKING, Any, Optional
 
 import ray
 from ray import ObjectRef
+from ray.exceptions import ActorUnavailableError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from service.core import as_arrays
@@ -52,6 +58,29 @@ MAX_WAITERS = 10_000
 FANOUT plus one per relay."""
 POLL_TIMEOUT_S = 30.0
 """How long one long-poll waits for a newer version before it is renewed."""
+UNREACHABLE_S = 120.0
+"""How long a follower keeps asking a parent it cannot reach (Ray's ActorUnavailableError:
+the network between their nodes is down) before it calls the broadcast lost."""
+RETRY_S = 1.0
+"""The pause between two such asks."""
+
+
+class _Reachability:
+    """How long a follower's parent has not been reachable: `failed()` says whether to
+    ask again (or raises the error once UNREACHABLE_S have passed), `answered()` resets."""
+
+    def __init__(self) -> None:
+        self._since: Optional[float] = None
+
+    def failed(self, error: ActorUnavailableError) -> None:
+        now = time.monotonic()
+        self._since = now if self._since is None else self._since
+        if now - self._since > UNREACHABLE_S:
+            raise error
+
+    def answered(self) -> None:
+        self._since = None
+
 
 BroadcasterHandle = Any
 """A Ray handle to a `WeightBroadcaster` or `WeightRelay`. Ray makes their `.remote`
@@ -180,8 +209,16 @@ class WeightRelay(_Latest):
             raise RuntimeError("the relay lost its parent") from self._follower.exception()
 
     async def _follow(self) -> None:
+        reach = _Reachability()
         while not self._stopped:
-            version, weights_ref, stopped = await self._parent.wait_newer.remote(self._version)
+            try:
+                reply = await self._parent.wait_newer.remote(self._version)
+            except ActorUnavailableError as error:
+                reach.failed(error)
+                await asyncio.sleep(RETRY_S)
+                continue
+            reach.answered()
+            version, weights_ref, stopped = reply
             if version > self._version or stopped:
                 self._announce(version, weights_ref, stopped)
 
@@ -228,9 +265,15 @@ class _ProcessFollower:
         try:
             node = ray.get_runtime_context().get_node_id()
             source = ray.get(self._broadcaster.attach.remote(node))
-            known = -1
+            known, reach = -1, _Reachability()
             while not self._stopped:
-                reply: _Published = ray.get(source.wait_newer.remote(known))
+                try:
+                    reply: _Published = ray.get(source.wait_newer.remote(known))
+                except ActorUnavailableError as error:
+                    reach.failed(error)
+                    time.sleep(RETRY_S)
+                    continue
+                reach.answered()
                 version, weights_ref, stopped = reply
                 if version > known and weights_ref:
                     payload = ray.get(weights_ref[0])

@@ -10,8 +10,13 @@ containers"), in order:
   the workers, through the label selector;
 - ``graft train --preset minecraft-backbone ...``: the actors' world servers run inside the
   worker containers;
+- ``docker network disconnect`` of the worker that runs an actor, mid-run, for 30 s, then
+  ``docker network connect``: the run completes its budget, the replay table holds no
+  item twice, and the items acted a stated time after the reconnect are no staler than
+  those acted before the cut;
 - ``docker kill`` of the worker that runs an actor, mid-run: the run completes on the other
   worker and counts the restarts;
+- a container on a network of its own, not the cluster's, reaches none of the head's ports;
 - ``graft train --address ray://HEAD:10001 ...`` from a fourth container, not a Ray node;
 - the same from a container without the token: refused in one line.
 
@@ -31,11 +36,14 @@ import secrets
 import shutil
 import subprocess
 import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from service.replay.server import durability
 from tests.deploy.cluster_story import (
     CLUSTER_CMDS,
     HEAD_CMD,
@@ -86,6 +94,31 @@ ON_NODE = "docker exec -w /opt/graft/src {name} "
 IN_HEAD = "docker exec {name} "
 """Before graft train's commands: in the head container's home folder (/home/graft)."""
 KILL_CMD = "docker kill {name}"
+DISCONNECT_CMD = "docker network disconnect {network} {name}"
+CONNECT_CMD = "docker network connect --ip {ip} {network} {name}"
+PARTITION_RUN_STEPS = 30000
+"""The partitioned run's budget: long enough to go on past the stated recovery time."""
+STEPS_PER_INSERT = 8 * 4
+"""Steps in one insert batch of pendulum-td3 (steps_per_insert × envs_per_actor)."""
+PARTITION_S = 30.0
+"""How long a worker is cut off from the cluster's network, mid-run."""
+LAG_BACK_S = 60.0
+"""The stated recovery: from this long after the reconnect on, the steps acted are on
+average at most one version staler than before the cut."""
+OUTSIDE_NETWORK_CMD = "docker network create --subnet {outside_subnet} {outside}"
+OUTSIDE_CMD = "docker run --rm --network {outside} {image} "
+"""Before the probe: a container that is not part of the cluster, on a network of its own."""
+PROBE = """
+import json, socket, sys
+def reached(port):
+    try:
+        socket.create_connection((sys.argv[1], int(port)), timeout=3).close()
+        return True
+    except OSError:
+        return False
+print(json.dumps({port: reached(port) for port in sys.argv[2:]}))
+"""
+"""python -c PROBE ADDRESS PORT...: which ports of ADDRESS accept a TCP connection."""
 CLIENT_CMD = "docker run --rm --name {name} --network {network} --ip {ip} " + TOKEN + " {image} "
 NO_TOKEN_CMD = "docker run --rm --network {network} {image} "
 """Before RAY_CLIENT_CMD: a fourth container, with the token and without."""
@@ -125,7 +158,8 @@ class ContainerCluster:
         self.names = {
             "network": f"graft-net-{pid}", "subnet": f"{prefix}.0/24",
             "token": str(self.folder / "token"), "runs": str(self.runs), "image": IMAGE,
-            "head": self.head_ip,
+            "head": self.head_ip, "outside": f"graft-out-{pid}",
+            "outside_subnet": f"10.{200 + pid % 50}.{pid // 50 % 250}.0/24",
         }  # fmt: skip
 
     def docker(self, template: str, *after: str, **fields: str) -> list[str]:
@@ -202,12 +236,21 @@ class ContainerCluster:
                 found.setdefault(int(pid), []).append(line.split()[3])
         return found
 
+    def rejoin(self, name: str) -> bool:
+        """Starts Ray on worker `name` again if its raylet ended (Ray declared the node dead
+        while it was cut off, and a dead node does not come back by itself); whether it had."""
+        if self.find(name, "raylet"):
+            return False
+        _docker("exec", name, "ray", "stop", "--force", check=False)
+        self._ray(name, command(WORKER_CMD, head=self.head_ip, worker=self.ips[name]))
+        return True
+
     def tear_down(self) -> None:
         """Every container and the network this module made (by label), its folder."""
         made = _docker("ps", "-aq", "--filter", f"label={self.label}", check=False).split()
         if made:
             _docker("rm", "-f", *made, check=False)
-        _docker("network", "rm", self.names["network"], check=False)
+        _docker("network", "rm", self.names["network"], self.names["outside"], check=False)
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
@@ -243,7 +286,10 @@ def test_the_readme_shows_the_commands_this_module_runs():
     name, ip = README_CLIENT
     client = (CLIENT_CMD + RAY_CLIENT_CMD).format(**README_NAMES, name=name, ip=ip)
     expected += [client, (NO_TOKEN_CMD + RAY_CLIENT_CMD).format(**README_NAMES)]
-    expected.append(KILL_CMD.format(name=workers[0][0]))
+    name, ip = workers[0]
+    expected.append(DISCONNECT_CMD.format(**README_NAMES, name=name))
+    expected.append(CONNECT_CMD.format(**README_NAMES, name=name, ip=ip))
+    expected.append(KILL_CMD.format(name=name))
     assert readme_lacks(expected) == []
 
 
@@ -275,6 +321,95 @@ def test_minecraft_worlds_run_inside_the_worker_containers(cluster):
     assert train.process.returncode == 0, err
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["updates"] == MINECRAFT_UPDATES
+
+
+def _stored_items(run_dir: Path) -> dict[str, np.ndarray]:
+    """The transitions table of the replay server's last checkpoint (written when the run
+    stopped it), its columns by name, with ``inserts`` the items it acknowledged."""
+    folder = run_dir / "replay"
+    newest = durability.checkpoint_path(folder, durability.checkpoint_numbers(folder)[-1])
+    table = durability.read_checkpoint(newest).tables["transitions"]
+    items = len(table["keys"])
+    columns = {k[4:]: v.reshape(items, -1) for k, v in table.items() if k.startswith("col/")}
+    return columns | {"inserts": np.asarray(table["meta"]["inserts"])}
+
+
+def _staleness(stored: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Each item's acted time and how many versions its weights were behind the newest any
+    actor acted with by then (warm-up items left out), in acting order."""
+    acted_at, version = stored["acted_at"].ravel(), stored["policy_version"].ravel()
+    keep = version >= 0
+    order = np.argsort(acted_at[keep], kind="stable")
+    acted_at, version = acted_at[keep][order], version[keep][order]
+    return acted_at, np.maximum.accumulate(version) - version
+
+
+@_in_containers
+def test_a_worker_cut_off_for_30_s_mid_run_and_reconnected(cluster):
+    env_steps, learning_starts = PARTITION_RUN_STEPS, 200
+    argv = _train(
+        PENDULUM_CMD, cluster, "--run-dir", "runs/partition", "--env-steps", str(env_steps),
+        "--set", f"learning_starts={learning_starts}", "--set", "eval_every=100000",
+        "--set", "eval_episodes=1", "--set", "td3.hidden_sizes=[16, 16]",
+        "--set", "td3.batch_size=32",
+    )  # fmt: skip
+    train = cluster.run(argv)
+    run_dir = cluster.runs / "partition"
+    try:
+        train.wait_for(lambda: training(run_dir / "metrics.csv"), "start training")
+        started = time.time()
+        cut = next(iter(actors_on_workers(cluster).values()))
+        train.wait_for(lambda: time.time() > started + 10, "run for 10 s")
+        cut_at = time.time()
+        _docker(*cluster.docker(DISCONNECT_CMD, name=cut)[1:])
+        time.sleep(PARTITION_S)
+        _docker(*cluster.docker(CONNECT_CMD, name=cut, ip=cluster.ips[cut])[1:])
+        back_at = time.time()
+    finally:
+        _, err = train.finish()
+    ended = time.time()
+    rejoined = cluster.rejoin(cut)  # for the tests after this one
+    assert train.process.returncode == 0, err
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["updates"] == env_steps - learning_starts  # the learner's whole budget
+    assert summary["env_steps"] == env_steps
+
+    stored = _stored_items(run_dir)
+    rows = np.concatenate([stored[c] for c in ("obs", "action", "next_obs")], axis=1)
+    assert len(np.unique(rows, axis=0)) == len(rows)  # no step stored twice
+    # A replaced actor's last batch in flight and the one it had claimed go back to the
+    # budget; the actor, back before Ray ended it, may still store them.
+    restarts = metric(run_dir / "metrics.csv", "faults/actor_restarts")[-1]
+    assert 0 <= len(rows) - env_steps <= 2 * restarts * STEPS_PER_INSERT, (len(rows), restarts)
+
+    acted_at, behind = _staleness(stored)
+    before, after = behind[acted_at < cut_at], behind[acted_at >= back_at + LAG_BACK_S]
+    first_back = acted_at[acted_at >= back_at].min() - back_at
+    print(
+        f"cut off {PARTITION_S:.0f} s, {cut_at - started:.0f} s into training; first step "
+        f"acted {first_back:.0f} s after the reconnect; run ended {ended - back_at:.0f} s after "
+        f"it; {len(rows)} steps stored for {env_steps}; actor restarts {restarts:.0f}; raylet "
+        f"started again: {rejoined}; versions behind, mean (max): before the cut "
+        f"{before.mean():.2f} ({before.max()}), from {LAG_BACK_S:.0f} s after the reconnect "
+        f"{after.mean():.2f} ({after.max() if len(after) else '-'})"
+    )
+    assert len(after) > 0, "the run ended too soon after the reconnect"
+    assert after.mean() <= before.mean() + 1.0
+
+
+@_in_containers
+def test_the_heads_ports_are_unreachable_from_outside_the_clusters_network(cluster):
+    listens = [a for found in cluster.listening(cluster.head_node).values() for a in found]
+    # Every port the head listens on beyond its loopback, and the dashboard's (off).
+    ports = {a.rsplit(":", 1)[1] for a in listens if not a.startswith(("127.", "[::1]"))}
+    assert "6379" in ports, listens  # the GCS
+    probe = ["python", "-c", PROBE, cluster.head_ip, *sorted(ports | {"8265"})]
+    client = cluster.docker(CLIENT_CMD, name=cluster.client, ip=cluster.ips[cluster.client])
+    inside = json.loads(_docker(*client[1:], *probe))
+    assert inside["6379"] and inside["10001"], inside  # what a cluster member reaches
+    _docker(*cluster.docker(OUTSIDE_NETWORK_CMD)[1:])
+    outside = json.loads(_docker(*cluster.docker(OUTSIDE_CMD)[1:], *probe))
+    assert [p for p, reached in outside.items() if reached] == [], outside
 
 
 @_in_containers

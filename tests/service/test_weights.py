@@ -9,7 +9,7 @@ import pytest
 import ray
 import torch
 
-from service.weights import BroadcastPublisher, WeightSubscriber
+from service.weights import BroadcastPublisher, WeightRelay, WeightSubscriber
 
 
 def adopt(subscriber: WeightSubscriber) -> dict[str, np.ndarray]:
@@ -122,3 +122,28 @@ def test_an_actor_whose_broadcast_died_fails_instead_of_acting_on_stale_weights(
     with pytest.raises(RuntimeError, match="weight broadcast was lost"):
         for _ in range(30):
             subscriber.poll(block_s=1.0)
+
+
+def test_a_relay_cut_off_from_its_parent_for_a_while_goes_on_when_it_answers(ray_local):
+    # A parent that is unreachable for its first three asks (a node cut off from the
+    # head's network), then answers: the relay and its subscriber get the version.
+    @ray.remote
+    class CutOff:
+        def __init__(self, parent):
+            self.parent, self.failures = parent, 3
+
+        async def wait_newer(self, version, timeout_s=30.0):
+            if self.failures:
+                self.failures -= 1
+                raise ray.exceptions.ActorUnavailableError("the network is down", None)
+            return await self.parent.wait_newer.remote(version, timeout_s)
+
+    publisher = BroadcastPublisher()
+    publisher.publish(0, {"w": torch.ones(1)})
+    relay = WeightRelay.remote(CutOff.remote(publisher.broadcaster))
+    version, weights_ref, stopped = ray.get(relay.wait_newer.remote(-1, 1.0))
+    while version < 0:  # each ask the cut-off parent refuses costs RETRY_S
+        version, weights_ref, stopped = ray.get(relay.wait_newer.remote(-1, 1.0))
+    assert (version, stopped) == (0, False)
+    assert np.array_equal(ray.get(weights_ref[0])["w"], np.ones(1))
+    publisher.close()
