@@ -18,6 +18,9 @@ set -euo pipefail
 RAY=${RAY:-ray}
 TOKEN_FILE=${RAY_AUTH_TOKEN_PATH:-$HOME/.ray/auth_token}
 export RAY_AUTH_MODE=token
+# The GCS keeps 10,000 task events, not Ray's 100,000: each actor call is one, and their
+# history grew a run's GCS by 130-170 MiB an hour (graft/orchestration/ray_session.py).
+export RAY_task_events_max_num_task_in_gcs=${RAY_task_events_max_num_task_in_gcs:-10000}
 
 die() { echo "ray-node.sh: $*" >&2; exit 2; }
 

@@ -45,6 +45,22 @@ minute measured here); graft's actors each start their own worker anyway, so pas
 second idle, Ray ends any that no task or actor took."""
 
 
+TASK_EVENTS_KEPT = 10_000
+"""Task events a local instance's GCS keeps (Ray's `task_events_max_num_task_in_gcs`,
+100,000 by default), the oldest overwritten past it. Each actor call is a task (a weight
+publish, a budget claim, a report) and its events took about 3 MiB of the GCS's memory
+per 1,000 calls, so a run's GCS grew by 130-170 MiB an hour until Ray's cap (about
+330 MiB above its start); at 10,000 it levels off about 40 MiB above it (docs/results.md,
+"A long run under faults"). $RAY_task_events_max_num_task_in_gcs, where set, wins."""
+
+
+def _system_config() -> dict[str, int]:
+    config = {"num_workers_soft_limit": IDLE_WORKERS_KEPT}
+    if "RAY_task_events_max_num_task_in_gcs" not in os.environ:
+        config["task_events_max_num_task_in_gcs"] = TASK_EVENTS_KEPT
+    return config
+
+
 def start_local(num_cpus: Optional[int] = None) -> None:
     """A new local Ray instance for this driver, without the parts it would not use: the
     dashboard, idle worker processes (`IDLE_WORKERS_KEPT`), the log monitor and the
@@ -52,7 +68,8 @@ def start_local(num_cpus: Optional[int] = None) -> None:
     to forward new lines to drivers, and this driver takes none (log_to_driver=False); the
     files stay in Ray's session folder. The autoscaler's monitor would scale a cluster
     with a cluster config, which a one-machine instance has not: it costs 0.47 s of CPU to
-    start and 0.1 s a minute (`ray status` on a cluster graft joins is unchanged).
+    start and 0.1 s a minute (`ray status` on a cluster graft joins is unchanged). Its GCS
+    keeps `TASK_EVENTS_KEPT` task events.
     `python bench/ray_idle.py` measures what an idle instance costs."""
     ray.init(
         address="local",
@@ -60,7 +77,7 @@ def start_local(num_cpus: Optional[int] = None) -> None:
         include_dashboard=False,
         log_to_driver=False,
         configure_logging=False,
-        _system_config={"num_workers_soft_limit": IDLE_WORKERS_KEPT},
+        _system_config=_system_config(),
     )
     node = ray._private.worker._global_node
     if node is not None:

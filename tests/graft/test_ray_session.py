@@ -6,13 +6,14 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 import ray
 from ray._private import ray_constants
 from ray.exceptions import RaySystemError
 
-from graft.orchestration.ray_session import start_retrying
+from graft.orchestration.ray_session import TASK_EVENTS_KEPT, start_retrying
 
 GCS_DOWN = "System error: Failed to connect to GCS. Please check if the GCS server is running"
 
@@ -99,3 +100,24 @@ def _left_after(find: Callable[[], set[int]], wait_s: float) -> set[int]:
     while (found := find()) and time.monotonic() < deadline:
         time.sleep(0.2)
     return found
+
+
+def test_a_local_instances_gcs_keeps_a_bounded_history_of_task_events(ray_local) -> None:
+    # Past TASK_EVENTS_KEPT actor calls the GCS overwrites its oldest task events (and says
+    # so once in its log), where Ray's default keeps ten times as many, growing all the while.
+    @ray.remote(num_cpus=0)
+    class Echo:
+        def call(self) -> int:
+            return 1
+
+    echo = Echo.remote()
+    for _ in range(TASK_EVENTS_KEPT // 2000 + 2):
+        assert sum(ray.get([echo.call.remote() for _ in range(2000)])) == 2000
+    logs = Path(ray._private.worker._global_node.get_logs_dir_path())
+    said = f"Max number of tasks event ({TASK_EVENTS_KEPT}) allowed is reached"
+    found = lambda: any(said in f.read_text(errors="replace") for f in logs.glob("gcs_server*"))  # noqa: E731
+    deadline = time.monotonic() + 30.0
+    while not found():
+        assert time.monotonic() < deadline, f"the GCS's log never said {said!r}"
+        time.sleep(1.0)
+    ray.kill(echo)
