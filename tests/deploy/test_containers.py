@@ -264,6 +264,19 @@ def _train(template: str, cluster: ContainerCluster, *tiny: str) -> list[str]:
     return cluster.docker(IN_HEAD, *train, *tiny, name=cluster.head_node)
 
 
+def _small_pendulum(
+    cluster: ContainerCluster, run_dir: str, env_steps: int, learning_starts: int
+) -> list[str]:
+    """`graft train` of pendulum-td3 on the workers with small networks and no evaluation
+    until the end, for `env_steps`."""
+    return _train(
+        PENDULUM_CMD, cluster, "--run-dir", run_dir, "--env-steps", str(env_steps),
+        "--set", f"learning_starts={learning_starts}", "--set", "eval_every=100000",
+        "--set", "eval_episodes=1", "--set", "td3.hidden_sizes=[16, 16]",
+        "--set", "td3.batch_size=32",
+    )  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def cluster():
     made = ContainerCluster(workers=2)
@@ -347,13 +360,7 @@ def _staleness(stored: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 @_in_containers
 def test_a_worker_cut_off_for_30_s_mid_run_and_reconnected(cluster):
     env_steps, learning_starts = PARTITION_RUN_STEPS, 200
-    argv = _train(
-        PENDULUM_CMD, cluster, "--run-dir", "runs/partition", "--env-steps", str(env_steps),
-        "--set", f"learning_starts={learning_starts}", "--set", "eval_every=100000",
-        "--set", "eval_episodes=1", "--set", "td3.hidden_sizes=[16, 16]",
-        "--set", "td3.batch_size=32",
-    )  # fmt: skip
-    train = cluster.run(argv)
+    train = cluster.run(_small_pendulum(cluster, "runs/partition", env_steps, learning_starts))
     run_dir = cluster.runs / "partition"
     try:
         train.wait_for(lambda: training(run_dir / "metrics.csv"), "start training")
@@ -415,13 +422,7 @@ def test_the_heads_ports_are_unreachable_from_outside_the_clusters_network(clust
 @_in_containers
 def test_a_run_completes_on_the_other_worker_when_one_is_killed(cluster):
     env_steps, learning_starts = 3000, 200
-    argv = _train(
-        PENDULUM_CMD, cluster, "--run-dir", "runs/killed", "--env-steps", str(env_steps),
-        "--set", f"learning_starts={learning_starts}", "--set", "eval_every=100000",
-        "--set", "eval_episodes=1", "--set", "td3.hidden_sizes=[16, 16]",
-        "--set", "td3.batch_size=32",
-    )  # fmt: skip
-    train = cluster.run(argv)
+    train = cluster.run(_small_pendulum(cluster, "runs/killed", env_steps, learning_starts))
     metrics = cluster.runs / "killed" / "metrics.csv"
     try:
         # Early in the run: as soon as both actors run on the workers.
