@@ -6,11 +6,16 @@ object-store use and the run folder's size.
 
 Writes soak.csv (minute, role, metric, value) and soak.png, prints each series' slope
 after the first tenth of the run, and exits 1 if any grows faster than its stated limit
-(`SLOPE_LIMITS`, per hour) or the run does not survive to a clean Ctrl-C stop.
+(`SLOPE_LIMITS`, per hour) over the second half of the run, or the run does not survive
+to a clean Ctrl-C stop.
 
     nice -n 5 python bench/soak.py --minutes 30 --out runs/soak
     nice -n 5 python bench/soak.py --minutes 30 --preset minecraft-backbone --clients 4 \
-        --out runs/soak-minecraft     # 4 simulated Minecraft clients, real time
+        --set replay_max_size=20000 --out runs/soak-minecraft   # 4 simulated clients, real time
+    python bench/soak.py --report runs/soak      # the verdict of a finished soak, again
+
+A table left to fill (`replay_max_size` past what the soak inserts) grows the replay
+server and the run folder by design: bound it so the soak sees the steady state.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
@@ -162,8 +168,15 @@ def kill_one(root: int, text: str) -> Optional[int]:
     return found[0]
 
 
+def _slope_per_h(points: list[tuple[float, float]]) -> float:
+    x, y = np.array(points).T
+    return float(np.polyfit(x, y, 1)[0]) * 60
+
+
 def slopes(rows: list[tuple[float, str, str, float]]) -> list[dict]:
-    """Each series' least-squares slope per hour over its samples after the first tenth."""
+    """Each series' least-squares slope per hour after the first tenth and over the second
+    half; a series fails if it still grows past its limit in the second half (growth that
+    levels off, a cache or Ray's capped history filling, is no leak; a leak grows on)."""
     series: dict[tuple[str, str], list[tuple[float, float]]] = defaultdict(list)
     for minute, role, metric, value in rows:
         if np.isfinite(value):
@@ -172,16 +185,29 @@ def slopes(rows: list[tuple[float, str, str, float]]) -> list[dict]:
     verdicts = []
     for (role, metric), points in sorted(series.items()):
         kept = [(m, v) for m, v in points if m >= end / 10]
-        if len(kept) < 3:
+        late = [(m, v) for m, v in points if m >= end / 2]
+        if len(late) < 3:
             continue
-        x, y = np.array(kept).T
-        slope = float(np.polyfit(x, y, 1)[0]) * 60  # per hour
-        limit = SLOPE_LIMITS[metric]
+        slope, late_slope, limit = _slope_per_h(kept), _slope_per_h(late), SLOPE_LIMITS[metric]
         verdicts.append(
-            {"role": role, "metric": metric, "first": y[0], "last": y[-1],
-             "slope_per_h": slope, "limit_per_h": limit, "ok": slope <= limit}
+            {"role": role, "metric": metric, "first": kept[0][1], "last": kept[-1][1],
+             "slope_per_h": slope, "late_slope_per_h": late_slope, "limit_per_h": limit,
+             "ok": late_slope <= limit}
         )  # fmt: skip
     return verdicts
+
+
+def print_verdicts(verdicts: list[dict]) -> None:
+    print(
+        f"{'role':<18} {'metric':<17} {'first':>9} {'last':>9} {'slope/h':>9} "
+        f"{'2nd half/h':>10} {'limit/h':>8}"
+    )
+    for v in verdicts:
+        print(
+            f"{v['role']:<18} {v['metric']:<17} {v['first']:>9.1f} {v['last']:>9.1f} "
+            f"{v['slope_per_h']:>9.1f} {v['late_slope_per_h']:>10.1f} {v['limit_per_h']:>8.0f}"
+            f"{'' if v['ok'] else '  GROWS'}"
+        )
 
 
 def plot(rows: list[tuple[float, str, str, float]], path: Path) -> None:
@@ -207,13 +233,12 @@ def plot(rows: list[tuple[float, str, str, float]], path: Path) -> None:
     fig.savefig(path, dpi=80)
 
 
-def start_run(run_dir: Path, preset: str, clients: int = 0) -> subprocess.Popen:
-    """`graft train` of `preset` with an endless budget (and `--clients` for Minecraft)."""
+def start_run(run_dir: Path, preset: str, extra: Sequence[str] = ()) -> subprocess.Popen:
+    """`graft train` of `preset` with an endless budget, `extra` appended."""
     argv = [
         sys.executable, "-m", "graft.cli", "train", "--preset", preset, "--address",
         "local", "--run-dir", str(run_dir), "--no-progress", "--env-steps", str(10**9),
-        "--set", "actors.max_restarts=1000", "--set", "replay.max_restarts=100",
-        *(["--clients", str(clients)] if clients else []),
+        "--set", "actors.max_restarts=1000", "--set", "replay.max_restarts=100", *extra,
     ]  # fmt: skip
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("RAY_ADDRESS", None)
@@ -228,14 +253,14 @@ RAY_STARTS = 3
 
 
 def start_and_wait(
-    run_dir: Path, preset: str, clients: int = 0, limit_s: float = 900.0
+    run_dir: Path, preset: str, extra: Sequence[str] = (), limit_s: float = 900.0
 ) -> subprocess.Popen:
     """The run, once its learner has updated; a run whose Ray failed to start is tried
     again (`RAY_STARTS` in all)."""
     for attempt in range(1, RAY_STARTS + 1):
         if run_dir.exists():
             shutil.rmtree(run_dir)
-        process = start_run(run_dir, preset, clients)
+        process = start_run(run_dir, preset, extra)
         metrics, deadline = run_dir / "metrics.csv", time.monotonic() + limit_s
         while not (metrics.exists() and "losses/" in metrics.read_text()):
             if process.poll() is not None:
@@ -257,7 +282,10 @@ def soak(args: argparse.Namespace) -> tuple[list[tuple[float, str, str, float]],
     """Runs the soak; returns the samples and what happened to the run."""
     out: Path = args.out
     run_dir = out / "run"
-    process = start_and_wait(run_dir, args.preset, args.clients)
+    extra = [*(["--clients", str(args.clients)] if args.clients else [])]
+    for setting in args.set:
+        extra += ["--set", setting]
+    process = start_and_wait(run_dir, args.preset, extra)
     rows: list[tuple[float, str, str, float]] = []
     events = {"actor_kills": 0, "replay_kills": 0}
     try:
@@ -295,6 +323,21 @@ def soak(args: argparse.Namespace) -> tuple[list[tuple[float, str, str, float]],
     return rows, events
 
 
+def report_again(folder: Path) -> int:
+    """The verdict of an earlier soak's soak.csv (and its events, from soak.json)."""
+    with open(folder / "soak.csv") as f:
+        rows = [
+            (float(r["minute"]), r["role"], r["metric"], float(r["value"]))
+            for r in csv.DictReader(f)
+        ]
+    events = json.loads((folder / "soak.json").read_text())["events"]
+    verdicts = slopes(rows)
+    print(f"soak {folder}: {json.dumps({k: v for k, v in events.items() if k != 'stderr_tail'})}")
+    print_verdicts(verdicts)
+    survived = events["returncode"] == 143 and events["replay_kills"] == 1
+    return 0 if survived and all(v["ok"] for v in verdicts) else 1
+
+
 def main(argv: Optional[list[str]] = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=30.0)
@@ -304,8 +347,16 @@ def main(argv: Optional[list[str]] = None) -> int:
     parser.add_argument(
         "--clients", type=int, default=0, help="Minecraft presets: simulated clients (0: none)"
     )
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="as graft train's"
+    )
     parser.add_argument("--out", type=Path, default=Path("runs/soak"))
+    parser.add_argument(
+        "--report", type=Path, metavar="DIR", help="only the verdict of DIR/soak.csv, again"
+    )
     args = parser.parse_args(argv)
+    if args.report is not None:
+        return report_again(args.report)
     args.out = args.out.resolve()
     args.out.mkdir(parents=True, exist_ok=True)
     rows, events = soak(args)
@@ -319,12 +370,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     (args.out / "soak.json").write_text(json.dumps(report, indent=1))
     clients = f" with {args.clients} clients" if args.clients else ""
     print(f"soak: {args.minutes:g} min of {args.preset}{clients}; {json.dumps(events)}")
-    print(f"{'role':<18} {'metric':<17} {'first':>9} {'last':>9} {'slope/h':>9} {'limit/h':>8}")
-    for v in verdicts:
-        print(
-            f"{v['role']:<18} {v['metric']:<17} {v['first']:>9.1f} {v['last']:>9.1f} "
-            f"{v['slope_per_h']:>9.1f} {v['limit_per_h']:>8.0f}{'' if v['ok'] else '  GROWS'}"
-        )
+    print_verdicts(verdicts)
     print(f"wrote {args.out / 'soak.csv'} and {args.out / 'soak.png'}")
     survived = events["returncode"] == 143 and events["replay_kills"] == 1
     return 0 if survived and all(v["ok"] for v in verdicts) else 1

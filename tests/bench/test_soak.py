@@ -35,6 +35,18 @@ def test_a_series_fails_only_when_it_grows_past_its_limit(metric, per_minute, ok
     assert verdict["ok"] is ok
 
 
+def test_growth_that_levels_off_in_the_first_half_passes_and_growth_that_goes_on_fails() -> None:
+    # A capped history: 5 MiB a minute for 12 minutes, then flat (Ray's GCS with its cap).
+    capped = [(float(m), "ray gcs", "rss_mib", 50.0 + 5.0 * min(m, 12)) for m in range(31)]
+    (verdict,) = soak.slopes(capped)
+    assert verdict["slope_per_h"] > 64 and verdict["late_slope_per_h"] == pytest.approx(0.0)
+    assert verdict["ok"]
+    # The same rise kept up past half way is a leak.
+    leak = [(float(m), "ray gcs", "rss_mib", 50.0 + 2.0 * m) for m in range(31)]
+    (verdict,) = soak.slopes(leak)
+    assert verdict["late_slope_per_h"] == pytest.approx(120.0) and not verdict["ok"]
+
+
 @pytest.mark.long
 @pytest.mark.service
 @pytest.mark.serial
