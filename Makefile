@@ -129,7 +129,7 @@ endef
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(call install_torch,$(BIN))
-	$(BIN)/pip install -e ".[dev]"
+	$(BIN)/pip install -e ".[dev,bench]"
 	touch $@
 
 lint: setup
