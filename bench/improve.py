@@ -24,6 +24,14 @@ OUT/improve-TASK.png: return against env steps for the tree, from scratch and th
     python -m bench.improve --task pendulum --quick   # a smoke run: 1 seed, 600 steps, 10 episodes
     python -m bench.improve --task lunarlander --seeds 5 --parts   # + each part's share
 
+As the outside reference a user would reach for, `--arm sb3-td3 --arm sb3-sac` (continuous
+tasks) or `--arm sb3-dqn` (discrete) runs stable-baselines3 from scratch with
+rl-baselines3-zoo's settings (`bench/improve_sb3.py`, a bench-only extra), on the same
+budget, seeds and held-out episodes; the task row then shows them and the recipe's margin
+over the best of them too:
+
+    python -m bench.improve --task pendulum --arm sb3-td3 --arm sb3-sac --seeds 2 --env-steps 30000
+
 `--set` applies to the recipe arm only. With ``--parts`` each recipe seed's networks are
 also scored without the final selection and without switching too, on the same episodes
 (`bench/improve_parts.py`).
@@ -48,6 +56,7 @@ import graft
 from bench.improve_parts import part_scores, parts_table, reselect
 from bench.improve_report import (
     ARMS,
+    REFERENCE_ARMS,
     SeedRow,
     compare,
     plot_task,
@@ -56,6 +65,7 @@ from bench.improve_report import (
     task_table,
     worst_drop,
 )
+from bench.improve_sb3 import HYPERPARAMETERS, require, run_arm
 from bench.seeds import SeedResult, run_seed
 from graft.api import Policy
 from graft.cli.flags import parse_settings
@@ -134,10 +144,6 @@ SCRATCH: dict[str, tuple[str, ...]] = {
 DQN or TD3, no tree, 256x256 networks, rl-baselines3-zoo's hyper-parameters for the task
 where it has them (its LunarLander DQN's ε decays over 12 % of its 100k steps: 3,600 of a
 30k budget). A baseline a user would run, not tuned here."""
-EPISODES = 50
-"""Final evaluation episodes per seed (the tree's score uses the same ones)."""
-QUICK_EPISODES = 10
-"""--quick's final evaluation episodes: enough to see the pipeline work, not a result."""
 EPISODES = 50
 """Final evaluation episodes per seed (the tree's score uses the same ones)."""
 QUICK_EPISODES = 10
@@ -222,6 +228,10 @@ def run_task(
 ) -> tuple[dict[str, Any], list[SeedRow]]:
     """Trains and scores every seed of one arm of one task; its summary and seed rows."""
     preset = TASKS[task]
+    if arm in REFERENCE_ARMS:  # stable-baselines3, in a process per seed of its own
+        in_run = (QUICK["eval_every"], QUICK["eval_episodes"]) if quick else (None, None)
+        return run_arm(task, arm, preset=preset, seeds=seeds, out=out, env_steps=env_steps,
+                       episodes=episodes, in_run=in_run)  # fmt: skip
     overrides = arm_overrides(task, arm, overrides, quick)
     settings = parse_settings(list(overrides))
     config = load_preset(preset, **settings, **({"env_steps": env_steps} if env_steps else {}))
@@ -320,7 +330,11 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
         help="the tables and figures of earlier runs from their improve*.json (to --out), no "
         "training; a task's seeds from several files are taken together",
     )  # fmt: skip
-    parser.add_argument("--arm", action="append", choices=ARMS, help="default: every arm")
+    parser.add_argument(
+        "--arm", action="append", choices=(*ARMS, *REFERENCE_ARMS),
+        help=f"default: graft's arms ({', '.join(ARMS)}); the stable-baselines3 ones "
+        "(bench/improve_sb3.py) only when named",
+    )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--env-steps", type=int, help="override the task's budget")
@@ -345,9 +359,16 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     if args.quick:
         args.seeds, args.env_steps = 1, args.env_steps or 600
     tasks = sorted(TASKS) if args.suite else [args.task]
+    arms = args.arm or ARMS
+    if any(a in REFERENCE_ARMS for a in arms):
+        if args.task and (bad := [a for a in arms if a in REFERENCE_ARMS
+                                  and (args.task, a) not in HYPERPARAMETERS]):  # fmt: skip
+            parser.error(f"--arm {bad[0]}: not for task {args.task} (continuous tasks take "
+                         "sb3-td3 and sb3-sac, discrete ones sb3-dqn)")  # fmt: skip
+        require()
     summaries, results = [], {}
     for task in tasks:
-        for arm in args.arm or ARMS:
+        for arm in [a for a in arms if a not in REFERENCE_ARMS or (task, a) in HYPERPARAMETERS]:
             summary, rows = run_task(
                 task, arm=arm, seeds=range(args.first_seed, args.first_seed + args.seeds),
                 out=args.out, overrides=args.set, env_steps=args.env_steps, quick=args.quick,

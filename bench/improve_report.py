@@ -23,8 +23,11 @@ WORST_DROP = 0.1
 """Target: no in-run evaluation (after the first tenth) below the tree by more than this
 fraction of the tree's |score|."""
 ARMS = ("scratch", "recipe")
-"""The arms a task runs: RL without the tree (graft's own TD3 or Double DQN), and graft's
-default recipe with the tree."""
+"""The arms a task runs by default: RL without the tree (graft's own TD3 or Double DQN),
+and graft's default recipe with the tree."""
+REFERENCE_ARMS = {"sb3-td3": "SB3 TD3", "sb3-sac": "SB3 SAC", "sb3-dqn": "SB3 DQN"}
+"""The outside reference, on request (`--arm`): stable-baselines3 from scratch
+(`bench/improve_sb3.py`), and each one's short name."""
 
 
 def mean_ci(values: Sequence[float] | np.ndarray) -> tuple[float, float]:
@@ -32,7 +35,12 @@ def mean_ci(values: Sequence[float] | np.ndarray) -> tuple[float, float]:
     return bootstrap_ci(values, np.mean)
 
 
-ARM_LABELS = {"scratch": "from scratch (graft)", "recipe": "recipe", "tree": "tree"}
+ARM_LABELS = {
+    "scratch": "from scratch (graft)",
+    "recipe": "recipe",
+    "tree": "tree",
+    **{arm: f"from scratch ({name})" for arm, name in REFERENCE_ARMS.items()},
+}
 
 
 @dataclass(frozen=True)
@@ -143,7 +151,26 @@ def compare(task: str, arms: Mapping[str, Sequence[SeedRow]]) -> dict[str, Any]:
         recipe[s].final <= tree[s] for s in recipe if s in scratch and scratch[s].final > tree[s]
     )
     row["margin_met"] = bool(margins) and row["margin"] >= 0
-    return row
+    return row | reference_margin(by_seed)
+
+
+def reference_margin(by_seed: Mapping[str, Mapping[int, SeedRow]]) -> dict[str, Any]:
+    """The recipe's margin over the best (by mean) stable-baselines3 arm, paired by seed on
+    the same held-out episodes, with its 95 % bootstrap CI over seeds (NaN below
+    `MIN_SEEDS` paired seeds); empty when no such arm ran."""
+    present = {a: rows for a, rows in by_seed.items() if a in REFERENCE_ARMS and rows}
+    if not present:
+        return {}
+    best = max(present, key=lambda a: float(np.mean([r.final for r in present[a].values()])))
+    recipe = by_seed.get("recipe", {})
+    paired = sorted(set(recipe) & set(present[best]))
+    margins = [recipe[s].final - present[best][s].final for s in paired]
+    return {
+        "best_reference": best,
+        "reference_margin": float(np.mean(margins)) if margins else math.nan,
+        "reference_margin_ci": list(mean_ci(margins)) if margins else [math.nan, math.nan],
+        "reference_margin_seeds": paired,
+    }
 
 
 def _mean_ci(value: Mapping[str, Any]) -> str:
@@ -152,26 +179,45 @@ def _mean_ci(value: Mapping[str, Any]) -> str:
     return f"{value['mean']:.1f}{ci} ({len(value['seeds'])})"
 
 
+def _margin(t: Mapping[str, Any], key: str, seeds: Sequence[int]) -> str:
+    """'+M [low, high]' of a paired margin, '(no CI below 3 seeds)' without an interval,
+    '-' with no paired seed."""
+    if not seeds:
+        return "-"
+    low, high = t[f"{key}_ci"]
+    ci = f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else " (no CI below 3 seeds)"
+    return f"{t[key]:+.1f}{ci}"
+
+
 def task_table(rows: Sequence[Mapping[str, Any]]) -> str:
-    """One row per task: the tree, each arm, the recipe's margin."""
+    """One row per task: the tree, each arm (the stable-baselines3 ones in one cell), the
+    recipe's margin over the better of the tree and graft's from scratch, and over the
+    best stable-baselines3 arm."""
     lines = [
-        "| task | env steps | tree | from scratch (graft), mean [95 % CI] (seeds) | recipe, "
-        "mean [95 % CI] (seeds) | recipe − better of tree and from scratch [95 % CI] "
-        "| recipe seeds > tree |",
-        "|---|---|---|---|---|---|---|",
+        "| task | env steps | tree | from scratch (graft), mean [95 % CI] (seeds) "
+        "| from scratch (SB3), mean [95 % CI] (seeds) | recipe, mean [95 % CI] (seeds) "
+        "| recipe − better of tree and from scratch (graft) [95 % CI] "
+        "| recipe seeds > tree | recipe − best SB3 arm [95 % CI] |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for t in rows:
-        arms = [t[a] for a in ARMS if a in t]
-        steps = max(a["env_steps"] for a in arms)
-        low, high = t["margin_ci"]
-        ci = f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else " (no CI below 3 seeds)"
-        margin = f"{t['margin']:+.1f}{ci} vs {ARM_LABELS[t['better']]}"
-        cells = [_mean_ci(t[a]) if a in t else "-" for a in ARMS]
+        steps = max(t[a]["env_steps"] for a in (*ARMS, *REFERENCE_ARMS) if a in t)
+        margin = _margin(t, "margin", t["margin_seeds"])
+        margin += f" vs {ARM_LABELS[t['better']]}" if t["margin_seeds"] else ""
+        sb3 = [f"{REFERENCE_ARMS[a]} {_mean_ci(t[a])}" for a in REFERENCE_ARMS if a in t]
+        reference = _margin(t, "reference_margin", t.get("reference_margin_seeds", []))
+        if "best_reference" in t and t["reference_margin_seeds"]:
+            reference += f" vs {REFERENCE_ARMS[t['best_reference']]}"
         recipe_seeds = len(t["recipe"]["seeds"]) if "recipe" in t else 0
-        lines.append(
-            f"| {t['task']} | {steps:,} | {t['tree']:.1f} | {' | '.join(cells)} | {margin} "
-            f"| {t['recipe_seeds_above_tree']}/{recipe_seeds} |"
-        )
+        cells = [
+            _mean_ci(t["scratch"]) if "scratch" in t else "-",
+            "; ".join(sb3) or "-",
+            _mean_ci(t["recipe"]) if "recipe" in t else "-",
+            margin,
+            f"{t['recipe_seeds_above_tree']}/{recipe_seeds}",
+            reference,
+        ]
+        lines.append(f"| {t['task']} | {steps:,} | {t['tree']:.1f} | {' | '.join(cells)} |")
     return "\n".join(lines)
 
 
@@ -213,7 +259,13 @@ def band(rows: Sequence[SeedRow]) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     return steps, values.mean(axis=0), low, high
 
 
-COLOURS = {"scratch": "tab:red", "recipe": "tab:blue"}
+COLOURS = {
+    "scratch": "tab:red",
+    "recipe": "tab:blue",
+    "sb3-td3": "tab:orange",
+    "sb3-sac": "tab:purple",
+    "sb3-dqn": "tab:brown",
+}
 
 
 def plot_task(task: str, arms: Mapping[str, Sequence[SeedRow]], png: Path) -> None:

@@ -28,6 +28,7 @@ setup` does); graft itself never imports it.
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import shutil
 import subprocess
@@ -41,14 +42,14 @@ from typing import Any, Optional
 import numpy as np
 
 import graft
-from bench.improve_report import SeedRow
+from bench.improve_report import REFERENCE_ARMS, SeedRow, summarise, worst_drop
 from graft.api import Policy
 from graft.config import load_preset
 from graft.seeds import evaluation_seed, held_out_seed, training_seed
 
 ALGORITHMS = {"sb3-td3": "TD3", "sb3-sac": "SAC", "sb3-dqn": "DQN"}
-"""Arm -> the stable-baselines3 class it trains."""
-SB3_ARMS = tuple(ALGORITHMS)
+"""Arm -> the stable-baselines3 class it trains (the arms are `REFERENCE_ARMS`)."""
+SB3_ARMS = tuple(REFERENCE_ARMS)
 _ZOO = "rl-baselines3-zoo hyperparams"
 _TD3_ZOO = f"{_ZOO}/td3.yml@a02f4fb"
 _SAC_ZOO = f"{_ZOO}/sac.yml@c94924e"
@@ -148,7 +149,7 @@ def build(arm: str, settings: Mapping[str, Any], env: Any, *, seed: int) -> Any:
     import stable_baselines3
     from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 
-    kwargs = dict(settings)
+    kwargs = copy.deepcopy(dict(settings))  # stable-baselines3 writes into policy_kwargs
     size = int(np.prod(env.action_space.shape or (1,)))
     if "noise_std" in kwargs:
         sigma = kwargs.pop("noise_std") * np.ones(size)
@@ -289,6 +290,40 @@ def score(plan: Plan, saved: Mapping[str, Any], tree: Policy) -> SeedRow:
         env_steps=int(summary["env_steps"]),
         wall_s=float(summary["wall_s"]),
     )
+
+
+def run_arm(
+    task: str, arm: str, *, preset: Path, seeds: Sequence[int], out: Path,
+    env_steps: Optional[int], episodes: int, in_run: tuple[Optional[int], Optional[int]],
+) -> tuple[dict[str, Any], list[SeedRow]]:  # fmt: skip
+    """Trains (or reads back) and scores every seed of one stable-baselines3 arm of one
+    task into OUT/TASK/ARM/sS; its summary and seed rows, as `bench.improve.run_task`'s.
+    ``in_run``: the in-run evaluations' (eval_every, eval_episodes), the preset's when None."""
+    config = load_preset(preset, **({"env_steps": env_steps} if env_steps else {}))
+    tree = graft.load_policy("hardcoded", preset=preset)
+    rows: list[SeedRow] = []
+    for seed in seeds:
+        run_dir = out / task / arm / f"s{seed}"
+        plan = Plan(task, arm, preset, seed, run_dir, env_steps, episodes, *in_run)
+        try:
+            saved = run_seed(plan)
+        except subprocess.CalledProcessError:  # reported and left out; the others go on
+            print(f"{task} {arm} seed {seed}: FAILED, see {run_dir}.log", flush=True)
+            continue
+        row = score(plan, saved, tree)
+        rows.append(row)
+        print(
+            f"{task} {arm} seed {seed}: tree {row.tree:.1f}, final {row.final:.1f} "
+            f"({row.improvement:+.1f}); worst in-run evaluation "
+            f"{100 * worst_drop(row, config.env_steps):+.0f} % of |tree|; {row.env_steps} "
+            f"env steps, {row.wall_s:.0f} s",
+            flush=True,
+        )
+    if not rows:
+        raise SystemExit(f"{task} {arm}: every seed failed (logs in {out / task / arm})")
+    algorithm = f"sb3 {ALGORITHMS[arm]}"
+    summary = summarise(task, rows, budget=config.env_steps, algorithm=algorithm)
+    return {**summary, "arm": arm}, rows
 
 
 def main(argv: Optional[Sequence[str]] = None) -> None:
