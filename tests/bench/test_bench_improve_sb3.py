@@ -27,8 +27,18 @@ def _row(seed: int, tree: float, final: float) -> improve.SeedRow:
     return improve.SeedRow(seed, tree, final, 100.0, [1000], [1.0], 3000, 10.0)
 
 
+MUJOCO = {"halfcheetah", "hopper", "walker2d", "reacher"}
+"""Tasks whose environment's first make probes its GL library in a subprocess."""
+
+
 @needs_sb3
-@pytest.mark.parametrize(("task", "arm"), sorted(improve_sb3.HYPERPARAMETERS))
+@pytest.mark.parametrize(
+    ("task", "arm"),
+    [
+        pytest.param(task, arm, marks=[pytest.mark.service] if task in MUJOCO else [])
+        for task, arm in sorted(improve_sb3.HYPERPARAMETERS)
+    ],
+)
 def test_every_setting_is_for_a_task_whose_actions_its_algorithm_takes(task, arm):
     env = improve.load_preset(improve.TASKS[task]).env_spec().make()
     discrete = isinstance(env.action_space, gym.spaces.Discrete)
