@@ -6,6 +6,10 @@ backbone keeps steering the trajectories. Replay stores μ(s) (``backbone_action
 the sampled correction (``action``, unclipped) separately. With ``observe_backbone`` π and
 the critics also see μ(s) (`backbone_input`), and replay stores μ(s') too
 (``next_backbone_action``) so that the learner can form the input at s'.
+
+With a ``centre`` the actor is standalone (IBRL, Hu et al. 2023), not a residual: the same
+machinery with the box's centre as the base, a = clip(centre + c), and the tree proposes
+c = μ(s) − centre where the residual's tree proposes c = 0.
 """
 
 from __future__ import annotations
@@ -73,6 +77,7 @@ class BackboneBehaviour:
         critic: Optional[TwinQ] = None,
         switch_margin: Optional[float] = None,
         propose_tree: bool = False,
+        centre: Optional[np.ndarray] = None,
     ) -> None:
         """Initialises the behaviour.
 
@@ -96,6 +101,10 @@ class BackboneBehaviour:
                 Exploration ignores it.
             propose_tree: Exploration acts around π's correction or the tree's (c = 0),
                 whichever the critic values higher (IBRL's acting); needs `critic`.
+            centre: A standalone actor: the action is clip(centre + c) (π's range the box
+                around it: `limit` its largest half-width), and wherever the residual's
+                tree proposes c = 0 (prefill, `propose_tree`, switching, `gate`) this one's
+                proposes c = μ(s) − centre. None: the residual, a = μ(s) + c.
         """
         check_margin("switch_margin", switch_margin)
         if critic is None and (switch_margin is not None or propose_tree):
@@ -113,6 +122,7 @@ class BackboneBehaviour:
         """Per environment, (s', μ(s')) from `next_columns`: s' is its next step's s unless
         its episode ended."""
         self.gate = gate
+        self.centre = None if centre is None else np.asarray(centre, np.float32)
         self.backbone = backbone
         self.limit = float(limit)
         self.low, self.high = np.asarray(low), np.asarray(high)
@@ -160,12 +170,24 @@ class BackboneBehaviour:
             obs = backbone_input(obs, mu, self.high.astype(np.float32))
         return self.correction(obs)
 
+    def _tree(self, mu: np.ndarray) -> np.ndarray:
+        """The tree's proposal as π's output, [B, A]: the correction 0 (residual), or a
+        standalone actor's μ(s) − centre (μ(s) clipped to the box first)."""
+        if self.centre is None:
+            return np.zeros_like(mu)
+        return (np.clip(mu, self.low, self.high) - self.centre).astype(np.float32)
+
+    def _compose(self, mu: np.ndarray, correction: np.ndarray) -> np.ndarray:
+        """The applied action: μ(s) + clip(c) (residual) or centre + clip(c), in the box."""
+        base = mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
+        return compose_action(base, correction, limit=self.limit, low=self.low, high=self.high)
+
     def _switch(self, obs: np.ndarray, mu: np.ndarray, correction: np.ndarray) -> np.ndarray:
-        """[B] bool: where the critic values π's correction above the tree's (c = 0)."""
+        """[B] bool: where the critic values π's correction above the tree's proposal."""
         assert self.critic is not None and self.switch_margin is not None
         if self.observe_backbone:
             obs = backbone_input(obs, mu, self.high.astype(np.float32))
-        q_tree = self.critic(obs, np.zeros_like(correction))
+        q_tree = self.critic(obs, self._tree(mu))
         q_policy = self.critic(obs, correction)
         use = switch_mask(q_tree, q_policy, self.switch_margin)
         self._switched.append(float(use.mean()))
@@ -179,10 +201,11 @@ class BackboneBehaviour:
             )
         correction = self._pi(obs, mu)
         if self.gate is not None:
-            correction = correction * self.gate(obs)[..., None]
+            correction = np.where(self.gate(obs)[..., None], correction, self._tree(mu))
         if self.switch_margin is not None:
-            correction = correction * self._switch(obs, mu, correction)[..., None]
-        return compose_action(mu, correction, limit=self.limit, low=self.low, high=self.high)
+            use = self._switch(obs, mu, correction)
+            correction = np.where(use[..., None], correction, self._tree(mu))
+        return self._compose(mu, correction)
 
     def next_columns(self, next_obs: np.ndarray, envs: Optional[np.ndarray] = None) -> Columns:
         """Columns about s' the learner needs: μ(s') when π observes the backbone."""
@@ -203,7 +226,8 @@ class BackboneBehaviour:
         envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
         mu = self._mu(obs, envs)
-        mean = np.zeros_like(mu) if warmup else self._pi(obs, mu)
+        tree = self._tree(mu)  # the prefill acts around the tree: a = μ(s) + ε
+        mean = tree if warmup else self._pi(obs, mu)
         if self.propose_tree and not warmup:  # IBRL: around whichever the critic values more
             assert self.critic is not None
             x = (
@@ -211,13 +235,13 @@ class BackboneBehaviour:
                 if self.observe_backbone
                 else obs
             )
-            better = self.critic(x, mean) > self.critic(x, np.zeros_like(mean))
-            mean = (mean * better[:, None]).astype(np.float32)
+            better = self.critic(x, mean) > self.critic(x, tree)
+            mean = np.where(better[:, None], mean, tree).astype(np.float32)
         std = self.prefill_std if warmup else self.std
         # Noise on the correction only; the sample is stored unclipped (ratios are taken on it).
         correction = (mean + std * rng.standard_normal(mean.shape)).astype(np.float32)
         log_prob = gaussian_log_prob(correction, mean, std).astype(np.float32)
-        action = compose_action(mu, correction, limit=self.limit, low=self.low, high=self.high)
+        action = self._compose(mu, correction)
         return action, {"action": correction, "backbone_action": mu, "log_prob": log_prob}
 
     def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:

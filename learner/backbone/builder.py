@@ -23,7 +23,8 @@ from service.core import as_arrays
 
 
 class BackboneBuilder:
-    """Backbone TD3: prefill with μ(s) + ε, then μ(s) + clip(π(s) + noise)."""
+    """Backbone TD3: prefill with μ(s) + ε, then μ(s) + clip(π(s) + noise); with
+    ``residual=False`` a standalone actor, centre + π(s) + noise, the tree a proposal."""
 
     def __init__(
         self,
@@ -38,8 +39,13 @@ class BackboneBuilder:
         where μ's package is found."""
         self.td3, self.config = td3, config
         self.batch_size = td3.batch_size
-        limit = config.correction_limit
-        self.bound = np.full(self.td3.act_dim, limit, dtype=np.float32)
+        self.centre: Optional[np.ndarray] = None
+        """A standalone actor's base, the box's centre (None: the residual's, μ(s))."""
+        if config.residual:
+            self.bound = np.full(self.td3.act_dim, config.correction_limit, dtype=np.float32)
+        else:  # π's range is the box around its centre, whatever correction_limit says
+            self.bound = ((td3.high - td3.low) / 2).astype(np.float32)
+            self.centre = ((td3.high + td3.low) / 2).astype(np.float32)
         self.teacher = (
             load_teacher(
                 config.teacher, self.td3.obs_dim, self.td3.act_dim, self.td3.low, self.td3.high
@@ -89,6 +95,7 @@ class BackboneBuilder:
                 publish_critic=self._actors_need_critic(),
                 ramp_actor_updates=self._ramp_actor_updates(),
                 tree_in_target=self.config.tree_in_target,
+                centre=self.centre,
             )
         else:
             learner = TD3Learner(
@@ -101,10 +108,19 @@ class BackboneBuilder:
                 device=device,
                 compile=compile,
             )
-        # The correction starts at zero output: at first the agent is the backbone.
-        zero_output_(learner.actor)
-        learner.target_actor.load_state_dict(learner.actor.state_dict())
+        if self.config.residual:
+            # The correction starts at zero output: at first the agent is the backbone.
+            # A standalone actor keeps TD3's initialisation, as RL from scratch (and IBRL)
+            # start theirs: a zero last layer would make π(s) one constant action, the
+            # centre, and its gradient would reach the hidden layers only after a step.
+            zero_output_(learner.actor)
+            learner.target_actor.load_state_dict(learner.actor.state_dict())
         return learner
+
+    def _limit(self) -> float:
+        """The behaviour's clip on c: L (residual), or the box's largest half-width (the
+        box itself then clips each dimension of centre + c)."""
+        return self.config.correction_limit if self.centre is None else float(np.max(self.bound))
 
     def _actors_need_critic(self) -> bool:
         """Switching (greedy) and the tree's proposal in acting both choose by the critic."""
@@ -134,7 +150,7 @@ class BackboneBuilder:
         return BackboneBehaviour(
             acting_copy(correction),
             self._backbone(),
-            limit=self.config.correction_limit,
+            limit=self._limit(),
             std=t.exploration_std,
             prefill_std=self.config.prefill_noise,
             low=t.low,
@@ -143,4 +159,5 @@ class BackboneBuilder:
             critic=critic,
             switch_margin=self.config.switch_margin,
             propose_tree=self.config.tree_in_acting,
+            centre=self.centre,
         )

@@ -50,6 +50,14 @@ class BackboneConfig:
     """The tree as a proposal in acting (IBRL): each training step acts around π's action
     or the tree's, whichever min(Q1, Q2) values higher, the exploration noise added to the
     one chosen. Needs observe_backbone (the actors get the critic with the weights)."""
+    residual: bool = True
+    """True: π is a correction, a = μ(s) + clip(π(s), [−L, L]), starting at zero output
+    (the agent starts as the tree). False: a standalone actor, as in IBRL (Hu et al. 2023):
+    a = clip(centre + π(s)), π's range the action box around its centre (correction_limit
+    is not used), TD3's own initialisation; the tree only proposes μ(s) (as the
+    "correction" μ(s) − centre) in the prefill, and where tree_in_acting, tree_in_target
+    and switch_margin choose by Q. Needs observe_backbone; refuses correction_penalty
+    and correction_ramp (both measure π from the tree's 0)."""
 
     def __post_init__(self) -> None:
         if not self.correction_limit > 0.0:
@@ -71,20 +79,36 @@ class BackboneConfig:
                 f"correction_ramp={self.correction_ramp} must be in [0, 1] (a share of the "
                 "actor's gradient steps; 0: no ramp)"
             )
-        residual = {  # the parts that work on the residual learner's inputs and critic
+        observing = {  # the parts that work on the observing learner's inputs and critic
             "correction_penalty": self.correction_penalty > 0.0,
             "switch_margin": self.switch_margin is not None,
             "correction_ramp": self.correction_ramp > 0.0,
             "tree_in_target": self.tree_in_target,
             "tree_in_acting": self.tree_in_acting,
         }
-        for name in [n for n, used in residual.items() if used and not self.observe_backbone]:
+        for name in [n for n, used in observing.items() if used and not self.observe_backbone]:
             raise ValueError(
                 f"{name}={getattr(self, name)} needs observe_backbone=True (the residual "
                 "learner); set backbone.observe_backbone: true"
             )
+        if not self.residual:
+            self._check_standalone()
         if self.observe_backbone and self.teacher:
             raise ValueError(
                 "observe_backbone=True with a teacher is not supported: the teacher's critic "
                 "Q̂ takes s only; drop one of backbone.observe_backbone / backbone.teacher"
             )
+
+    def _check_standalone(self) -> None:
+        """The settings a standalone actor (residual=False) cannot take, by name."""
+        if not self.observe_backbone:
+            raise ValueError(
+                "residual=False needs observe_backbone=True (the tree's proposal μ(s) travels "
+                "in the observing learner's batches); set backbone.observe_backbone: true"
+            )
+        for name in ("correction_penalty", "correction_ramp"):
+            if getattr(self, name) > 0.0:
+                raise ValueError(
+                    f"{name}={getattr(self, name)} needs residual=True: it keeps π near the "
+                    "correction 0, which a standalone actor's output is not (the box's centre)"
+                )

@@ -9,7 +9,7 @@ its prediction is Q̂(s, μ̂(s)) + Q_θ(s, c) and its target is eq. (11).
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 import torch
@@ -64,7 +64,8 @@ def ibrl_target(
         terminated: [B] bool.
         gamma: Discount.
         next_policy_value: min(Q1', Q2')(s', π'(s') + smoothing noise), [B].
-        next_tree_value: min(Q1', Q2')(s', μ(s')), [B] (the correction 0).
+        next_tree_value: min(Q1', Q2')(s', μ(s')), [B] (the residual's correction 0, a
+            standalone actor's μ(s') − centre).
 
     Returns:
         y, [B].
@@ -122,13 +123,16 @@ class ObservingBackboneLearner(TD3Learner):
         publish_critic: bool = False,
         ramp_actor_updates: int = 0,
         tree_in_target: bool = False,
+        centre: Optional[np.ndarray] = None,
     ) -> None:
         """`bound` is L per action dimension; `scale` the half-width of the action box;
         `correction_penalty` β of `conservative_actor_loss` (0: TD3's actor loss);
         `publish_critic`: the published weights carry the critic too (value-based
         switching in the behaviour); `ramp_actor_updates`: π's range grows linearly from
         0 to [−L, L] over its first that many gradient steps (0: the whole range at once);
-        `tree_in_target`: the tree is a proposal in the TD target (`ibrl_target`)."""
+        `tree_in_target`: the tree is a proposal in the TD target (`ibrl_target`);
+        `centre`: a standalone actor, whose output is the action minus this centre, so
+        that the tree's proposal is μ(s) − centre (None: the residual, the correction 0)."""
         act_dim = bound.shape[0]
         super().__init__(
             obs_dim + act_dim,
@@ -146,6 +150,9 @@ class ObservingBackboneLearner(TD3Learner):
         self._publish_critic = publish_critic
         self._ramp = ramp_actor_updates
         self._tree_in_target = tree_in_target
+        self._centre = (
+            None if centre is None else torch.as_tensor(centre, dtype=torch.float32).to(self.device)
+        )
         if self._ramp:
             self._set_range()  # before the first step: π starts at the tree
         self.tree_only = False
@@ -219,9 +226,9 @@ class ObservingBackboneLearner(TD3Learner):
             gamma=1.0,
             **self._smoothing(),
         )
-        with torch.no_grad():  # the tree's action at s' is μ(s') + 0: the correction 0
-            zero = torch.zeros(len(next_obs), len(self._bound), device=dev)
-            next_tree_value = torch.min(*self.target_critic(next_obs, zero))
+        with torch.no_grad():
+            tree = self._tree_proposal(batch, len(next_obs))
+            next_tree_value = torch.min(*self.target_critic(next_obs, tree))
         return ibrl_target(
             reward,
             terminated,
@@ -229,6 +236,14 @@ class ObservingBackboneLearner(TD3Learner):
             next_policy_value=next_policy_value,
             next_tree_value=next_tree_value,
         )
+
+    def _tree_proposal(self, batch: dict[str, torch.Tensor], rows: int) -> torch.Tensor:
+        """The tree's action at s' as π's output, [B, A]: μ(s') + 0, the correction 0
+        (residual), or a standalone actor's μ(s') − centre, in the box the critic values."""
+        if self._centre is None:
+            return torch.zeros(rows, len(self._bound), device=self.device)
+        mu = batch["next_backbone_action"].to(self.device, non_blocking=True)
+        return torch.clamp(mu - self._centre, *self.action_box)
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         for name in ("backbone_action", "next_backbone_action"):

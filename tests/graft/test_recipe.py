@@ -3,9 +3,12 @@ and no algorithm trains with it, chosen by the action space; the preset's own fi
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 
 from graft.cli import main
 from graft.config import load_preset
@@ -116,3 +119,26 @@ def test_a_task_that_does_not_build_is_one_line_before_any_recipe(tmp_path):
     preset = _preset(tmp_path, "env_id: nowhere_pkg.envs:make\nhardcoded_policy: a.b:c\n")
     with pytest.raises(ValueError, match=r"^preset .*task.yaml: env_id='nowhere_pkg.envs:make'"):
         load_preset(preset)
+
+
+@pytest.mark.long  # about 20 s on an idle 2-core machine, minutes on a loaded one
+def test_the_recipe_with_a_standalone_actor_trains_through_the_service(ray_local, tmp_path):
+    """`graft train --set backbone.residual=false`: IBRL's standalone actor in the recipe,
+    through the real service (a local Ray, an actor, the replay server, the learner and the
+    final selection), on a tiny budget."""
+    preset = _preset(tmp_path, PENDULUM)
+    tiny = [
+        *("env_steps=600", "eval_every=300", "eval_episodes=1", "publish_every=20"),
+        *("envs_per_actor=2", "steps_per_insert=4", "slack_env_steps=16"),
+        *("td3.hidden_sizes=[32, 32]", "td3.batch_size=32", "td3.burn_in_updates=30"),
+        *("td3.frozen_actor_updates=30", "selection.episodes=2", "backbone.residual=false"),
+    ]
+    run_dir = tmp_path / "run"
+    args = ["train", "--preset", str(preset), "--run-dir", str(run_dir), "--no-progress"]
+    main([*args, *(a for s in tiny for a in ("--set", s))])
+    recorded = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert recorded["recipe"] == "continuous" and recorded["backbone"]["residual"] is False
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert 600 - 16 <= summary["env_steps"] <= 600
+    assert summary["updates"] == 600 - 60 + 30  # a tenth of the budget prefills; the burn-in
+    assert np.isfinite(summary["final_eval_return_mean"]) and "selection" in summary

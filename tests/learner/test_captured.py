@@ -34,9 +34,18 @@ UPDATES = 50
 ROWS = {
     **bench.PRESETS,
     "options (Retrace)": "pendulum-options",
+    "backbone_td3 standalone (IBRL)": "pendulum-backbone",
 }
-"""Every learner class: TD3, pre-training, backbone (with and without a teacher), Double
-DQN, options with intra-option learning and with Retrace (eq. 14)."""
+"""Every learner class: TD3, pre-training, backbone (with and without a teacher; a
+standalone actor with the tree in the TD target), Double DQN, options with intra-option
+learning and with Retrace (eq. 14)."""
+ROW_SETTINGS = {
+    "backbone_td3 standalone (IBRL)": {
+        "backbone.residual": False,
+        "backbone.tree_in_target": True,
+    },
+}
+"""A row's settings beyond its preset's."""
 SMALL = {"hidden_sizes": [32, 32], "batch_size": 32}
 """Networks and batches small enough for a quick test."""
 ACTOR_NOW = {"td3.frozen_actor_updates": 0, "td3.policy_delay": 2}
@@ -49,6 +58,7 @@ def _setup(row: str, tmp: Path) -> tuple[Any, Any, Any]:
     pair of steps, the eager one for the kept pairs only: same generator, other draws)."""
     preset = ROWS[row]
     overrides: dict[str, Any] = {} if preset == "cartpole-ddqn" else dict(ACTOR_NOW)
+    overrides.update(ROW_SETTINGS.get(row, {}))
     sections = [s for s in ("td3", "dqn") if getattr(load_preset(preset), s, None) is not None]
     overrides.update({f"{s}.{k}": v for s in sections for k, v in SMALL.items()})
     if preset == "pendulum-backbone-teacher":
