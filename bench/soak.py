@@ -334,6 +334,11 @@ def report_again(folder: Path) -> int:
     verdicts = slopes(rows)
     print(f"soak {folder}: {json.dumps({k: v for k, v in events.items() if k != 'stderr_tail'})}")
     print_verdicts(verdicts)
+    return exit_status(events, verdicts)
+
+
+def exit_status(events: dict, verdicts: list[dict]) -> int:
+    """0 if the run survived to a clean stop with its replay kill and no series grew."""
     survived = events["returncode"] == 143 and events["replay_kills"] == 1
     return 0 if survived and all(v["ok"] for v in verdicts) else 1
 
@@ -372,8 +377,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     print(f"soak: {args.minutes:g} min of {args.preset}{clients}; {json.dumps(events)}")
     print_verdicts(verdicts)
     print(f"wrote {args.out / 'soak.csv'} and {args.out / 'soak.png'}")
-    survived = events["returncode"] == 143 and events["replay_kills"] == 1
-    return 0 if survived and all(v["ok"] for v in verdicts) else 1
+    return exit_status(events, verdicts)
 
 
 if __name__ == "__main__":

@@ -182,12 +182,14 @@ class BackboneBehaviour:
         base = mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
         return compose_action(base, correction, limit=self.limit, low=self.low, high=self.high)
 
-    def _switch(self, obs: np.ndarray, mu: np.ndarray, correction: np.ndarray) -> np.ndarray:
+    def _switch(
+        self, obs: np.ndarray, mu: np.ndarray, correction: np.ndarray, tree: np.ndarray
+    ) -> np.ndarray:
         """[B] bool: where the critic values π's correction above the tree's proposal."""
         assert self.critic is not None and self.switch_margin is not None
         if self.observe_backbone:
             obs = backbone_input(obs, mu, self.high.astype(np.float32))
-        q_tree = self.critic(obs, self._tree(mu))
+        q_tree = self.critic(obs, tree)
         q_policy = self.critic(obs, correction)
         use = switch_mask(q_tree, q_policy, self.switch_margin)
         self._switched.append(float(use.mean()))
@@ -199,12 +201,12 @@ class BackboneBehaviour:
             return compose_action(
                 mu, np.zeros_like(mu), limit=self.limit, low=self.low, high=self.high
             )
-        correction = self._pi(obs, mu)
+        correction, tree = self._pi(obs, mu), self._tree(mu)
         if self.gate is not None:
-            correction = np.where(self.gate(obs)[..., None], correction, self._tree(mu))
+            correction = np.where(self.gate(obs)[..., None], correction, tree)
         if self.switch_margin is not None:
-            use = self._switch(obs, mu, correction)
-            correction = np.where(use[..., None], correction, self._tree(mu))
+            use = self._switch(obs, mu, correction, tree)
+            correction = np.where(use[..., None], correction, tree)
         return self._compose(mu, correction)
 
     def next_columns(self, next_obs: np.ndarray, envs: Optional[np.ndarray] = None) -> Columns:
