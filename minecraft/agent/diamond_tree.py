@@ -37,7 +37,7 @@ from py_trees.composites import Selector, Sequence
 
 from minecraft.agent.corrections import DROP_ITEMS, Corrections
 from minecraft.agent.leaves import conditions as C
-from minecraft.agent.leaves.context import CONTEXT_KEY, Context, new_namespace
+from minecraft.agent.leaves.context import CONTEXT_KEY, Context, forget_namespace, new_namespace
 from minecraft.agent.leaves.goals import (
     Ascend,
     ChooseBlock,
@@ -331,9 +331,13 @@ def run_episode(
         ticks_per_step: ticks each decision is held (a slow client; 1: every tick).
         corrections: learned corrections at the leaves they were trained for.
     """
-    root, ctx = build_tree(namespace=namespace, seed=seed, goal=goal)
+    ns = namespace or new_namespace()
+    root, ctx = build_tree(namespace=ns, seed=seed, goal=goal)
     episode = TreeEpisode(
         client, root, ctx, seed=seed, max_ticks=max_ticks, stop_when=stop_when,
         profile=profile, ticks_per_step=ticks_per_step, corrections=corrections,
     )  # fmt: skip
-    return episode.run()
+    try:
+        return episode.run()
+    finally:
+        forget_namespace(ns)

@@ -29,6 +29,7 @@ from gymnasium import spaces
 
 from minecraft.agent.corrections import DROP_ACTIONS, DROP_OBS_DIM
 from minecraft.agent.diamond_tree import build_tree
+from minecraft.agent.leaves.context import forget_namespace, new_namespace
 from minecraft.agent.leaves.percept import ItemSeen
 from minecraft.agent.travel_env import SIM_WORLD_SERVER, WorldLink
 from minecraft.agent.tree_episode import TreeEpisode
@@ -88,8 +89,14 @@ class MinecraftDropsEnv(gym.Env):
         self._world = WorldLink(address, world_server, synchronous=True)
         self._rng = random.Random(0)
         self.episode: Optional[TreeEpisode] = None
+        self._namespace: Optional[str] = None  # the episode's tree's, on the blackboard
         self._item: Optional[ItemSeen] = None
         self._alive = False
+
+    def _forget_tree(self) -> None:
+        if self._namespace is not None:
+            forget_namespace(self._namespace)
+            self._namespace = None
 
     def _advance(self) -> None:
         """Run the tree until a new item is in reach or the episode ends."""
@@ -119,7 +126,9 @@ class MinecraftDropsEnv(gym.Env):
         while True:  # a world whose first item comes only after the end is replayed
             world = self._rng.choice(self.world_seeds)
             client.init(obtain_diamond(seed=world, pixels=False))
-            root, ctx = build_tree(seed=world)
+            self._forget_tree()
+            self._namespace = new_namespace()
+            root, ctx = build_tree(namespace=self._namespace, seed=world)
             self.episode = TreeEpisode(
                 client, root, ctx, seed=world, max_ticks=self.max_ticks,
                 ticks_per_step=self.k, gate_drops=True,
@@ -146,6 +155,7 @@ class MinecraftDropsEnv(gym.Env):
         return self._obs(), float(reward), terminated, truncated, info
 
     def close(self) -> None:
+        self._forget_tree()
         self._world.close()
 
 

@@ -322,6 +322,7 @@ class MinecraftTravelEnv(gym.Env):
         return p.cell == self.mission.destination or not p.alive
 
     def close(self) -> None:
+        self.steering.close()
         self._world.close()
 
 

@@ -28,6 +28,25 @@ def new_namespace() -> str:
     return f"/minecraft_{next(_namespaces)}"
 
 
+def forget_namespace(namespace: str) -> None:
+    """Takes a finished tree's namespace off py_trees' process-wide blackboard: its keys'
+    values and metadata, and the clients (the tree's leaves) registered to them.
+
+    The blackboard is a class-level store that keeps whatever a tree put there for the
+    life of the process: without this, every environment or episode that builds a tree
+    leaves its ``Context`` (percept, planner and plan cache) behind. The tree must not
+    tick again afterwards.
+    """
+    board = py_trees.blackboard.Blackboard
+    prefix = namespace.rstrip("/") + "/"
+    for key in [k for k in board.metadata if k.startswith(prefix)]:
+        meta = board.metadata.pop(key)
+        for client in meta.read | meta.write | meta.exclusive:
+            board.clients.pop(client, None)
+    for key in [k for k in board.storage if k.startswith(prefix)]:
+        del board.storage[key]
+
+
 @dataclass
 class Commands:
     """ContinuousMovementCommands states plus one-shot commands for one step.
