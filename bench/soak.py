@@ -262,20 +262,28 @@ def start_and_wait(
             shutil.rmtree(run_dir)
         process = start_run(run_dir, preset, extra)
         metrics, deadline = run_dir / "metrics.csv", time.monotonic() + limit_s
-        while not (metrics.exists() and "losses/" in metrics.read_text()):
-            if process.poll() is not None:
-                _, err = process.communicate()
-                if "timed out during startup" in err and attempt < RAY_STARTS:
-                    print(f"soak: Ray did not start (try {attempt}); trying again", flush=True)
-                    break
-                raise SystemExit(f"soak: the run ended before it started: {err[-2000:]}")
-            if time.monotonic() > deadline:
+        try:
+            while not (metrics.exists() and "losses/" in metrics.read_text()):
+                if process.poll() is not None:
+                    _, err = process.communicate()
+                    if "timed out during startup" in err and attempt < RAY_STARTS:
+                        print(f"soak: Ray did not start (try {attempt}); again", flush=True)
+                        break
+                    raise SystemExit(f"soak: the run ended before it started: {err[-2000:]}")
+                if time.monotonic() > deadline:
+                    raise SystemExit("soak: no learner update within the start limit")
+                time.sleep(1.0)
+            else:
+                return process
+        except BaseException:
+            if process.poll() is None:
                 os.killpg(process.pid, signal.SIGKILL)
-                raise SystemExit("soak: no learner update within the start limit")
-            time.sleep(1.0)
-        else:
-            return process
+            raise
     raise AssertionError("unreachable")
+
+
+def _interrupted(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"soak: signal {signum}")
 
 
 def soak(args: argparse.Namespace) -> tuple[list[tuple[float, str, str, float]], dict]:
@@ -364,6 +372,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         return report_again(args.report)
     args.out = args.out.resolve()
     args.out.mkdir(parents=True, exist_ok=True)
+    signal.signal(signal.SIGTERM, _interrupted)  # `kill SOAK` stops its run too
     rows, events = soak(args)
     with open(args.out / "soak.csv", "w", newline="") as f:
         writer = csv.writer(f)

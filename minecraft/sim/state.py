@@ -19,6 +19,7 @@ import math
 import random
 import threading
 import uuid
+import weakref
 from typing import Optional
 
 from minecraft import blocks as B
@@ -65,7 +66,11 @@ class WorldState:
         self, mission: Mission, seed: int, *, share: Optional[WorldState] = None,
         also: tuple[tuple[float, float, float], ...] = (),
     ) -> None:  # fmt: skip
-        self.host: WorldState = self if share is None else share.host
+        # No reference cycles (a world is freed the moment its instance lets it go, not at
+        # the next full collection, which a large process such as an env actor seldom
+        # runs): the host is itself through `host`, guests are held weakly.
+        self._host: Optional[WorldState] = None if share is None else share.host
+        self._guests: list[weakref.ref[WorldState]] = []
         if share is None:
             self.seed = mission.seed if mission.seed is not None else seed
         else:
@@ -97,7 +102,6 @@ class WorldState:
             self.x0, self.z0 = terrain.x0, terrain.z0
             self.space = Space(self.blocks, self.x0, self.z0)
             self.lock = threading.RLock()
-            self.agents: list[WorldState] = [self]  # every agent's world, the host first
             self.liquid_level: dict[tuple[int, int, int], int] = {}
             self.liquid_due: dict[tuple[int, int, int], int] = {}
             self._version = 0  # bumped on every block change (observation caches key on it)
@@ -114,11 +118,11 @@ class WorldState:
             h = self.host
             self.blocks, self.x0, self.z0 = h.blocks, h.x0, h.z0
             self.build_battle = h.build_battle
-            self.space, self.lock, self.agents = h.space, h.lock, h.agents
+            self.space, self.lock = h.space, h.lock
             self.liquid_level, self.liquid_due = h.liquid_level, h.liquid_due
             self.player_uid = h.next_uid()
             self.rng = random.Random(self.seed * 1_000_003 + self.player_uid)
-            h.agents.append(self)
+            h._guests.append(weakref.ref(self))
             b = h.player.body
             spawn = (b.x, b.y, b.z)  # no placement: next to the host's agent
         yaw = pitch = 0.0
@@ -134,6 +138,18 @@ class WorldState:
                 self.player.inventory.slots[slot] = Stack(item, qty, tool.durability if tool else 0)
 
     # ------------------------------------------------------ shared with the host
+    @property
+    def host(self) -> WorldState:
+        """The world whose blocks, items and animals this one plays on: its own, or the
+        mission's first agent's."""
+        return self if self._host is None else self._host
+
+    @property
+    def agents(self) -> list[WorldState]:
+        """Every agent's world of this mission still in play, the host first."""
+        host = self.host
+        return [host, *(g for ref in host._guests if (g := ref()) is not None)]
+
     @property
     def version(self) -> int:
         """Block changes so far (observation caches key on it)."""

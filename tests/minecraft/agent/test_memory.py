@@ -1,8 +1,13 @@
-"""py_trees' blackboard is one store for the whole process: a tree built per environment
-or per episode must take its namespace off it when it is done, or a long run's actors
-and evaluator keep every one (the 4-client Minecraft soak's growing memory)."""
+"""What a long run's env actors and evaluator must not keep (the 4-client Minecraft soak's
+growing memory): py_trees' blackboard is one store for the whole process, so a tree built
+per environment or per episode takes its namespace off it when done; and a finished
+mission's world is freed as soon as the next one starts, not at a full garbage collection
+(which a process as large as an env actor seldom runs)."""
 
 from __future__ import annotations
+
+import gc
+import weakref
 
 import gymnasium as gym
 import py_trees
@@ -11,6 +16,7 @@ import pytest
 from minecraft.agent import drop_env, travel_env
 from minecraft.agent.diamond_tree import build_tree
 from minecraft.agent.leaves.context import CONTEXT_KEY, forget_namespace, new_namespace
+from minecraft.sim.world import World
 
 
 def board_size() -> tuple[int, int, int]:
@@ -57,3 +63,25 @@ def test_a_drops_episode_keeps_one_tree_on_the_blackboard_and_none_once_closed()
     finally:
         env.close()
     assert board_size() == before
+
+
+@pytest.mark.service  # a world server (in-process)
+def test_a_finished_missions_world_is_freed_without_the_garbage_collector() -> None:
+    env = gym.make(travel_env.ENV_ID, world_seeds=(1000, 1001, 1002))
+    worlds: list[weakref.ref[World]] = []
+    gc.collect()
+    gc.disable()
+    try:
+        for seed in range(4):
+            env.reset(seed=seed)
+            env.step(env.action_space.sample())
+            worlds += [
+                weakref.ref(o)
+                for o in gc.get_objects()
+                if type(o) is World and all(r() is not o for r in worlds)
+            ]
+        alive = [r for r in worlds if r() is not None]
+        assert len(worlds) == 4 and len(alive) == 1  # the mission in play
+    finally:
+        gc.enable()
+        env.close()
