@@ -31,13 +31,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Optional
 
-import py_trees
 from py_trees.behaviour import Behaviour
 from py_trees.composites import Selector, Sequence
 
 from minecraft.agent.corrections import DROP_ITEMS, Corrections
 from minecraft.agent.leaves import conditions as C
-from minecraft.agent.leaves.context import CONTEXT_KEY, Context, forget_namespace, new_namespace
+from minecraft.agent.leaves.context import Context, forget_namespace, share
 from minecraft.agent.leaves.goals import (
     Ascend,
     ChooseBlock,
@@ -294,11 +293,8 @@ def build_tree(
     """
     if goal not in GOALS:
         raise ValueError(f"goal must be one of {GOALS}, got {goal!r}")
-    ns = namespace or new_namespace()
     ctx = Context()
-    bb = py_trees.blackboard.Client(name="diamond_tree", namespace=ns)
-    bb.register_key(CONTEXT_KEY, access=py_trees.common.Access.WRITE)
-    bb.set(CONTEXT_KEY, ctx)
+    ns = share(ctx, name="diamond_tree", namespace=namespace)
     return _Builder(ns, seed).root(goal), ctx
 
 
@@ -331,8 +327,7 @@ def run_episode(
         ticks_per_step: ticks each decision is held (a slow client; 1: every tick).
         corrections: learned corrections at the leaves they were trained for.
     """
-    ns = namespace or new_namespace()
-    root, ctx = build_tree(namespace=ns, seed=seed, goal=goal)
+    root, ctx = build_tree(namespace=namespace, seed=seed, goal=goal)
     episode = TreeEpisode(
         client, root, ctx, seed=seed, max_ticks=max_ticks, stop_when=stop_when,
         profile=profile, ticks_per_step=ticks_per_step, corrections=corrections,
@@ -340,4 +335,4 @@ def run_episode(
     try:
         return episode.run()
     finally:
-        forget_namespace(ns)
+        forget_namespace(ctx.namespace)

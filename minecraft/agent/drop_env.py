@@ -29,7 +29,7 @@ from gymnasium import spaces
 
 from minecraft.agent.corrections import DROP_ACTIONS, DROP_OBS_DIM
 from minecraft.agent.diamond_tree import build_tree
-from minecraft.agent.leaves.context import forget_namespace, new_namespace
+from minecraft.agent.leaves.context import forget_namespace
 from minecraft.agent.leaves.percept import ItemSeen
 from minecraft.agent.travel_env import SIM_WORLD_SERVER, WorldLink
 from minecraft.agent.tree_episode import TreeEpisode
@@ -89,14 +89,13 @@ class MinecraftDropsEnv(gym.Env):
         self._world = WorldLink(address, world_server, synchronous=True)
         self._rng = random.Random(0)
         self.episode: Optional[TreeEpisode] = None
-        self._namespace: Optional[str] = None  # the episode's tree's, on the blackboard
         self._item: Optional[ItemSeen] = None
         self._alive = False
 
     def _forget_tree(self) -> None:
-        if self._namespace is not None:
-            forget_namespace(self._namespace)
-            self._namespace = None
+        """Takes the last episode's tree off the blackboard (it ticks no more)."""
+        if self.episode is not None:
+            forget_namespace(self.episode.ctx.namespace)
 
     def _advance(self) -> None:
         """Run the tree until a new item is in reach or the episode ends."""
@@ -127,8 +126,7 @@ class MinecraftDropsEnv(gym.Env):
             world = self._rng.choice(self.world_seeds)
             client.init(obtain_diamond(seed=world, pixels=False))
             self._forget_tree()
-            self._namespace = new_namespace()
-            root, ctx = build_tree(namespace=self._namespace, seed=world)
+            root, ctx = build_tree(seed=world)
             self.episode = TreeEpisode(
                 client, root, ctx, seed=world, max_ticks=self.max_ticks,
                 ticks_per_step=self.k, gate_drops=True,

@@ -22,7 +22,7 @@ import py_trees
 
 from minecraft import blocks as B
 from minecraft.agent import astar
-from minecraft.agent.leaves.context import CONTEXT_KEY, Context, forget_namespace, new_namespace
+from minecraft.agent.leaves.context import Context, forget_namespace, share
 from minecraft.agent.leaves.percept import RADIUS, Percept
 from minecraft.agent.leaves.travel import travel_subtree
 from minecraft.agent.travel_task import Cell
@@ -77,17 +77,13 @@ class TreeSteering:
     """μ(s): the tree's travel sub-tree, ticked once per observation."""
 
     def __init__(self) -> None:
-        self.namespace = new_namespace()
         self.ctx = Context(planner=astar.Planner(max_expansions=3000))
-        bb = py_trees.blackboard.Client(name="travel", namespace=self.namespace)
-        bb.register_key(CONTEXT_KEY, access=py_trees.common.Access.WRITE)
-        bb.set(CONTEXT_KEY, self.ctx)
-        self.tree = py_trees.trees.BehaviourTree(travel_subtree(self.namespace))
+        self.tree = py_trees.trees.BehaviourTree(travel_subtree(share(self.ctx, name="travel")))
         self.progress = 0
 
     def close(self) -> None:
         """Takes the sub-tree off the process-wide blackboard (it ticks no more)."""
-        forget_namespace(self.namespace)
+        forget_namespace(self.ctx.namespace)
 
     def reset(self) -> None:
         """A new episode: forget the plan and the stuck counters."""

@@ -28,6 +28,18 @@ def new_namespace() -> str:
     return f"/minecraft_{next(_namespaces)}"
 
 
+def share(ctx: Context, *, name: str, namespace: Optional[str] = None) -> str:
+    """Puts ``ctx`` on the blackboard where its tree's leaves read it, under ``namespace``
+    (a fresh one by default), and records the namespace in ``ctx.namespace`` for
+    `forget_namespace`. Returns the namespace."""
+    ns = namespace or new_namespace()
+    bb = py_trees.blackboard.Client(name=name, namespace=ns)
+    bb.register_key(CONTEXT_KEY, access=Access.WRITE)
+    bb.set(CONTEXT_KEY, ctx)
+    ctx.namespace = ns
+    return ns
+
+
 def forget_namespace(namespace: str) -> None:
     """Takes a finished tree's namespace off py_trees' process-wide blackboard: its keys'
     values and metadata, and the clients (the tree's leaves) registered to them.
@@ -36,9 +48,14 @@ def forget_namespace(namespace: str) -> None:
     life of the process: without this, every environment or episode that builds a tree
     leaves its ``Context`` (percept, planner and plan cache) behind. The tree must not
     tick again afterwards.
+
+    Raises:
+        ValueError: no namespace (a context never shared): that would forget every tree's.
     """
-    board = py_trees.blackboard.Blackboard
     prefix = namespace.rstrip("/") + "/"
+    if prefix == "/":
+        raise ValueError(f"not a tree's namespace: {namespace!r}")
+    board = py_trees.blackboard.Blackboard
     for key in [k for k in board.metadata if k.startswith(prefix)]:
         meta = board.metadata.pop(key)
         for client in meta.read | meta.write | meta.exclusive:
@@ -100,6 +117,7 @@ class Context:
         plan_reached: the last plan ends at a goal.
         stage: a human-readable name of what the tree is doing.
         memory: small per-leaf scratch state (exploration heading, failures...).
+        namespace: the blackboard namespace it is shared under (`share`).
     """
 
     percept: Percept = field(default_factory=lambda: Percept(0.0, 0.0, 0.0))
@@ -111,6 +129,7 @@ class Context:
     plan_reached: bool = False
     stage: str = ""
     memory: dict[str, Any] = field(default_factory=dict)
+    namespace: str = ""
 
 
 class Leaf(py_trees.behaviour.Behaviour):

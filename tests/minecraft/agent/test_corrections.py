@@ -15,7 +15,7 @@ from minecraft.agent.corrections import (
     drop_observation,
     new_drops,
 )
-from minecraft.agent.leaves.context import CONTEXT_KEY, Context, new_namespace
+from minecraft.agent.leaves.context import Context, share
 from minecraft.agent.leaves.goals import ChooseDrop
 from minecraft.agent.leaves.percept import ItemSeen, Percept
 from minecraft.agent.leaves.travel import AtDestination, StepTo
@@ -55,11 +55,8 @@ def test_new_drops_are_wanted_in_reach_undecided_nearest_first() -> None:
 
 
 def _leaf_ctx(leaf_type: type, **kwargs: object) -> tuple[object, Context]:
-    ns = new_namespace()
     ctx = Context()
-    bb = py_trees.blackboard.Client(name="test", namespace=ns)
-    bb.register_key(CONTEXT_KEY, access=py_trees.common.Access.WRITE)
-    bb.set(CONTEXT_KEY, ctx)
+    ns = share(ctx, name="test")
     return leaf_type(namespace=ns, **kwargs), ctx
 
 

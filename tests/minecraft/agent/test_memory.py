@@ -15,7 +15,7 @@ import pytest
 
 from minecraft.agent import drop_env, travel_env
 from minecraft.agent.diamond_tree import build_tree
-from minecraft.agent.leaves.context import CONTEXT_KEY, forget_namespace, new_namespace
+from minecraft.agent.leaves.context import CONTEXT_KEY, Context, forget_namespace, new_namespace
 from minecraft.sim.world import World
 
 
@@ -35,7 +35,10 @@ def test_forgetting_a_tree_removes_its_keys_and_leaves_and_nothing_else() -> Non
     storage = py_trees.blackboard.Blackboard.storage
     assert f"{gone}/{CONTEXT_KEY}" not in storage
     assert storage[f"{kept}/{CONTEXT_KEY}"] is kept_ctx
-    forget_namespace(kept)
+    with pytest.raises(ValueError, match="not a tree's namespace"):
+        forget_namespace(Context().namespace)  # never shared: would forget every tree
+    assert storage[f"{kept}/{CONTEXT_KEY}"] is kept_ctx
+    forget_namespace(kept_ctx.namespace)
     assert board_size() == before
 
 

@@ -13,7 +13,7 @@ from py_trees.common import Status
 from py_trees.composites import Selector
 
 from minecraft.agent.diamond_tree import build_tree
-from minecraft.agent.leaves.context import Context, Leaf, new_namespace
+from minecraft.agent.leaves.context import Context, Leaf, share
 from minecraft.agent.leaves.percept import Percept
 from minecraft.agent.leaves.recovery import RECOVER_KEY
 from minecraft.agent.watchdog import Firing, Watchdog
@@ -32,11 +32,8 @@ class Scripted(Leaf):
 
 
 def _tree(*acts: Callable[[Context], Status]) -> tuple[py_trees.trees.BehaviourTree, Context]:
-    ns = new_namespace()
     ctx = Context()
-    bb = py_trees.blackboard.Client(name="test", namespace=ns)
-    bb.register_key("ctx", access=py_trees.common.Access.WRITE)
-    bb.set("ctx", ctx)
+    ns = share(ctx, name="test")
     leaves = [Scripted(f"leaf {i}", namespace=ns, act=a) for i, a in enumerate(acts)]
     return py_trees.trees.BehaviourTree(Selector("root", memory=False, children=leaves)), ctx
 
