@@ -71,8 +71,10 @@ def test_a_drops_episode_keeps_one_tree_on_the_blackboard_and_none_once_closed()
 @pytest.mark.service  # a world server (in-process)
 def test_a_finished_missions_world_is_freed_without_the_garbage_collector() -> None:
     env = gym.make(travel_env.ENV_ID, world_seeds=(1000, 1001, 1002))
-    worlds: list[weakref.ref[World]] = []
     gc.collect()
+    # Worlds an earlier test left alive in this worker process are not this env's.
+    others = [weakref.ref(o) for o in gc.get_objects() if type(o) is World]
+    worlds: list[weakref.ref[World]] = []
     gc.disable()
     try:
         for seed in range(4):
@@ -81,7 +83,7 @@ def test_a_finished_missions_world_is_freed_without_the_garbage_collector() -> N
             worlds += [
                 weakref.ref(o)
                 for o in gc.get_objects()
-                if type(o) is World and all(r() is not o for r in worlds)
+                if type(o) is World and all(r() is not o for r in worlds + others)
             ]
         alive = [r for r in worlds if r() is not None]
         assert len(worlds) == 4 and len(alive) == 1  # the mission in play
