@@ -160,12 +160,14 @@ class ObservingBackboneLearner(TD3Learner):
 
     def policy_state(self) -> dict[str, torch.Tensor]:
         """π's weights, the critic's (``critic.``-prefixed) when publishing it, and the
-        tree-only flag."""
+        tree-only flag: set by the final selection, and until π's first gradient step (an
+        untrained π, valued by a critic that has seen only the tree's data, never acts
+        greedily; exploration is not affected)."""
         state = super().policy_state()
         if self._publish_critic:
             for k, v in self.critic.state_dict().items():
                 state[CRITIC_PREFIX + k] = v.detach().to("cpu", copy=True)
-        return with_tree_only(state, self.tree_only)
+        return with_tree_only(state, self.tree_only or self.num_actor_updates == 0)
 
     def tree_state(self) -> dict[str, torch.Tensor]:
         """Published weights under which the greedy policy is the tree alone."""

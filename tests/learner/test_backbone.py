@@ -331,12 +331,28 @@ def test_the_switching_learner_publishes_its_critic_and_checkpoints_the_tree_onl
             3,
             np.array([4.0], np.float32),
             np.array([2.0]),
-            config=TD3Config(hidden_sizes=(8,)),
+            config=TD3Config(hidden_sizes=(8,), frozen_actor_updates=2),
             seed=seed,
             publish_critic=True,
         )
 
+    batch = {
+        "obs": torch.zeros(5, 3),
+        "action": torch.zeros(5, 1),
+        "backbone_action": torch.full((5, 1), 2.0),
+        "next_backbone_action": torch.full((5, 1), -2.0),
+        "reward": torch.ones(5),
+        "terminated": torch.zeros(5, dtype=torch.bool),
+        "next_obs": torch.zeros(5, 3),
+    }
     learner = make(0)
+    # An untrained π (here: frozen for 2 updates, then TD3's delay of 2) is not published
+    # as the greedy policy: the tree alone acts until π's first gradient step.
+    for _ in range(3):
+        assert split_weights(learner.policy_state())[2] is True
+        learner.update(batch)
+    learner.update(batch)
+    assert learner.num_actor_updates == 1
     policy, critic, tree_only = split_weights(learner.policy_state())
     assert set(policy) == set(learner.actor.state_dict()) and not tree_only
     assert set(critic) == set(learner.critic.state_dict())
