@@ -119,6 +119,19 @@ def test_observed_backbone_reuses_each_environments_mu_when_they_act_apart():
 # --- the learner: eq. (11), the observed backbone, the burn-in ------------------------
 
 
+def _batch(rows: int) -> dict[str, torch.Tensor]:
+    """A backbone batch of Pendulum's shapes (3-d s, 1-d a): μ(s) = 2, μ(s') = −2."""
+    return {
+        "obs": torch.zeros(rows, 3),
+        "action": torch.zeros(rows, 1),
+        "backbone_action": torch.full((rows, 1), 2.0),
+        "next_backbone_action": torch.full((rows, 1), -2.0),
+        "reward": torch.ones(rows),
+        "terminated": torch.zeros(rows, dtype=torch.bool),
+        "next_obs": torch.zeros(rows, 3),
+    }
+
+
 def test_observing_learner_appends_mu_to_obs_and_next_obs():
     from learner.backbone.learning import ObservingBackboneLearner
     from learner.td3.config import TD3Config
@@ -127,17 +140,10 @@ def test_observing_learner_appends_mu_to_obs_and_next_obs():
         3, np.array([4.0], np.float32), np.array([2.0]), config=TD3Config(hidden_sizes=(8,)), seed=0
     )
     assert learner.actor.net[0].in_features == 4  # s (3) + μ(s) (1)
-    batch = {
-        "obs": torch.zeros(5, 3),
-        "action": torch.zeros(5, 1),
-        "backbone_action": torch.full((5, 1), 2.0),
-        "reward": torch.ones(5),
-        "terminated": torch.zeros(5, dtype=torch.bool),
-        "next_obs": torch.zeros(5, 3),
-    }
+    batch = _batch(5)
     with pytest.raises(ValueError, match="next_backbone_action"):
-        learner.update(batch)
-    metrics = learner.update({**batch, "next_backbone_action": torch.full((5, 1), -2.0)})
+        learner.update({k: v for k, v in batch.items() if k != "next_backbone_action"})
+    metrics = learner.update(batch)
     assert math.isfinite(metrics["losses/critic"])
 
 
@@ -217,15 +223,7 @@ def test_backbone_critic_burn_in_is_extra_updates_at_learning_starts_with_the_ac
     assert phase.sample_credit == 50 * 256
     learner = builder.make_learner()
     before = [p.clone() for p in learner.actor.parameters()]
-    batch = {
-        "obs": torch.zeros(256, 3),
-        "action": torch.zeros(256, 1),
-        "backbone_action": torch.full((256, 1), 2.0),
-        "next_backbone_action": torch.full((256, 1), -2.0),
-        "reward": torch.ones(256),
-        "terminated": torch.zeros(256, dtype=torch.bool),
-        "next_obs": torch.zeros(256, 3),
-    }
+    batch = _batch(256)
     for _ in range(50):
         learner.update(batch)
     assert learner.num_actor_updates == 0  # the correction is still exactly zero
@@ -336,15 +334,7 @@ def test_the_switching_learner_publishes_its_critic_and_checkpoints_the_tree_onl
             publish_critic=True,
         )
 
-    batch = {
-        "obs": torch.zeros(5, 3),
-        "action": torch.zeros(5, 1),
-        "backbone_action": torch.full((5, 1), 2.0),
-        "next_backbone_action": torch.full((5, 1), -2.0),
-        "reward": torch.ones(5),
-        "terminated": torch.zeros(5, dtype=torch.bool),
-        "next_obs": torch.zeros(5, 3),
-    }
+    batch = _batch(5)
     learner = make(0)
     # An untrained π (here: frozen for 2 updates, then TD3's delay of 2) is not published
     # as the greedy policy: the tree alone acts until π's first gradient step.
