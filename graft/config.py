@@ -188,6 +188,11 @@ class TrainConfig:
                 f"selection.episodes={self.selection.episodes} falls back to the tree: it needs "
                 "backbone_td3 with backbone.observe_backbone, or ddqn with dqn.warmup: hardcoded"
             )
+        if self.backbone.clone_tree and self.td3.frozen_actor_updates == 0:
+            raise ValueError(
+                "backbone.clone_tree=true clones the tree while the actor is frozen: it needs "
+                "td3.frozen_actor_updates > 0"
+            )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
         if self.num_actors * self.envs_per_actor > seeds.BLOCK:

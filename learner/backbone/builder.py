@@ -96,6 +96,7 @@ class BackboneBuilder:
                 ramp_actor_updates=self._ramp_actor_updates(),
                 tree_in_target=self.config.tree_in_target,
                 centre=self.centre,
+                clone_tree=self.config.clone_tree,
             )
         else:
             learner = TD3Learner(

@@ -58,6 +58,14 @@ class BackboneConfig:
     "correction" μ(s) − centre) in the prefill, and where tree_in_acting, tree_in_target
     and switch_margin choose by Q. Needs observe_backbone; refuses correction_penalty
     and correction_ramp (both measure π from the tree's 0)."""
+    clone_tree: bool = False
+    """A standalone actor that starts as a copy of the tree: while the actor is frozen
+    (``td3.frozen_actor_updates``, the critic's burn-in) each delayed actor step fits
+    π(s) to μ(s) − centre by mean squared error on the batch (behaviour cloning, as the
+    paper's pre-training, sec. III-A) instead of leaving π at its initialisation; the
+    critic's TD target follows the cloned π' meanwhile. Needs residual=False (a residual
+    starts as the tree already). Measured, no gain: TD3's first steps undo the copy
+    (docs/own-task.md), so the recipe leaves it off."""
 
     def __post_init__(self) -> None:
         if not self.correction_limit > 0.0:
@@ -93,6 +101,11 @@ class BackboneConfig:
             )
         if not self.residual:
             self._check_standalone()
+        elif self.clone_tree:
+            raise ValueError(
+                "clone_tree=True needs residual=False: a residual correction starts at 0, "
+                "as the tree already; set backbone.residual: false"
+            )
         if self.observe_backbone and self.teacher:
             raise ValueError(
                 "observe_backbone=True with a teacher is not supported: the teacher's critic "

@@ -102,6 +102,20 @@ def conservative_actor_loss(
     return -q.mean() / scale + penalty * ((correction / bound) ** 2).mean()
 
 
+def clone_loss(actor: nn.Module, obs: torch.Tensor, tree: torch.Tensor) -> torch.Tensor:
+    """Behaviour cloning of the tree: mean((π(s) − (μ(s) − centre))²) over the batch.
+
+    Args:
+        actor: The standalone actor π (its output is the action minus the box's centre).
+        obs: s with μ(s) appended, [B, obs_dim].
+        tree: The tree's proposal μ(s) − centre, clipped to π's box, [B, act_dim].
+
+    Returns:
+        The scalar loss.
+    """
+    return ((actor(obs) - tree) ** 2).mean()
+
+
 class ObservingBackboneLearner(TD3Learner):
     """TD3 on the correction whose actor and critics see [s, μ(s) / scale] (residual RL).
 
@@ -124,6 +138,7 @@ class ObservingBackboneLearner(TD3Learner):
         ramp_actor_updates: int = 0,
         tree_in_target: bool = False,
         centre: Optional[np.ndarray] = None,
+        clone_tree: bool = False,
     ) -> None:
         """`bound` is L per action dimension; `scale` the half-width of the action box;
         `correction_penalty` β of `conservative_actor_loss` (0: TD3's actor loss);
@@ -132,7 +147,9 @@ class ObservingBackboneLearner(TD3Learner):
         0 to [−L, L] over its first that many gradient steps (0: the whole range at once);
         `tree_in_target`: the tree is a proposal in the TD target (`ibrl_target`);
         `centre`: a standalone actor, whose output is the action minus this centre, so
-        that the tree's proposal is μ(s) − centre (None: the residual, the correction 0)."""
+        that the tree's proposal is μ(s) − centre (None: the residual, the correction 0);
+        `clone_tree`: while the actor is frozen, its delayed steps fit π(s) to the tree's
+        proposal instead (`clone_loss`; needs `centre`, and eager updates)."""
         act_dim = bound.shape[0]
         super().__init__(
             obs_dim + act_dim,
@@ -153,6 +170,14 @@ class ObservingBackboneLearner(TD3Learner):
         self._centre = (
             None if centre is None else torch.as_tensor(centre, dtype=torch.float32).to(self.device)
         )
+        if clone_tree and centre is None:
+            raise ValueError("clone_tree needs a standalone actor (centre): a residual is 0")
+        if clone_tree and self.captures:
+            raise ValueError(
+                "backbone.clone_tree runs eager updates: learner.compile='captured' is not "
+                "supported with it (choose another compile mode)"
+            )
+        self._clone = clone_tree
         if self._ramp:
             self._set_range()  # before the first step: π starts at the tree
         self.tree_only = False
@@ -212,6 +237,27 @@ class ObservingBackboneLearner(TD3Learner):
         return conservative_actor_loss(
             self.critic, self.actor, obs, bound=self._bound, penalty=self._penalty
         )
+
+    def _step(
+        self, batch: dict[str, torch.Tensor], *, step: int, train_actor: bool, key: str = "online"
+    ) -> dict[str, float]:
+        metrics = super()._step(batch, step=step, train_actor=train_actor, key=key)
+        if self._clone and not train_actor and step % self._policy_delay == 0:
+            metrics["losses/clone"] = self._clone_step(batch)
+        return metrics
+
+    def _clone_step(self, batch: dict[str, torch.Tensor]) -> float:
+        """One gradient step of π towards the tree's proposal on this (observed) batch."""
+        obs = batch["obs"].to(self.device, non_blocking=True)
+        tree = torch.clamp(
+            batch["backbone_action"].to(self.device, non_blocking=True) - self._centre,
+            *self.action_box,
+        )
+        loss = clone_loss(self.actor, obs, tree)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.actor_optimizer.step()
+        return float(loss.detach())
 
     def _critic_target(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         if not self._tree_in_target:

@@ -78,6 +78,13 @@ def test_a_final_selection_without_a_tree_to_fall_back_to_is_refused(tmp_path, t
         load_preset(_preset(tmp_path, text + "selection: {episodes: 30}\n"))
 
 
+def test_cloning_the_tree_needs_a_frozen_actor_to_clone_it_in(tmp_path):
+    clone = {"backbone.clone_tree": True}
+    assert load_preset(_preset(tmp_path, PENDULUM), **clone).backbone.clone_tree
+    with pytest.raises(ValueError, match=r"clone_tree=true .* td3.frozen_actor_updates > 0"):
+        load_preset(_preset(tmp_path, PENDULUM), **clone, **{"td3.frozen_actor_updates": 0})
+
+
 def test_the_presets_own_fields_and_overrides_win_over_the_recipe(tmp_path):
     preset = _preset(tmp_path, PENDULUM + "td3: {batch_size: 32}\nbackbone: {prefill_noise: 0.1}\n")
     config = load_preset(preset, **{"backbone.correction_limit": 1.5, "learning_starts": 123})

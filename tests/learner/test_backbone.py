@@ -396,3 +396,46 @@ def test_the_correction_ramp_is_a_share_of_the_actor_steps_and_needs_the_residua
         BackboneConfig(correction_ramp=1.5, observe_backbone=True)
     with pytest.raises(ValueError, match="correction_ramp=0.5 needs observe_backbone"):
         BackboneConfig(correction_ramp=0.5)
+
+
+def test_clone_tree_fits_a_standalone_pi_to_the_tree_while_the_actor_is_frozen():
+    from learner.backbone.config import BackboneConfig
+    from learner.backbone.learning import ObservingBackboneLearner
+    from learner.td3.config import TD3Config
+
+    def make(clone: bool) -> ObservingBackboneLearner:
+        return ObservingBackboneLearner(
+            3,
+            np.array([2.0], np.float32),
+            np.array([2.0]),
+            config=TD3Config(hidden_sizes=(32,), frozen_actor_updates=600, actor_lr=3e-3),
+            seed=0,
+            centre=np.zeros(1, np.float32),
+            clone_tree=clone,
+        )
+
+    rng = np.random.default_rng(0)
+    obs = torch.as_tensor(rng.uniform(-1, 1, (256, 3)), dtype=torch.float32)
+    batch = dict(_batch(256), obs=obs, backbone_action=1.5 * torch.sign(obs[:, :1]))
+
+    def error(learner: ObservingBackboneLearner) -> float:
+        x = learner._observe(batch)["obs"]
+        with torch.no_grad():
+            return float(((learner.actor(x) - batch["backbone_action"]) ** 2).mean())
+
+    cloned, plain = make(True), make(False)
+    before = error(cloned)
+    assert before == error(plain) > 1.0  # one initialisation: π is far from the tree
+    for _ in range(600):
+        metrics = cloned.update(batch)
+        plain.update(batch)
+    assert error(cloned) < 0.05 * before and "losses/clone" in metrics
+    assert error(plain) == before  # frozen without cloning: π has not moved
+    assert cloned.num_actor_updates == 0  # cloning is not TD3's actor step
+    with pytest.raises(ValueError, match="standalone"):
+        ObservingBackboneLearner(
+            3, np.array([2.0], np.float32), np.array([2.0]), config=TD3Config(), seed=0,
+            clone_tree=True,
+        )
+    with pytest.raises(ValueError, match="clone_tree=True needs residual=False"):
+        BackboneConfig(observe_backbone=True, clone_tree=True)
