@@ -249,11 +249,7 @@ class ObservingBackboneLearner(TD3Learner):
     def _clone_step(self, batch: dict[str, torch.Tensor]) -> float:
         """One gradient step of π towards the tree's proposal on this (observed) batch."""
         obs = batch["obs"].to(self.device, non_blocking=True)
-        tree = torch.clamp(
-            batch["backbone_action"].to(self.device, non_blocking=True) - self._centre,
-            *self.action_box,
-        )
-        loss = clone_loss(self.actor, obs, tree)
+        loss = clone_loss(self.actor, obs, self._tree_proposal(batch, "backbone_action"))
         self.actor_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.actor_optimizer.step()
@@ -275,7 +271,7 @@ class ObservingBackboneLearner(TD3Learner):
             **self._smoothing(),
         )
         with torch.no_grad():
-            tree = self._tree_proposal(batch, len(next_obs))
+            tree = self._tree_proposal(batch, "next_backbone_action")
             next_tree_value = torch.min(*self.target_critic(next_obs, tree))
         return ibrl_target(
             reward,
@@ -285,12 +281,13 @@ class ObservingBackboneLearner(TD3Learner):
             next_tree_value=next_tree_value,
         )
 
-    def _tree_proposal(self, batch: dict[str, torch.Tensor], rows: int) -> torch.Tensor:
-        """The tree's action at s' as π's output, [B, A]: μ(s') + 0, the correction 0
-        (residual), or a standalone actor's μ(s') − centre, in the box the critic values."""
+    def _tree_proposal(self, batch: dict[str, torch.Tensor], column: str) -> torch.Tensor:
+        """The tree's action in `column` (μ(s) or μ(s')) as π's output, [B, A]: μ + 0, the
+        correction 0 (residual), or a standalone actor's μ − centre, in the box the critic
+        values."""
         if self._centre is None:
-            return torch.zeros(rows, len(self._bound), device=self.device)
-        mu = batch["next_backbone_action"].to(self.device, non_blocking=True)
+            return torch.zeros(len(batch["next_obs"]), len(self._bound), device=self.device)
+        mu = batch[column].to(self.device, non_blocking=True)
         return torch.clamp(mu - self._centre, *self.action_box)
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:

@@ -434,7 +434,11 @@ def test_clone_tree_fits_a_standalone_pi_to_the_tree_while_the_actor_is_frozen()
     assert cloned.num_actor_updates == 0  # cloning is not TD3's actor step
     with pytest.raises(ValueError, match="standalone"):
         ObservingBackboneLearner(
-            3, np.array([2.0], np.float32), np.array([2.0]), config=TD3Config(), seed=0,
+            3,
+            np.array([2.0], np.float32),
+            np.array([2.0]),
+            config=TD3Config(),
+            seed=0,
             clone_tree=True,
         )
     with pytest.raises(ValueError, match="clone_tree=True needs residual=False"):
