@@ -61,8 +61,8 @@ class BackboneConfig:
     clone_tree: bool = False
     """A standalone actor that starts as a copy of the tree: while the actor is frozen
     (``td3.frozen_actor_updates``, the critic's burn-in) each delayed actor step fits
-    π(s) to μ(s) − centre by mean squared error on the batch (behaviour cloning, as the
-    paper's pre-training, sec. III-A) instead of leaving π at its initialisation; the
+    π(s) to μ(s) − centre by the paper's imitation loss, eq. (8) (behaviour cloning, as in
+    its pre-training, sec. III-A) instead of leaving π at its initialisation; the
     critic's TD target follows the cloned π' meanwhile. Needs residual=False (a residual
     starts as the tree already). Measured, no gain: TD3's first steps undo the copy
     (docs/own-task.md), so the recipe leaves it off."""

@@ -18,6 +18,7 @@ from torch import nn
 from actors.behaviours.switching import CRITIC_PREFIX
 from learner.backbone.networks import backbone_input
 from learner.device import CPU, CompileMode, compile_networks
+from learner.pretrain.learning import imitation_loss
 from learner.selection import with_tree_only
 from learner.td3.config import TD3Config
 from learner.td3.learning import TD3Learner, td3_target
@@ -102,20 +103,6 @@ def conservative_actor_loss(
     return -q.mean() / scale + penalty * ((correction / bound) ** 2).mean()
 
 
-def clone_loss(actor: nn.Module, obs: torch.Tensor, tree: torch.Tensor) -> torch.Tensor:
-    """Behaviour cloning of the tree: mean((π(s) − (μ(s) − centre))²) over the batch.
-
-    Args:
-        actor: The standalone actor π (its output is the action minus the box's centre).
-        obs: s with μ(s) appended, [B, obs_dim].
-        tree: The tree's proposal μ(s) − centre, clipped to π's box, [B, act_dim].
-
-    Returns:
-        The scalar loss.
-    """
-    return ((actor(obs) - tree) ** 2).mean()
-
-
 class ObservingBackboneLearner(TD3Learner):
     """TD3 on the correction whose actor and critics see [s, μ(s) / scale] (residual RL).
 
@@ -149,7 +136,7 @@ class ObservingBackboneLearner(TD3Learner):
         `centre`: a standalone actor, whose output is the action minus this centre, so
         that the tree's proposal is μ(s) − centre (None: the residual, the correction 0);
         `clone_tree`: while the actor is frozen, its delayed steps fit π(s) to the tree's
-        proposal instead (`clone_loss`; needs `centre`, and eager updates)."""
+        proposal instead (eq. 8's `imitation_loss`; needs `centre`, and eager updates)."""
         act_dim = bound.shape[0]
         super().__init__(
             obs_dim + act_dim,
@@ -249,7 +236,7 @@ class ObservingBackboneLearner(TD3Learner):
     def _clone_step(self, batch: dict[str, torch.Tensor]) -> float:
         """One gradient step of π towards the tree's proposal on this (observed) batch."""
         obs = batch["obs"].to(self.device, non_blocking=True)
-        loss = clone_loss(self.actor, obs, self._tree_proposal(batch, "backbone_action"))
+        loss = imitation_loss(self.actor(obs), self._tree_proposal(batch, "backbone_action"))
         self.actor_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.actor_optimizer.step()
