@@ -64,8 +64,9 @@ class BackboneConfig:
     π(s) to μ(s) − centre by the paper's imitation loss, eq. (8) (behaviour cloning, as in
     its pre-training, sec. III-A) instead of leaving π at its initialisation; the
     critic's TD target follows the cloned π' meanwhile. Needs residual=False (a residual
-    starts as the tree already). Measured, no gain: TD3's first steps undo the copy
-    (docs/own-task.md), so the recipe leaves it off."""
+    starts as the tree already). Measured on one seed: TD3's first steps undo the copy,
+    and the finals moved no more than between two runs (docs/own-task.md), so the recipe
+    leaves it off."""
 
     def __post_init__(self) -> None:
         if not self.correction_limit > 0.0:
