@@ -70,7 +70,7 @@ from bench.seeds import SeedResult, run_seed
 from graft.api import Policy
 from graft.cli.flags import parse_settings
 from graft.config import load_preset
-from graft.seeds import evaluation_seed, held_out_seed
+from graft.seeds import LEGACY_EVALUATION, held_out_seed
 from service.metrics import read_metric
 
 REPO = Path(__file__).resolve().parents[1]
@@ -169,9 +169,10 @@ def final_seed(seed: int) -> int:
     return held_out_seed(seed)
 
 
-def in_run_seed(seed: int) -> int:
-    """First reset seed of a run's in-run evaluations and final selection."""
-    return evaluation_seed(seed)
+def in_run_seed(summary: dict[str, Any]) -> int:
+    """First reset seed of a finished run's in-run evaluations and final selection, as its
+    summary.json records it (runs trained before the record: `graft.seeds`' legacy one)."""
+    return int(summary.get("evaluation_seed", LEGACY_EVALUATION + summary["seed"]))
 
 
 def arm_overrides(task: str, arm: str, overrides: Sequence[str], quick: bool) -> list[str]:
@@ -201,7 +202,7 @@ def score_seed(
         seed=seed,
         tree=graft.evaluate(tree, episodes=episodes, seed=final_seed(seed)).mean,
         final=result.mean,
-        tree_in_run=graft.evaluate(tree, episodes=eval_episodes, seed=in_run_seed(seed)).mean,
+        tree_in_run=graft.evaluate(tree, episodes=eval_episodes, seed=in_run_seed(summary)).mean,
         steps=steps,
         evaluations=evaluations,
         env_steps=int(summary["env_steps"]),
@@ -240,7 +241,8 @@ def run_task(
     for seed in seeds:
         start, run_dir = time.perf_counter(), out / task / arm / f"s{seed}"
         if reselected and arm == "recipe" and (run_dir / "summary.json").exists():
-            record = reselect(run_dir, episodes=episodes, eval_seed=final_seed(seed))
+            record = reselect(run_dir, rule=config.selection, episodes=episodes,
+                              eval_seed=final_seed(seed))  # fmt: skip
             print(f"{task} seed {seed}: selection {record}", flush=True)
         try:
             result = run_seed(

@@ -10,8 +10,9 @@ not how they learn, so one run scores all of them on the same held-out episodes:
 (`bench/improve.py --parts`; the learning-side parts — the penalty, the burn-in, the decayed
 margin loss — need runs of their own: `--set` them off.)
 
-`reselect` applies the current final-selection rule to a finished run, on the very episodes
-`graft train` selects on (`bench/improve.py --reselect`, for runs trained under an older rule).
+`reselect` applies the current final-selection rule to a finished run, on the episodes
+`graft train` selects on now (`bench/improve.py --reselect`, for runs trained under an older
+rule or on the older evaluation episodes).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 
 import graft
 from bench.seeds import GRAFT
+from learner.selection import SelectionConfig
 
 PARTS = ("switching", "policy")
 """The variants scored besides the final policy, in the order the table prints them."""
@@ -57,12 +59,15 @@ def part_scores(run_dir: Path, *, episodes: int, seed: int) -> dict[str, float]:
     return scores
 
 
-def reselect(run_dir: Path, *, episodes: int, eval_seed: int) -> dict[str, float]:
-    """Re-runs the final selection (`learner.selection.tree_wins`) of a finished run with
-    its own settings, on the evaluator's episodes (reset seeds 10,000 + seed + i), writes the
-    choice into its last checkpoint and its summary, and when the choice changed scores the
-    final policy again as `bench.seeds.run_seed` does (`graft eval`, `episodes` from
-    `eval_seed`) into ``eval.json``.
+def reselect(
+    run_dir: Path, *, rule: SelectionConfig, episodes: int, eval_seed: int
+) -> dict[str, float]:
+    """Applies the final selection `rule` (`learner.selection.tree_wins`) to a finished run,
+    on the episodes a run with its seed selects on now (`graft.seeds.evaluation_seed`), and
+    writes the choice into its last checkpoint and its summary (``reselected``: by what
+    rule, when the record changed). When the choice changed (the tree kept or not) it
+    scores the final policy again as `bench.seeds.run_seed` does (`graft eval`, `episodes`
+    from `eval_seed`) into ``eval.json``.
 
     Returns:
         The selection record, as `graft train` writes it (``policy``, ``tree``, ``tree_kept``).
@@ -70,18 +75,21 @@ def reselect(run_dir: Path, *, episodes: int, eval_seed: int) -> dict[str, float
     import torch
 
     from actors.evaluator import play_episodes
+    from graft.seeds import evaluation_seed
     from graft.trained import load_behaviour
     from learner.checkpoint import find_checkpoint, load_checkpoint
     from learner.selection import tree_wins
 
     behaviour, config = load_behaviour(run_dir)
-    n, seed = config.selection.episodes, 10_000 + config.seed
+    seed = evaluation_seed(config.seed)
     returns = {}
     for name, tree_only in (("policy", False), ("tree", True)):
         behaviour.tree_only = tree_only
-        played = play_episodes(behaviour.greedy, env=config.env_spec(), episodes=n, seed=seed)
+        played = play_episodes(
+            behaviour.greedy, env=config.env_spec(), episodes=rule.episodes, seed=seed
+        )
         returns[name] = [float(r) for r in played.returns]
-    kept = tree_wins(returns["policy"], returns["tree"], z=config.selection.z)
+    kept = tree_wins(returns["policy"], returns["tree"], z=rule.z)
     checkpoint, _ = find_checkpoint(run_dir)
     state = load_checkpoint(checkpoint)
     state["algorithm"]["tree_only"] = kept
@@ -90,8 +98,10 @@ def reselect(run_dir: Path, *, episodes: int, eval_seed: int) -> dict[str, float
     summary = json.loads((run_dir / "summary.json").read_text())
     before = summary.get("selection") or {}
     if not all(math.isclose(before.get(k, math.nan), v, rel_tol=1e-9) for k, v in record.items()):
-        summary |= {"selection": record, "reselected": True}
+        rule_used = {"episodes": rule.episodes, "z": rule.z, "seed": seed}
+        summary |= {"selection": record, "reselected": rule_used}
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    if before.get("tree_kept") != record["tree_kept"]:
         command = [*GRAFT, "eval", "--policy", str(run_dir), "--episodes", str(episodes)]
         command += ["--seed", str(eval_seed), "--json"]
         out = subprocess.run(command, check=True, capture_output=True, text=True).stdout

@@ -283,7 +283,7 @@ def score(plan: Plan, saved: Mapping[str, Any], tree: Policy) -> SeedRow:
         tree=graft.evaluate(tree, episodes=plan.episodes, seed=held_out_seed(plan.seed)).mean,
         final=float(saved["mean"]),
         tree_in_run=graft.evaluate(
-            tree, episodes=int(evaluations["episodes"]), seed=evaluation_seed(plan.seed)
+            tree, episodes=int(evaluations["episodes"]), seed=int(evaluations["seed"])
         ).mean,
         steps=[int(s) for s in evaluations["env_steps"]],
         evaluations=[float(m) for m in evaluations["return_mean"]],

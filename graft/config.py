@@ -201,6 +201,13 @@ class TrainConfig:
                 f"<= {seeds.BLOCK}: a run's environments reset from one block of "
                 f"{seeds.BLOCK} seeds (graft/seeds.py)"
             )
+        most = max(self.eval_episodes, self.selection.episodes)
+        if most > seeds.BLOCK:
+            raise ValueError(
+                f"eval_episodes={self.eval_episodes} and selection.episodes="
+                f"{self.selection.episodes} must be <= {seeds.BLOCK}: a run's evaluation "
+                f"episodes reset from one block of {seeds.BLOCK} seeds (graft/seeds.py)"
+            )
         if not 0 <= self.seed < 2**32:
             raise ValueError(f"seed={self.seed} must lie in [0, 2**32) (numpy's seed range)")
         if self.keep_checkpoints < 0:

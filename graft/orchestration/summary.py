@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from graft.config import TrainConfig
+from graft.seeds import evaluation_seed
 from learner.loop import LoopState
 from service.metrics import MetricsLogger
 
@@ -36,6 +37,7 @@ def summarise(
     return {
         "preset": config.preset,
         "seed": config.seed,
+        "evaluation_seed": evaluation_seed(config.seed),  # in-run evaluations, selection
         "env_steps": s.env_steps,
         "updates": s.updates,
         "policy_version": s.version,

@@ -12,6 +12,8 @@ import pytest
 import ray
 
 from bench import improve, improve_report
+from graft.seeds import evaluation_seed
+from learner.checkpoint import find_checkpoint, load_checkpoint
 
 
 def _row(seed: int, tree: float, final: float, evaluations: list[float]) -> improve.SeedRow:
@@ -139,10 +141,21 @@ def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, caps
     )
     after = json.loads((run / "summary.json").read_text())
     assert after["selection"] == pytest.approx(before) and "reselected" not in after
+    assert after["evaluation_seed"] == evaluation_seed(0)
     out = capsys.readouterr().out
     assert "| task | seed | tree | π everywhere | with switching | selected (final) |" in out
     saved = json.loads((tmp_path / "improve-pendulum.json").read_text())
     assert set(saved["seeds"]["pendulum"]["recipe"][0]["parts"]) == {"switching", "policy"}
+    # A new rule: the run's summary and its last checkpoint take its choice, and say how.
+    stricter = ["--set", "selection.episodes=3", "--set", "selection.z=2"]
+    improve.main(
+        ["--task", "pendulum", "--quick", "--out", str(tmp_path), "--reselect", "--arm", "recipe"]
+        + stricter
+    )
+    after = json.loads((run / "summary.json").read_text())
+    assert after["reselected"] == {"episodes": 3, "z": 2.0, "seed": evaluation_seed(0)}
+    checkpoint, _ = find_checkpoint(run)
+    assert load_checkpoint(checkpoint)["algorithm"]["tree_only"] == after["selection"]["tree_kept"]
 
 
 def test_plot_redraws_earlier_runs_from_their_json_without_training(tmp_path):
