@@ -1,12 +1,12 @@
 """A published network's forward pass in numpy: actors and the evaluator act without torch.
 
 The learner's acting networks are plain MLPs (learner/td3/networks.py): `mlp` is
-``Linear -> ReLU -> ... -> Linear``, and `Actor` squashes its output into the action box
-with ``centre + half_width * tanh(·)``. Weights arrive as numpy arrays named as in the
-learner's state dict (``net.0.weight``, ``net.0.bias``, ..., ``action_low``,
-``action_high`` for an actor; ``0.weight``, ... for a Q network). `PolicyNet` computes the
-same function from them in float32, so an actor process never imports torch: it starts
-about 1.4 s of CPU sooner and holds a few hundred MB less.
+``Linear -> [LayerNorm ->] ReLU -> ... -> Linear``, and `Actor` squashes its output into
+the action box with ``centre + half_width * tanh(·)``. Weights arrive as numpy arrays
+named as in the learner's state dict (``net.0.weight``, ``net.0.bias``, ..., ``action_low``,
+``action_high`` for an actor; ``0.weight``, ... for a Q network; a LayerNorm's are 1-d).
+`PolicyNet` computes the same function from them in float32, so an actor process never
+imports torch: it starts about 1.4 s of CPU sooner and holds a few hundred MB less.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ class ActingNet(Protocol):
 
 
 class PolicyNet:
-    """``x -> Linear -> ReLU -> ... -> Linear [-> centre + half_width * tanh]`` in numpy."""
+    """``x -> Linear -> [LayerNorm ->] ReLU -> ... -> Linear [-> centre + half_width * tanh]``
+    in numpy."""
 
     def __init__(self, weights: WeightArrays) -> None:
         """Builds the network from its weights (see `load`).
@@ -40,7 +41,7 @@ class PolicyNet:
         Raises:
             ValueError: If the names do not describe an MLP (see `load`).
         """
-        self._layers: list[tuple[np.ndarray, np.ndarray]] = []
+        self._layers: list[tuple[np.ndarray, np.ndarray, Optional[tuple[np.ndarray, ...]]]] = []
         self._squash: Optional[tuple[np.ndarray, np.ndarray]] = None
         self._shapes: Optional[dict[str, tuple[int, ...]]] = None
         self.load(weights)
@@ -73,7 +74,15 @@ class PolicyNet:
             raise ValueError(f"weights of more than one network: {sorted(prefixes)}")
         if any(len(part) != 2 for part in layers.values()) or not layers:
             raise ValueError(f"every linear layer needs a weight and a bias: {sorted(shapes)}")
-        self._layers = [(layers[i]["weight"].T, layers[i]["bias"]) for i in sorted(layers)]
+        self._layers = []
+        for i in sorted(layers):
+            weight, bias = layers[i]["weight"], layers[i]["bias"]
+            if weight.ndim == 2:
+                self._layers.append((weight.T, bias, None))
+            elif self._layers and self._layers[-1][2] is None:  # a LayerNorm's scale, shift
+                self._layers[-1] = (*self._layers[-1][:2], (weight, bias))
+            else:
+                raise ValueError(f"layer {i}: a LayerNorm must follow a linear layer")
         if all(k in weights for k in _SQUASH):
             low, high = (np.array(weights[k], dtype=np.float32) for k in _SQUASH)
             self._squash = ((high + low) / 2, (high - low) / 2)
@@ -84,9 +93,14 @@ class PolicyNet:
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """The network's output for inputs [B, in], float32 [B, out]."""
         h = np.asarray(x, dtype=np.float32)
-        for weight, bias in self._layers[:-1]:
-            h = np.maximum(h @ weight + bias, 0.0)
-        weight, bias = self._layers[-1]
+        for weight, bias, norm in self._layers[:-1]:
+            h = h @ weight + bias
+            if norm is not None:  # torch's LayerNorm: biased variance, eps 1e-5
+                centred = h - h.mean(axis=-1, keepdims=True)
+                scale = np.sqrt((centred * centred).mean(axis=-1, keepdims=True) + 1e-5)
+                h = centred / scale * norm[0] + norm[1]
+            h = np.maximum(h, 0.0)
+        weight, bias, _ = self._layers[-1]
         h = h @ weight + bias
         if self._squash is not None:
             centre, half_width = self._squash

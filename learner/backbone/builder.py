@@ -146,7 +146,9 @@ class BackboneBuilder:
         correction = make_actor_network(in_dim, t.act_dim, -self.bound, self.bound, t.config)
         critic = None
         if self._actors_need_critic():  # the behaviour's copy, in numpy as actors run it
-            twin = TwinCritic(in_dim, t.act_dim, t.config.hidden_sizes)
+            twin = TwinCritic(
+                in_dim, t.act_dim, t.config.hidden_sizes, layer_norm=t.config.critic_layer_norm
+            )
             critic = TwinQ(as_arrays(twin.state_dict()))
         return BackboneBehaviour(
             acting_copy(correction),

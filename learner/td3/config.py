@@ -30,6 +30,9 @@ class TD3Config:
     """Adam learning rate of the twin critic."""
     hidden_sizes: tuple[int, ...] = (256, 256)
     """Widths of the hidden ReLU layers of the actor and of each critic."""
+    critic_layer_norm: bool = False
+    """A LayerNorm before each hidden ReLU of the twin critics (RLPD, Ball et al., 2023);
+    the actor stays a plain MLP."""
     batch_size: int = 256
     """Transitions per learner update (sampled by the learner loop, not by `update`)."""
     exploration_noise: float = 0.1

@@ -177,7 +177,9 @@ class TD3Learner:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(init_seed))
             self.actor = Actor(obs_dim, act_dim, action_low, action_high, config.hidden_sizes)
-            self.critic = TwinCritic(obs_dim, act_dim, config.hidden_sizes)
+            self.critic = TwinCritic(
+                obs_dim, act_dim, config.hidden_sizes, layer_norm=config.critic_layer_norm
+            )
         self.actor.to(self.device)
         self.critic.to(self.device)
         self.action_box = (self.actor.action_low.clone(), self.actor.action_high.clone())

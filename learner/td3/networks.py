@@ -12,20 +12,26 @@ from actors.policy_net import PolicyNet
 from service.core import as_arrays
 
 
-def mlp(in_dim: int, hidden_sizes: Sequence[int], out_dim: int) -> nn.Sequential:
-    """Builds ``Linear -> ReLU -> ... -> Linear`` with the given hidden widths.
+def mlp(
+    in_dim: int, hidden_sizes: Sequence[int], out_dim: int, *, layer_norm: bool = False
+) -> nn.Sequential:
+    """Builds ``Linear -> [LayerNorm ->] ReLU -> ... -> Linear`` with the given hidden widths.
 
     Args:
         in_dim: Input features.
         hidden_sizes: Widths of the hidden layers, each followed by a ReLU.
         out_dim: Output features (no activation on the last layer).
+        layer_norm: A LayerNorm between each hidden Linear and its ReLU (RLPD's critics,
+            Ball et al., 2023: it bounds Q's growth off the data, so that more updates per
+            env step do not blow it up).
 
     Returns:
         The MLP.
     """
     layers: list[nn.Module] = []
     for width in hidden_sizes:
-        layers += [nn.Linear(in_dim, width), nn.ReLU()]
+        layers += [nn.Linear(in_dim, width), *([nn.LayerNorm(width)] if layer_norm else [])]
+        layers.append(nn.ReLU())
         in_dim = width
     layers.append(nn.Linear(in_dim, out_dim))
     return nn.Sequential(*layers)
@@ -90,17 +96,20 @@ class Actor(nn.Module):
 class TwinCritic(nn.Module):
     """Two independent Q networks Q1(s, a), Q2(s, a) (clipped double Q learning)."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int]) -> None:
+    def __init__(
+        self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int], *, layer_norm: bool = False
+    ) -> None:
         """Creates both critics.
 
         Args:
             obs_dim: Observation size.
             act_dim: Action size.
             hidden_sizes: Widths of the hidden ReLU layers of each critic.
+            layer_norm: A LayerNorm before each hidden ReLU (`mlp`).
         """
         super().__init__()
-        self.q1_net = mlp(obs_dim + act_dim, hidden_sizes, 1)
-        self.q2_net = mlp(obs_dim + act_dim, hidden_sizes, 1)
+        self.q1_net = mlp(obs_dim + act_dim, hidden_sizes, 1, layer_norm=layer_norm)
+        self.q2_net = mlp(obs_dim + act_dim, hidden_sizes, 1, layer_norm=layer_norm)
 
     def forward(self, obs: torch.Tensor, act: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Returns (Q1(s, a), Q2(s, a)), each of shape [B]."""

@@ -8,7 +8,7 @@ import torch
 
 from actors.policy_net import PolicyNet, TwinQ
 from learner.dqn.networks import make_q_network
-from learner.td3.networks import Actor, TwinCritic, acting_copy
+from learner.td3.networks import Actor, TwinCritic, acting_copy, mlp
 from service.core import as_arrays
 
 LOW, HIGH = np.array([-2.0, 0.0], np.float32), np.array([2.0, 3.0], np.float32)
@@ -20,6 +20,7 @@ LOW, HIGH = np.array([-2.0, 0.0], np.float32), np.array([2.0, 3.0], np.float32)
         pytest.param(lambda: Actor(5, 2, LOW, HIGH, (64, 32)), id="tanh actor, 2 hidden"),
         pytest.param(lambda: Actor(5, 2, LOW, HIGH, ()), id="tanh actor, no hidden"),
         pytest.param(lambda: make_q_network(5, 4, (16,)), id="q network"),
+        pytest.param(lambda: mlp(5, (16, 8), 3, layer_norm=True), id="with LayerNorm"),
     ],
 )
 def test_the_numpy_forward_pass_equals_torchs(network) -> None:
@@ -68,6 +69,7 @@ def test_load_takes_new_weights_and_refuses_others() -> None:
             {"0.weight": np.ones((2, 2)), "0.bias": np.ones(2), "action_low": np.zeros(2)},
             "both",
         ),
+        ({"0.weight": np.ones(2), "0.bias": np.ones(2)}, "must follow a linear layer"),
     ],
 )
 def test_weights_that_are_not_an_mlp_are_refused(weights, error) -> None:
@@ -88,9 +90,12 @@ def test_layers_run_in_index_order_not_name_order() -> None:
     np.testing.assert_allclose(out, expected)
 
 
-def test_the_twin_critic_in_numpy_is_the_smaller_of_torchs_two_estimates() -> None:
+@pytest.mark.parametrize("layer_norm", [False, True])
+def test_the_twin_critic_in_numpy_is_the_smaller_of_torchs_two_estimates(layer_norm) -> None:
     torch.manual_seed(0)
-    critic = TwinCritic(4, 2, (16, 16))
+    critic = TwinCritic(4, 2, (16, 16), layer_norm=layer_norm)
+    for p in critic.parameters():  # LayerNorm's scale and shift away from 1 and 0 too
+        torch.nn.init.normal_(p, std=0.7)
     rng = np.random.default_rng(0)
     x = rng.normal(size=(9, 4)).astype(np.float32)
     a = rng.normal(size=(9, 2)).astype(np.float32)

@@ -149,3 +149,27 @@ def test_the_recipe_with_a_standalone_actor_trains_through_the_service(ray_local
     assert 600 - 16 <= summary["env_steps"] <= 600
     assert summary["updates"] == 600 - 60 + 30  # a tenth of the budget prefills; the burn-in
     assert np.isfinite(summary["final_eval_return_mean"]) and "selection" in summary
+
+
+def test_layer_norm_critics_reach_the_actors_numpy_copy(tmp_path):
+    """`td3.critic_layer_norm`: the learner's twin critics get a LayerNorm before each
+    hidden ReLU, and the critic the actors switch by (numpy) values actions as it does."""
+    import torch
+
+    from graft.registry import make_builder
+    from service.core import as_arrays
+
+    preset = _preset(tmp_path, PENDULUM + "recipe: continuous\n")
+    config = load_preset(preset, **{"td3.critic_layer_norm": True, "td3.hidden_sizes": [16, 16]})
+    builder = make_builder(config)
+    learner, behaviour = builder.make_learner(), builder.make_behaviour(num_actors=1)
+    assert any(isinstance(m, torch.nn.LayerNorm) for m in learner.critic.modules())
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in learner.actor.modules())
+    for p in learner.critic.parameters():
+        torch.nn.init.normal_(p, std=0.7)
+    behaviour.load(as_arrays(learner.policy_state()))
+    rng = np.random.default_rng(0)
+    x, a = rng.normal(size=(7, 4)).astype(np.float32), rng.normal(size=(7, 1)).astype(np.float32)
+    with torch.no_grad():
+        expected = torch.min(*learner.critic(torch.as_tensor(x), torch.as_tensor(a))).numpy()
+    np.testing.assert_allclose(behaviour.critic(x, a), expected, rtol=1e-5, atol=1e-5)

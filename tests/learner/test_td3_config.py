@@ -22,6 +22,7 @@ LEARNER_FIELDS = {
     "actor_lr": 1e-2,
     "critic_lr": 1e-2,
     "hidden_sizes": (16, 8),
+    "critic_layer_norm": True,
     "frozen_actor_updates": 2,
 }
 
