@@ -195,21 +195,7 @@ class TrainConfig:
             )
         if self.updates_per_env_step <= 0:
             raise ValueError(f"updates_per_env_step={self.updates_per_env_step} must be > 0")
-        if self.num_actors * self.envs_per_actor > seeds.BLOCK:
-            raise ValueError(
-                f"num_actors={self.num_actors} x envs_per_actor={self.envs_per_actor} must be "
-                f"<= {seeds.BLOCK}: a run's environments reset from one block of "
-                f"{seeds.BLOCK} seeds (graft/seeds.py)"
-            )
-        most = max(self.eval_episodes, self.selection.episodes)
-        if most > seeds.BLOCK:
-            raise ValueError(
-                f"eval_episodes={self.eval_episodes} and selection.episodes="
-                f"{self.selection.episodes} must be <= {seeds.BLOCK}: a run's evaluation "
-                f"episodes reset from one block of {seeds.BLOCK} seeds (graft/seeds.py)"
-            )
-        if not 0 <= self.seed < 2**32:
-            raise ValueError(f"seed={self.seed} must lie in [0, 2**32) (numpy's seed range)")
+        self._check_seed_blocks()
         if self.keep_checkpoints < 0:
             raise ValueError(f"keep_checkpoints={self.keep_checkpoints} must be >= 0 (0: all)")
         if not isinstance(self.env_kwargs, dict):
@@ -232,6 +218,25 @@ class TrainConfig:
             isinstance(p, str) for p in self.import_path
         ):
             raise ValueError(f"import_path={self.import_path!r} must be a list of folders")
+
+    def _check_seed_blocks(self) -> None:
+        """Refuses a seed, or more environments or evaluation episodes than one block of
+        reset seeds holds (graft/seeds.py)."""
+        if self.num_actors * self.envs_per_actor > seeds.BLOCK:
+            raise ValueError(
+                f"num_actors={self.num_actors} x envs_per_actor={self.envs_per_actor} must be "
+                f"<= {seeds.BLOCK}: a run's environments reset from one block of "
+                f"{seeds.BLOCK} seeds (graft/seeds.py)"
+            )
+        most = max(self.eval_episodes, self.selection.episodes)
+        if most > seeds.BLOCK:
+            raise ValueError(
+                f"eval_episodes={self.eval_episodes} and selection.episodes="
+                f"{self.selection.episodes} must be <= {seeds.BLOCK}: a run's evaluation "
+                f"episodes reset from one block of {seeds.BLOCK} seeds (graft/seeds.py)"
+            )
+        if not 0 <= self.seed < 2**32:
+            raise ValueError(f"seed={self.seed} must lie in [0, 2**32) (numpy's seed range)")
 
     def _check_shards(self) -> None:
         """Refuses a shard count the run cannot use: each shard needs a writer, a share
