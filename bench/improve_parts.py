@@ -19,13 +19,12 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 from pathlib import Path
 
 import numpy as np
 
 import graft
-from bench.seeds import GRAFT
+from bench.seeds import evaluate_run
 from learner.selection import SelectionConfig
 
 PARTS = ("switching", "policy")
@@ -102,13 +101,9 @@ def reselect(
         summary |= {"selection": record, "reselected": rule_used}
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     if before.get("tree_kept") != record["tree_kept"]:
-        command = [*GRAFT, "eval", "--policy", str(run_dir), "--episodes", str(episodes)]
-        command += ["--seed", str(eval_seed), "--json"]
-        out = subprocess.run(command, check=True, capture_output=True, text=True).stdout
-        saved = json.loads(out.strip().splitlines()[-1])
         done = run_dir / "eval.json"
-        saved["wall_s"] = json.loads(done.read_text()).get("wall_s", 0.0) if done.exists() else 0.0
-        done.write_text(json.dumps(saved))
+        wall_s = json.loads(done.read_text()).get("wall_s", 0.0) if done.exists() else 0.0
+        evaluate_run(run_dir, episodes=episodes, eval_seed=eval_seed, wall_s=wall_s)
     return record
 
 

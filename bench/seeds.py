@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from graft.experiments.stats import summarize
 
@@ -73,13 +74,20 @@ def run_seed(
         with open(run_dir.parent / f"{run_dir.name}.log", "w") as log:
             subprocess.run(train, check=True, stdout=log, stderr=subprocess.STDOUT)
         wall_s = time.perf_counter() - start
+    saved = evaluate_run(run_dir, episodes=episodes, eval_seed=eval_seed, wall_s=wall_s)
+    return SeedResult(seed, saved["mean"], saved["std"], run_dir, wall_s)
+
+
+def evaluate_run(run_dir: Path, *, episodes: int, eval_seed: int, wall_s: float) -> dict[str, Any]:
+    """`graft eval --json` of a run's final policy on `episodes` episodes from `eval_seed`,
+    written to RUN/eval.json with the run's training wall time; returns what it wrote."""
     evaluate = [*GRAFT, "eval", "--policy", str(run_dir), "--episodes", str(episodes)]
     evaluate += ["--seed", str(eval_seed), "--json"]
     out = subprocess.run(evaluate, check=True, capture_output=True, text=True).stdout
-    saved = json.loads(out.strip().splitlines()[-1])
+    saved: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
     saved["wall_s"] = wall_s
-    done.write_text(json.dumps(saved))
-    return SeedResult(seed, saved["mean"], saved["std"], run_dir, wall_s)
+    (run_dir / "eval.json").write_text(json.dumps(saved))
+    return saved
 
 
 def trained_wall_s(run_dir: Path) -> float | None:

@@ -146,16 +146,20 @@ def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, caps
     assert "| task | seed | tree | π everywhere | with switching | selected (final) |" in out
     saved = json.loads((tmp_path / "improve-pendulum.json").read_text())
     assert set(saved["seeds"]["pendulum"]["recipe"][0]["parts"]) == {"switching", "policy"}
-    # A new rule: the run's summary and its last checkpoint take its choice, and say how.
-    stricter = ["--set", "selection.episodes=3", "--set", "selection.z=2"]
+    # A new rule: the run's summary and its last checkpoint take its choice, and say how;
+    # one no policy passes (z = 1000) keeps the tree, and the final is scored as the tree.
+    stricter = ["--set", "selection.episodes=3", "--set", "selection.z=1000"]
     improve.main(
         ["--task", "pendulum", "--quick", "--out", str(tmp_path), "--reselect", "--arm", "recipe"]
         + stricter
     )
     after = json.loads((run / "summary.json").read_text())
-    assert after["reselected"] == {"episodes": 3, "z": 2.0, "seed": evaluation_seed(0)}
+    assert after["reselected"] == {"episodes": 3, "z": 1000.0, "seed": evaluation_seed(0)}
+    assert after["selection"]["tree_kept"] == 1.0
     checkpoint, _ = find_checkpoint(run)
-    assert load_checkpoint(checkpoint)["algorithm"]["tree_only"] == after["selection"]["tree_kept"]
+    assert load_checkpoint(checkpoint)["algorithm"]["tree_only"] is True
+    row = json.loads((tmp_path / "improve-pendulum.json").read_text())["seeds"]["pendulum"]
+    assert row["recipe"][0]["final"] == pytest.approx(row["recipe"][0]["tree"])
 
 
 def test_plot_redraws_earlier_runs_from_their_json_without_training(tmp_path):
