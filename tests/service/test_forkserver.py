@@ -37,8 +37,10 @@ def _start(tmp_path: Path, *argv: str) -> tuple[forkserver.Process, Path]:
 
 
 def _wait_for_output(process: forkserver.Process, output: Path) -> None:
+    """Until the child's first line is whole: a line over 4 KiB may reach the file in
+    more than one write, and a signal between them would cut it."""
     deadline = time.monotonic() + 30
-    while not output.read_text():
+    while not output.read_text().endswith("\n"):
         assert time.monotonic() < deadline and process.poll() is None
         time.sleep(0.02)
 
