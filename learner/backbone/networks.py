@@ -56,7 +56,7 @@ def load_teacher(
         raise ValueError(f"teacher {found}: not a TD3 checkpoint (no actor/critic)")
     actor = Actor(obs_dim, act_dim, low, high, hidden)
     actor.load_state_dict(state["actor"])
-    layer_norm = bool(td3_data.get("critic_layer_norm", False))
+    layer_norm = td3_data.get("critic_layer_norm", "none")
     critic = TwinCritic(obs_dim, act_dim, hidden, layer_norm=layer_norm)
     critic.load_state_dict(state["critic"])
     return actor.requires_grad_(False), critic.requires_grad_(False)

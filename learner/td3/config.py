@@ -4,6 +4,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+LAYER_NORMS = ("none", "first", "all")
+
+
+def layer_norm_setting(value: str | bool) -> str:
+    """`critic_layer_norm` as one of `LAYER_NORMS`: a bool (how runs before ``first``
+    recorded it) reads as ``all`` or ``none``."""
+    if isinstance(value, bool):
+        return "all" if value else "none"
+    if value not in LAYER_NORMS:
+        raise ValueError(
+            f"critic_layer_norm={value!r} must be one of {', '.join(LAYER_NORMS)} (or true/false)."
+        )
+    return value
+
 
 @dataclass(frozen=True)
 class TD3Config:
@@ -30,9 +44,10 @@ class TD3Config:
     """Adam learning rate of the twin critic."""
     hidden_sizes: tuple[int, ...] = (256, 256)
     """Widths of the hidden ReLU layers of the actor and of each critic."""
-    critic_layer_norm: bool = False
-    """A LayerNorm before each hidden ReLU of the twin critics (RLPD, Ball et al., 2023);
-    the actor stays a plain MLP."""
+    critic_layer_norm: str | bool = "none"
+    """Where the twin critics get a LayerNorm before a hidden ReLU: ``none``, ``first``
+    (the first hidden layer only) or ``all`` (each, RLPD's critic, Ball et al., 2023); a
+    bool reads as ``all``/``none``. The actor stays a plain MLP."""
     batch_size: int = 256
     """Transitions per learner update (sampled by the learner loop, not by `update`)."""
     exploration_noise: float = 0.1
@@ -48,6 +63,7 @@ class TD3Config:
         """Refuses settings that cannot train, with a message naming the field."""
         # Presets parsed from YAML give lists; keep the dataclass hashable and immutable.
         object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+        object.__setattr__(self, "critic_layer_norm", layer_norm_setting(self.critic_layer_norm))
         if not 0.0 <= self.gamma <= 1.0:
             raise ValueError(f"gamma={self.gamma} must lie in [0, 1]; it discounts future reward.")
         if not 0.0 < self.tau <= 1.0:

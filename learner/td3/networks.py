@@ -9,11 +9,12 @@ import torch
 from torch import nn
 
 from actors.policy_net import PolicyNet
+from learner.td3.config import layer_norm_setting
 from service.core import as_arrays
 
 
 def mlp(
-    in_dim: int, hidden_sizes: Sequence[int], out_dim: int, *, layer_norm: bool = False
+    in_dim: int, hidden_sizes: Sequence[int], out_dim: int, *, layer_norm: str | bool = "none"
 ) -> nn.Sequential:
     """Builds ``Linear -> [LayerNorm ->] ReLU -> ... -> Linear`` with the given hidden widths.
 
@@ -21,16 +22,19 @@ def mlp(
         in_dim: Input features.
         hidden_sizes: Widths of the hidden layers, each followed by a ReLU.
         out_dim: Output features (no activation on the last layer).
-        layer_norm: A LayerNorm between each hidden Linear and its ReLU (RLPD's critics,
-            Ball et al., 2023: it bounds Q's growth off the data, so that more updates per
-            env step do not blow it up).
+        layer_norm: Where a LayerNorm goes between a hidden Linear and its ReLU: ``none``,
+            ``first`` (the first hidden layer: features of raw, unscaled observations on
+            one scale) or ``all`` (RLPD's critics, Ball et al., 2023: it bounds Q's growth
+            off the data); a bool reads as ``all``/``none`` (`layer_norm_setting`).
 
     Returns:
         The MLP.
     """
+    setting = layer_norm_setting(layer_norm)
+    normed = {"none": 0, "first": 1, "all": len(hidden_sizes)}[setting]
     layers: list[nn.Module] = []
-    for width in hidden_sizes:
-        layers += [nn.Linear(in_dim, width), *([nn.LayerNorm(width)] if layer_norm else [])]
+    for i, width in enumerate(hidden_sizes):
+        layers += [nn.Linear(in_dim, width), *([nn.LayerNorm(width)] if i < normed else [])]
         layers.append(nn.ReLU())
         in_dim = width
     layers.append(nn.Linear(in_dim, out_dim))
@@ -97,7 +101,12 @@ class TwinCritic(nn.Module):
     """Two independent Q networks Q1(s, a), Q2(s, a) (clipped double Q learning)."""
 
     def __init__(
-        self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int], *, layer_norm: bool = False
+        self,
+        obs_dim: int,
+        act_dim: int,
+        hidden_sizes: Sequence[int],
+        *,
+        layer_norm: str | bool = "none",
     ) -> None:
         """Creates both critics.
 
@@ -105,7 +114,7 @@ class TwinCritic(nn.Module):
             obs_dim: Observation size.
             act_dim: Action size.
             hidden_sizes: Widths of the hidden ReLU layers of each critic.
-            layer_norm: A LayerNorm before each hidden ReLU (`mlp`).
+            layer_norm: Where each critic gets a LayerNorm (`mlp`).
         """
         super().__init__()
         self.q1_net = mlp(obs_dim + act_dim, hidden_sizes, 1, layer_norm=layer_norm)

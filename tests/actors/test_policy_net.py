@@ -20,7 +20,8 @@ LOW, HIGH = np.array([-2.0, 0.0], np.float32), np.array([2.0, 3.0], np.float32)
         pytest.param(lambda: Actor(5, 2, LOW, HIGH, (64, 32)), id="tanh actor, 2 hidden"),
         pytest.param(lambda: Actor(5, 2, LOW, HIGH, ()), id="tanh actor, no hidden"),
         pytest.param(lambda: make_q_network(5, 4, (16,)), id="q network"),
-        pytest.param(lambda: mlp(5, (16, 8), 3, layer_norm=True), id="with LayerNorm"),
+        pytest.param(lambda: mlp(5, (16, 8), 3, layer_norm="all"), id="with LayerNorm"),
+        pytest.param(lambda: mlp(5, (16, 8), 3, layer_norm="first"), id="LayerNorm first only"),
     ],
 )
 def test_the_numpy_forward_pass_equals_torchs(network) -> None:
@@ -90,7 +91,7 @@ def test_layers_run_in_index_order_not_name_order() -> None:
     np.testing.assert_allclose(out, expected)
 
 
-@pytest.mark.parametrize("layer_norm", [False, True])
+@pytest.mark.parametrize("layer_norm", ["none", "first", "all"])
 def test_the_twin_critic_in_numpy_is_the_smaller_of_torchs_two_estimates(layer_norm) -> None:
     torch.manual_seed(0)
     critic = TwinCritic(4, 2, (16, 16), layer_norm=layer_norm)

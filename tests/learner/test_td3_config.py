@@ -7,8 +7,10 @@ import dataclasses
 
 import pytest
 import torch
+from torch import nn
 
 from learner.td3.config import TD3Config
+from learner.td3.networks import TwinCritic
 from tests.learner.helpers import SMALL, flat_params, td3_batch, td3_learner
 
 # Fields the learner step itself consumes; the rest are consumed elsewhere (named here so
@@ -22,7 +24,7 @@ LEARNER_FIELDS = {
     "actor_lr": 1e-2,
     "critic_lr": 1e-2,
     "hidden_sizes": (16, 8),
-    "critic_layer_norm": True,
+    "critic_layer_norm": "first",
     "frozen_actor_updates": 2,
 }
 
@@ -69,6 +71,7 @@ def test_every_learner_field_changes_the_update(field: str, value: object) -> No
         ("exploration_noise", -0.1),
         ("frozen_actor_updates", -1),
         ("burn_in_updates", -1),
+        ("critic_layer_norm", "every"),
     ],
 )
 def test_config_refuses_bad_values(field: str, value: object) -> None:
@@ -80,3 +83,16 @@ def test_config_accepts_hidden_sizes_list_from_yaml() -> None:
     config = TD3Config(hidden_sizes=[32, 32])  # type: ignore[arg-type]
     assert config.hidden_sizes == (32, 32)
     hash(config)
+
+
+@pytest.mark.parametrize(
+    ("value", "normed"), [(False, 0), (True, 2), ("none", 0), ("first", 1), ("all", 2)]
+)
+def test_critic_layer_norm_puts_a_layer_norm_where_it_says(value: object, normed: int) -> None:
+    """A bool (how runs recorded it before ``first``) reads as ``all`` or ``none``."""
+    setting = TD3Config(critic_layer_norm=value).critic_layer_norm  # type: ignore[arg-type]
+    layers = list(TwinCritic(3, 1, (8, 8), layer_norm=setting).q1_net)
+    after_hidden = [layers[i + 1] for i, m in enumerate(layers[:-1]) if isinstance(m, nn.Linear)]
+    assert [isinstance(m, nn.LayerNorm) for m in after_hidden] == [True] * normed + [False] * (
+        2 - normed
+    )
