@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from learner.td3.config import TD3Config
-from learner.td3.networks import Actor, TwinCritic
+from learner.td3.networks import Actor, TwinCritic, saved_layer_norm
 
 
 def zero_output_(actor: Actor) -> Actor:
@@ -56,7 +56,7 @@ def load_teacher(
         raise ValueError(f"teacher {found}: not a TD3 checkpoint (no actor/critic)")
     actor = Actor(obs_dim, act_dim, low, high, hidden)
     actor.load_state_dict(state["actor"])
-    layer_norm = td3_data.get("critic_layer_norm", "none")
-    critic = TwinCritic(obs_dim, act_dim, hidden, layer_norm=layer_norm)
+    q1 = {k: w for k, w in state["critic"].items() if k.startswith("q1_net.")}
+    critic = TwinCritic(obs_dim, act_dim, hidden, layer_norm=saved_layer_norm(q1))
     critic.load_state_dict(state["critic"])
     return actor.requires_grad_(False), critic.requires_grad_(False)

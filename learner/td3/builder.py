@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import torch
 from gymnasium import spaces
@@ -10,7 +12,7 @@ from actors.behaviours.gaussian import GaussianBehaviour
 from learner.agent import Budget, Phase, online_phase
 from learner.device import CPU, CompileMode
 from learner.spaces import box_action_dim, observation_dim
-from learner.td3.config import TD3Config
+from learner.td3.config import TD3Config, layer_norm_setting
 from learner.td3.learning import TD3Learner
 from learner.td3.networks import Actor, acting_copy
 
@@ -35,6 +37,24 @@ def make_actor_network(
         A freshly initialised `Actor` whose `state_dict` matches `TD3Learner.policy_state()`.
     """
     return Actor(obs_dim, act_dim, low, high, config.hidden_sizes)
+
+
+def critic_layer_norm_for(setting: str | bool, obs_space: spaces.Space) -> str:
+    """`TD3Config.critic_layer_norm` for these observations: ``auto`` is ``all`` where the
+    space leaves a bound open (±inf: raw scales the task does not state, as MuJoCo's
+    velocities) and ``none`` where every bound is finite; any other setting is itself."""
+    setting = layer_norm_setting(setting)
+    if setting != "auto":
+        return setting
+    assert isinstance(obs_space, spaces.Box)
+    bounded = np.isfinite(obs_space.low).all() and np.isfinite(obs_space.high).all()
+    return "none" if bounded else "all"
+
+
+def for_observations(config: TD3Config, obs_space: spaces.Space) -> TD3Config:
+    """`config` with its ``auto`` settings resolved against the observation space."""
+    layer_norm = critic_layer_norm_for(config.critic_layer_norm, obs_space)
+    return dataclasses.replace(config, critic_layer_norm=layer_norm)
 
 
 def make_td3_learner(
@@ -70,7 +90,7 @@ def make_td3_learner(
         act_dim,
         np.asarray(action_space.low, dtype=np.float32),
         np.asarray(action_space.high, dtype=np.float32),
-        config=config,
+        config=for_observations(config, obs_space),
         seed=seed,
         device=device,
         compile=compile,
@@ -102,7 +122,7 @@ class TD3Builder:
         assert isinstance(action_space, spaces.Box)
         self.low = np.asarray(action_space.low, dtype=np.float32)
         self.high = np.asarray(action_space.high, dtype=np.float32)
-        self.config, self.budget, self.seed = config, budget, seed
+        self.config, self.budget, self.seed = for_observations(config, obs_space), budget, seed
         self.batch_size = config.batch_size
 
     def phases(self) -> list[Phase]:

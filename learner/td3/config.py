@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-LAYER_NORMS = ("none", "first", "all")
+LAYER_NORMS = ("none", "first", "all", "auto")
 
 
 def layer_norm_setting(value: str | bool) -> str:
@@ -46,8 +46,10 @@ class TD3Config:
     """Widths of the hidden ReLU layers of the actor and of each critic."""
     critic_layer_norm: str | bool = "none"
     """Where the twin critics get a LayerNorm before a hidden ReLU: ``none``, ``first``
-    (the first hidden layer only) or ``all`` (each, RLPD's critic, Ball et al., 2023); a
-    bool reads as ``all``/``none``. The actor stays a plain MLP."""
+    (the first hidden layer only), ``all`` (each, RLPD's critic, Ball et al., 2023) or
+    ``auto`` (``all`` where the observation space leaves a bound open, ``none`` where every
+    bound is finite: `learner.td3.builder.critic_layer_norm_for`); a bool reads as
+    ``all``/``none``. The actor stays a plain MLP."""
     batch_size: int = 256
     """Transitions per learner update (sampled by the learner loop, not by `update`)."""
     exploration_noise: float = 0.1

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -31,6 +31,8 @@ def mlp(
         The MLP.
     """
     setting = layer_norm_setting(layer_norm)
+    if setting == "auto":
+        raise ValueError("layer_norm='auto' is resolved against the observation space first")
     normed = {"none": 0, "first": 1, "all": len(hidden_sizes)}[setting]
     layers: list[nn.Module] = []
     for i, width in enumerate(hidden_sizes):
@@ -39,6 +41,16 @@ def mlp(
         in_dim = width
     layers.append(nn.Linear(in_dim, out_dim))
     return nn.Sequential(*layers)
+
+
+def saved_layer_norm(q_state: Mapping[str, torch.Tensor]) -> str:
+    """Where a saved `mlp`'s LayerNorms are (``none``, ``first`` or ``all``), read from its
+    weights: a LayerNorm's is 1-d, a Linear's 2-d."""
+    weights = [w for k, w in q_state.items() if k.endswith(".weight")]
+    normed, linears = sum(w.dim() == 1 for w in weights), sum(w.dim() == 2 for w in weights)
+    if normed == 0:
+        return "none"
+    return "first" if normed == 1 < linears - 1 else "all"
 
 
 def acting_copy(network: nn.Module) -> PolicyNet:

@@ -3,14 +3,22 @@ broadcast policy state and the spaces TD3 refuses."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
 from gymnasium import spaces
 from torch import nn
 
-from learner.td3.builder import make_actor_network, make_td3_learner
-from learner.td3.networks import Actor, TwinCritic
+from learner.agent import Budget
+from learner.td3.builder import (
+    TD3Builder,
+    critic_layer_norm_for,
+    make_actor_network,
+    make_td3_learner,
+)
+from learner.td3.networks import Actor, TwinCritic, saved_layer_norm
 from tests.learner.helpers import ACT_DIM, HIGH, LOW, OBS_DIM, SMALL, td3_batch
 
 # --- networks -------------------------------------------------------------------------
@@ -87,3 +95,39 @@ def test_builder_refuses_spaces_td3_cannot_handle(
 ) -> None:
     with pytest.raises(ValueError):
         make_td3_learner(obs_space, action_space, SMALL, seed=0)
+
+
+@pytest.mark.parametrize(
+    ("low", "high", "resolved"),
+    [
+        (-np.inf, np.inf, "all"),  # MuJoCo's observations: no stated scale
+        ([-1.0, -np.inf, -1.0], [1.0, 1.0, 1.0], "all"),  # one open bound is enough
+        (-8.0, 8.0, "none"),  # Pendulum's, LunarLander's, MountainCar's: every bound finite
+    ],
+)
+def test_auto_layer_norm_follows_the_observation_bounds(low, high, resolved: str) -> None:
+    """``critic_layer_norm: auto`` is resolved once, against the observation space, for the
+    learner's critics and for the copy its behaviour switches by."""
+    low, high = np.broadcast_to(low, 3), np.broadcast_to(high, 3)
+    obs_space = spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+    action_space = spaces.Box(LOW, HIGH, dtype=np.float32)
+    assert critic_layer_norm_for("auto", obs_space) == resolved
+    assert critic_layer_norm_for("first", obs_space) == "first"  # a setting of its own stays
+    config = dataclasses.replace(SMALL, critic_layer_norm="auto")
+    builder = TD3Builder(
+        obs_space, action_space, config=config, budget=Budget(100, 10, 1.0, 0), seed=0
+    )
+    assert builder.config.critic_layer_norm == resolved
+    learner = builder.make_learner()
+    assert any(isinstance(m, nn.LayerNorm) for m in learner.critic.modules()) == (resolved == "all")
+    with pytest.raises(ValueError, match="resolved against the observation space"):
+        TwinCritic(3, 2, (8,), layer_norm="auto")
+
+
+@pytest.mark.parametrize("layer_norm", ["none", "first", "all"])
+@pytest.mark.parametrize("hidden", [(8,), (8, 8, 8)])
+def test_a_saved_critic_says_where_its_layer_norms_are(layer_norm: str, hidden) -> None:
+    """How a teacher's critic is rebuilt whatever its run recorded (``auto``, a bool)."""
+    q1 = TwinCritic(3, 2, hidden, layer_norm=layer_norm).q1_net.state_dict()
+    expected = "all" if layer_norm == "first" and len(hidden) == 1 else layer_norm
+    assert saved_layer_norm(q1) == expected
