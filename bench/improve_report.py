@@ -7,6 +7,7 @@ held-out episodes (`graft.seeds.held_out_seed`).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -266,6 +267,8 @@ COLOURS = {
     "sb3-sac": "tab:purple",
     "sb3-dqn": "tab:brown",
 }
+SPARE_COLOURS = ("tab:cyan", "tab:olive", "tab:pink", "tab:gray")
+"""For arms of other names (candidates beside the recipe), one each in turn."""
 
 
 def plot_task(task: str, arms: Mapping[str, Sequence[SeedRow]], png: Path) -> None:
@@ -280,9 +283,10 @@ def plot_task(task: str, arms: Mapping[str, Sequence[SeedRow]], png: Path) -> No
     fig, ax = plt.subplots(figsize=(6, 4))
     trees = [r.tree_in_run for rows in arms.values() for r in rows]
     ax.axhline(float(np.mean(trees)), color="tab:green", linestyle="--", label="tree")
+    spare = itertools.cycle(SPARE_COLOURS)
     for arm, rows in arms.items():
         steps, mean, low, high = band(rows)
-        colour = COLOURS.get(arm, "tab:gray")
+        colour = COLOURS[arm] if arm in COLOURS else next(spare)
         label = f"{ARM_LABELS.get(arm, arm)}, {len(rows)} seeds"
         ax.plot(steps, mean, color=colour, label=label)
         ax.fill_between(steps, low, high, color=colour, alpha=0.2, linewidth=0)
