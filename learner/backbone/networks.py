@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
-import yaml
 
-from learner.td3.config import TD3Config
-from learner.td3.networks import Actor, TwinCritic, saved_layer_norm
+from learner.td3.networks import Actor, TwinCritic, saved_layout
 
 
 def zero_output_(actor: Actor) -> Actor:
@@ -44,19 +41,16 @@ def load_teacher(
     from learner.checkpoint import find_checkpoint, load_checkpoint
 
     try:
-        found, run_dir = find_checkpoint(Path(path))
+        found, _ = find_checkpoint(Path(path))
     except FileNotFoundError as error:
         raise ValueError(f"teacher {path!r}: {error} (a TD3 run folder or .pt file)") from None
-    td3_data: dict[str, Any] = {}
-    if (run_dir / "config.yaml").is_file():
-        td3_data = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("td3", {})
-    hidden = tuple(td3_data.get("hidden_sizes", TD3Config().hidden_sizes))
     state = load_checkpoint(found)["algorithm"]
     if "actor" not in state or "critic" not in state:
         raise ValueError(f"teacher {found}: not a TD3 checkpoint (no actor/critic)")
-    actor = Actor(obs_dim, act_dim, low, high, hidden)
+    actor = Actor(obs_dim, act_dim, low, high, saved_layout(state["actor"])[0])
     actor.load_state_dict(state["actor"])
     q1 = {k: w for k, w in state["critic"].items() if k.startswith("q1_net.")}
-    critic = TwinCritic(obs_dim, act_dim, hidden, layer_norm=saved_layer_norm(q1))
+    hidden, layer_norm = saved_layout(q1)
+    critic = TwinCritic(obs_dim, act_dim, hidden, layer_norm=layer_norm)
     critic.load_state_dict(state["critic"])
     return actor.requires_grad_(False), critic.requires_grad_(False)

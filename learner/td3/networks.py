@@ -43,14 +43,16 @@ def mlp(
     return nn.Sequential(*layers)
 
 
-def saved_layer_norm(q_state: Mapping[str, torch.Tensor]) -> str:
-    """Where a saved `mlp`'s LayerNorms are (``none``, ``first`` or ``all``), read from its
-    weights: a LayerNorm's is 1-d, a Linear's 2-d."""
-    weights = [w for k, w in q_state.items() if k.endswith(".weight")]
-    normed, linears = sum(w.dim() == 1 for w in weights), sum(w.dim() == 2 for w in weights)
+def saved_layout(state: Mapping[str, torch.Tensor]) -> tuple[tuple[int, ...], str]:
+    """A saved `mlp`'s hidden widths and where its LayerNorms are (``none``, ``first`` or
+    ``all``), read from its weights alone: a Linear's weight is 2-d ([out, in]), a
+    LayerNorm's 1-d."""
+    weights = [w for k, w in state.items() if k.endswith(".weight")]
+    widths = tuple(int(w.shape[0]) for w in weights if w.dim() == 2)[:-1]
+    normed = sum(w.dim() == 1 for w in weights)
     if normed == 0:
-        return "none"
-    return "first" if normed == 1 < linears - 1 else "all"
+        return widths, "none"
+    return widths, "first" if normed == 1 < len(widths) else "all"
 
 
 def acting_copy(network: nn.Module) -> PolicyNet:

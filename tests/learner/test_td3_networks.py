@@ -18,7 +18,7 @@ from learner.td3.builder import (
     make_actor_network,
     make_td3_learner,
 )
-from learner.td3.networks import Actor, TwinCritic, saved_layer_norm
+from learner.td3.networks import Actor, TwinCritic, saved_layout
 from tests.learner.helpers import ACT_DIM, HIGH, LOW, OBS_DIM, SMALL, td3_batch
 
 # --- networks -------------------------------------------------------------------------
@@ -125,9 +125,11 @@ def test_auto_layer_norm_follows_the_observation_bounds(low, high, resolved: str
 
 
 @pytest.mark.parametrize("layer_norm", ["none", "first", "all"])
-@pytest.mark.parametrize("hidden", [(8,), (8, 8, 8)])
-def test_a_saved_critic_says_where_its_layer_norms_are(layer_norm: str, hidden) -> None:
-    """How a teacher's critic is rebuilt whatever its run recorded (``auto``, a bool)."""
+@pytest.mark.parametrize("hidden", [(8,), (8, 6, 4)])
+def test_a_saved_critic_says_its_widths_and_where_its_layer_norms_are(layer_norm, hidden):
+    """How a teacher is rebuilt from its weights alone, whatever its run recorded."""
     q1 = TwinCritic(3, 2, hidden, layer_norm=layer_norm).q1_net.state_dict()
     expected = "all" if layer_norm == "first" and len(hidden) == 1 else layer_norm
-    assert saved_layer_norm(q1) == expected
+    assert saved_layout(q1) == (hidden, expected)
+    actor = Actor(3, 2, np.full(2, -1.0), np.ones(2), hidden).state_dict()
+    assert saved_layout(actor) == (hidden, "none")
