@@ -32,9 +32,10 @@ over the best of them too:
 
     python -m bench.improve --task pendulum --arm sb3-td3 --arm sb3-sac --seeds 2 --env-steps 30000
 
-`--set` applies to the recipe arm only. With ``--parts`` each recipe seed's networks are
-also scored without the final selection and without switching too, on the same episodes
-(`bench/improve_parts.py`).
+`--set` applies to the recipe arm only; `--scratch-set` adds to from scratch's settings (a
+from-scratch control for a recipe candidate: the same LayerNorm without the tree). With
+``--parts`` each recipe seed's networks are also scored without the final selection and
+without switching too, on the same episodes (`bench/improve_parts.py`).
 
 The examples must be installed (``pip install -e examples/mountaincar examples/cartpole
 examples/lunarlander examples/halfcheetah``). A seed whose run finished is read back, not
@@ -176,16 +177,16 @@ def in_run_seed(summary: dict[str, Any]) -> int:
 
 
 def arm_overrides(task: str, arm: str, overrides: Sequence[str], quick: bool) -> list[str]:
-    """The `--set`s of one arm: the recipe's are the caller's, from scratch's `SCRATCH`;
-    --quick adds its own to the sections the arm's method reads."""
-    given = list(overrides) if arm == "recipe" else list(SCRATCH[task])
+    """The `--set`s of one arm: the recipe's are the caller's, from scratch's `SCRATCH` and
+    then the caller's; --quick adds its own to the sections the arm's method reads."""
+    given = list(overrides) if arm == "recipe" else [*SCRATCH[task], *overrides]
     if not quick:
         return given
     config = load_preset(TASKS[task], **parse_settings(given))
     unused = ("td3.",) if config.algorithm == "ddqn" else ("dqn.",)
     if arm == "scratch":  # no tree: no burn-in on its warm-up, no selection
         unused += ("selection.", "td3.burn_in", "td3.frozen", "dqn.burn_in")
-    keys = {o.split("=")[0] for o in overrides} if arm == "recipe" else set()
+    keys = {o.split("=")[0] for o in overrides}
     extra = [f"{k}={v}" for k, v in QUICK.items() if not k.startswith(unused) and k not in keys]
     return [*given, *extra]
 
@@ -342,6 +343,8 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     parser.add_argument("--env-steps", type=int, help="override the task's budget")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a recipe setting (the recipe arm only)")  # fmt: skip
+    parser.add_argument("--scratch-set", action="append", default=[], metavar="KEY=VALUE",
+                        help="added to from scratch's settings (the scratch arm only)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("runs/bench-improve"))
     parser.add_argument(
         "--quick", action="store_true", help=f"1 seed, 600 env steps, {QUICK_EPISODES} episodes"
@@ -353,9 +356,9 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     args = parser.parse_args(argv)
     if args.seeds < 1:
         parser.error(f"--seeds {args.seeds}: must be >= 1")
-    bad = [o for o in args.set if "=" not in o]
-    if bad:
-        parser.error(f"--set {bad[0]!r}: expected key=value, e.g. td3.batch_size=128")
+    for flag, given in (("--set", args.set), ("--scratch-set", args.scratch_set)):
+        if bad := [o for o in given if "=" not in o]:
+            parser.error(f"{flag} {bad[0]!r}: expected key=value, e.g. td3.batch_size=128")
     if args.plot:
         return replot(args.plot, args.out)
     if args.quick:
@@ -373,7 +376,8 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
         for arm in [a for a in arms if a not in REFERENCE_ARMS or (task, a) in HYPERPARAMETERS]:
             summary, rows = run_task(
                 task, arm=arm, seeds=range(args.first_seed, args.first_seed + args.seeds),
-                out=args.out, overrides=args.set, env_steps=args.env_steps, quick=args.quick,
+                out=args.out, overrides=args.scratch_set if arm == "scratch" else args.set,
+                env_steps=args.env_steps, quick=args.quick,
                 episodes=QUICK_EPISODES if args.quick else EPISODES, parts=args.parts,
                 reselected=args.reselect,
             )  # fmt: skip

@@ -39,6 +39,21 @@ def test_every_task_has_a_from_scratch_arm_on_its_own_preset(task):
     assert (recipe.env_id, recipe.env_steps) == (scratch.env_id, scratch.env_steps)
 
 
+def test_scratch_set_adds_to_from_scratchs_settings_and_leaves_the_recipe_alone():
+    """`--scratch-set td3.critic_layer_norm=all`: a from-scratch control for a recipe
+    candidate, the same change without the tree."""
+    given = ["td3.critic_layer_norm=all"]
+    settings = improve.arm_overrides("halfcheetah", "scratch", given, quick=False)
+    assert settings == [*improve.SCRATCH["halfcheetah"], *given]
+    scratch = improve.load_preset(improve.TASKS["halfcheetah"], **improve.parse_settings(settings))
+    assert (scratch.algorithm, scratch.td3.critic_layer_norm) == ("td3", "all")
+    quick = improve.arm_overrides("halfcheetah", "scratch", ["eval_every=500"], quick=True)
+    assert "eval_every=500" in quick and "eval_every=300" not in quick  # the caller's stays
+    assert improve.arm_overrides("halfcheetah", "recipe", [], quick=False) == []
+    with pytest.raises(SystemExit):
+        improve.main(["--task", "halfcheetah", "--scratch-set", "td3.critic_layer_norm"])
+
+
 def test_worst_drop_ignores_the_first_tenth_of_the_budget_and_is_relative_to_the_tree():
     row = _row(0, 100.0, 120.0, [-500.0, 95.0, 130.0, 80.0])  # in-run tree score 100
     # At 0 env steps (within the first tenth of 10,000): not held. Worst after: 80.
