@@ -33,7 +33,7 @@ over the best of them too:
     python -m bench.improve --task pendulum --arm sb3-td3 --arm sb3-sac --seeds 2 --env-steps 30000
 
 `--set` applies to the recipe arm only; `--scratch-set` adds to from scratch's settings (a
-from-scratch control for a recipe candidate: the same LayerNorm without the tree). With
+control for a recipe candidate: its change, e.g. a LayerNorm, without the tree). With
 ``--parts`` each recipe seed's networks are also scored without the final selection and
 without switching too, on the same episodes (`bench/improve_parts.py`).
 
