@@ -331,7 +331,8 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     which.add_argument(
         "--plot", nargs="+", type=Path, metavar="JSON",
         help="the tables and figures of earlier runs from their improve*.json (to --out), no "
-        "training; a task's seeds from several files are taken together",
+        "training; a task's seeds from several files are taken together (a seed in two: the "
+        "later file's), a row per task and budget",
     )  # fmt: skip
     parser.add_argument(
         "--arm", action="append", choices=(*ARMS, *REFERENCE_ARMS),
@@ -388,31 +389,75 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
     return report(summaries, results, args.out, stem, code=commit(), parts=args.parts)
 
 
-def replot(saved: Sequence[Path], out: Path) -> list[dict[str, Any]]:
-    """The tables and figures of earlier runs' improve*.json files, a task's arm's seeds
-    from several files (e.g. two benches of different seeds) taken together (a file
-    written before the arms existed holds the recipe's seeds); the task rows."""
-    results: dict[str, dict[str, list[SeedRow]]] = {}
-    method: dict[tuple[str, str], tuple[int, str]] = {}
+def budget_of(env_steps: float) -> int:
+    """The budget a run was given, from the env steps it ran: rounded down to two
+    significant digits (a run stops at the first vector step or episode end past its budget:
+    LunarLander's 30,000 ends at 30,648, CartPole's 50,000 at 50,176)."""
+    steps = int(env_steps)
+    unit = 10 ** max(len(str(steps)) - 2, 0)
+    return steps // unit * unit
+
+
+Gathered = dict[tuple[str, int], dict[str, dict[int, tuple[SeedRow, Path]]]]
+"""(task, budget) -> arm -> seed -> (its row, the file it came from)."""
+
+
+def gather(saved: Sequence[Path]) -> tuple[Gathered, dict[tuple[str, int, str], str], list[str]]:
+    """The seeds of earlier runs' improve*.json files, by task, budget and arm; the
+    algorithm of each; the files' commits. A seed in two files is taken from the later one
+    on the command line (a re-scored run), and a line says so when the two differ."""
+    runs: Gathered = {}
+    algorithms: dict[tuple[str, int, str], str] = {}
     commits: list[str] = []
     for path in saved:
         data = json.loads(path.read_text())
         commits.append(data.get("commit", "unrecorded"))
-        for s in data["summaries"]:
-            method[(s["task"], s.get("arm", "recipe"))] = (round(s["env_steps"]), s["algorithm"])
+        given = {(s["task"], s.get("arm", "recipe")): s for s in data["summaries"]}
         for task, arms in data["seeds"].items():
-            arms = arms if isinstance(arms, dict) else {"recipe": arms}
+            arms = arms if isinstance(arms, dict) else {"recipe": arms}  # before the arms
             for arm, rows in arms.items():
-                results.setdefault(task, {}).setdefault(arm, []).extend(SeedRow(**r) for r in rows)
+                budget = budget_of(given[(task, arm)]["env_steps"])
+                algorithms[(task, budget, arm)] = given[(task, arm)]["algorithm"]
+                kept = runs.setdefault((task, budget), {}).setdefault(arm, {})
+                for row in (SeedRow(**r) for r in rows):
+                    _replace(kept, row, path, f"{task} {arm} seed {row.seed} at {budget:,}")
+    return runs, algorithms, commits
+
+
+def _replace(kept: dict[int, tuple[SeedRow, Path]], row: SeedRow, path: Path, what: str) -> None:
+    """Keeps `row` (from `path`) for its seed, saying so when it differs from one kept."""
+    if row.seed in kept and kept[row.seed][0] != row:
+        old, source = kept[row.seed]
+        print(f"{what} env steps: {path}'s ({row.final:.1f}) replaces {source}'s ({old.final:.1f})")
+    kept[row.seed] = (row, path)
+
+
+def replot(saved: Sequence[Path], out: Path) -> list[dict[str, Any]]:
+    """The tables and figures of earlier runs' improve*.json files (`gather`), a task's
+    arm's seeds from several files (e.g. two benches of different seeds) taken together (a
+    file written before the arms existed holds the recipe's seeds); the task rows. A task
+    run at more than one budget gets a row per budget, named TASK-BUDGET (halfcheetah-30k)."""
+    runs, algorithms, commits = gather(saved)
+    budgets: dict[str, list[int]] = {}
+    for task, budget in runs:
+        budgets.setdefault(task, []).append(budget)
+    results: dict[str, dict[str, list[SeedRow]]] = {}
     summaries = []
-    for task, arms in results.items():
-        for arm, rows in arms.items():
-            budget, algorithm = method[(task, arm)]
-            rows.sort(key=lambda r: r.seed)
-            summary = summarise(task, rows, budget=budget, algorithm=algorithm)
+    for (task, budget), arms in sorted(runs.items()):
+        name = task if len(budgets[task]) == 1 else f"{task}-{budget_label(budget)}"
+        for arm, kept in arms.items():
+            rows = [kept[seed][0] for seed in sorted(kept)]
+            algorithm = algorithms[(task, budget, arm)]
+            summary = summarise(name, rows, budget=budget, algorithm=algorithm)
             summaries.append({**summary, "arm": arm})
-            print(f"{task} {arm}: {summary['improvement_line']}")
+            results.setdefault(name, {})[arm] = rows
+            print(f"{name} {arm}: {summary['improvement_line']}")
     return report(summaries, results, out, "improve", code=", ".join(dict.fromkeys(commits)))
+
+
+def budget_label(budget: int) -> str:
+    """30000 -> '30k'; a budget not in whole thousands as it is."""
+    return f"{budget // 1000}k" if budget % 1000 == 0 else str(budget)
 
 
 if __name__ == "__main__":

@@ -191,3 +191,48 @@ def test_plot_redraws_earlier_runs_from_their_json_without_training(tmp_path):
     assert redrawn["summaries"][0]["worst_in_run_guarded"] == 0.0
     assert redrawn["commit"] == "unrecorded"  # the runs' commit, carried over from their files
     assert (tmp_path / "fig" / "improve-t.png").stat().st_size > 0
+
+
+def _saved(path, task, rows, env_steps, arm="recipe"):
+    rows = [dataclasses.replace(r, env_steps=env_steps) for r in rows]
+    summary = improve.summarise(task, rows, budget=env_steps, algorithm="backbone_td3")
+    data = {
+        "summaries": [{**summary, "arm": arm}],
+        "seeds": {task: {arm: [dataclasses.asdict(r) for r in rows]}},
+    }
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_a_run_s_budget_is_its_env_steps_rounded_down_to_two_digits():
+    assert [improve.budget_of(n) for n in (30_648, 50_176, 10_016, 100_000, 600)] == [
+        30_000,
+        50_000,
+        10_000,
+        100_000,
+        600,
+    ]
+
+
+def test_plot_gives_a_task_a_row_per_budget_and_takes_a_seed_in_two_files_from_the_later(
+    tmp_path, capsys
+):
+    short = [_row(s, 100.0, 150.0 + s, [100.0]) for s in range(3)]
+    long = [_row(s, 100.0, 300.0 + s, [100.0]) for s in range(3)]
+    rescored = [dataclasses.replace(long[2], final=250.0)]  # seed 2 again, scored anew
+    files = [
+        _saved(tmp_path / "a.json", "t", short, 30_648),
+        _saved(tmp_path / "b.json", "t", long, 100_000),
+        _saved(tmp_path / "c.json", "t", long[:1], 100_000),  # seed 0 again, the same row
+        _saved(tmp_path / "d.json", "t", rescored, 100_000),
+    ]
+    rows = improve.main(["--plot", *map(str, files), "--out", str(tmp_path / "fig")])
+    by_name = {r["task"]: r for r in rows}
+    assert sorted(by_name) == ["t-100k", "t-30k"]
+    assert by_name["t-30k"]["recipe"]["mean"] == pytest.approx(151.0)
+    assert by_name["t-100k"]["recipe"]["seeds"] == [0, 1, 2]  # seed 0 once
+    assert by_name["t-100k"]["recipe"]["mean"] == pytest.approx((300.0 + 301.0 + 250.0) / 3)
+    said = capsys.readouterr().out
+    assert f"{files[3]}'s (250.0) replaces {files[1]}'s (302.0)" in said
+    assert str(files[2]) not in said  # an identical seed is not a replacement
+    assert (tmp_path / "fig" / "improve-t-30k.png").stat().st_size > 0
