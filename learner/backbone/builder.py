@@ -142,12 +142,18 @@ class BackboneBuilder:
 
     def make_behaviour(self, *, num_actors: int) -> BackboneBehaviour:
         t = self.td3
-        in_dim = t.obs_dim + (t.act_dim if self.config.observe_backbone else 0)
-        correction = make_actor_network(in_dim, t.act_dim, -self.bound, self.bound, t.config)
+        extra = t.act_dim if self.config.observe_backbone else 0
+        correction = make_actor_network(
+            t.obs_dim, t.act_dim, -self.bound, self.bound, t.config, extra_inputs=extra
+        )
         critic = None
         if self._actors_need_critic():  # the behaviour's copy, in numpy as actors run it
             twin = TwinCritic(
-                in_dim, t.act_dim, t.config.hidden_sizes, layer_norm=t.config.critic_layer_norm
+                t.obs_dim + extra,
+                t.act_dim,
+                t.config.hidden_sizes,
+                layer_norm=t.config.critic_layer_norm,
+                standardized=t.obs_dim if t.config.standardize_observations else 0,
             )
             critic = TwinQ(as_arrays(twin.state_dict()))
         return BackboneBehaviour(

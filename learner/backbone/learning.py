@@ -139,7 +139,7 @@ class ObservingBackboneLearner(TD3Learner):
         proposal instead (eq. 8's `imitation_loss`; needs `centre`, and eager updates)."""
         act_dim = bound.shape[0]
         super().__init__(
-            obs_dim + act_dim,
+            obs_dim,
             act_dim,
             -bound,
             bound,
@@ -147,6 +147,7 @@ class ObservingBackboneLearner(TD3Learner):
             seed=seed,
             device=device,
             compile=compile,
+            extra_inputs=act_dim,
         )
         self._scale = torch.as_tensor(scale, dtype=torch.float32, device=self.device)
         self._bound = torch.tensor(bound, dtype=torch.float32, device=self.device)  # a copy

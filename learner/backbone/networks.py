@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from learner.td3.networks import Actor, TwinCritic, saved_layout
+from learner.td3.networks import Actor, TwinCritic, saved_layout, saved_standardized
 
 
 def zero_output_(actor: Actor) -> Actor:
@@ -47,10 +47,12 @@ def load_teacher(
     state = load_checkpoint(found)["algorithm"]
     if "actor" not in state or "critic" not in state:
         raise ValueError(f"teacher {found}: not a TD3 checkpoint (no actor/critic)")
-    actor = Actor(obs_dim, act_dim, low, high, saved_layout(state["actor"])[0])
+    widths, _ = saved_layout(state["actor"])
+    standardized = saved_standardized(state["actor"], "net.")
+    actor = Actor(obs_dim, act_dim, low, high, widths, standardized=standardized)
     actor.load_state_dict(state["actor"])
     q1 = {k: w for k, w in state["critic"].items() if k.startswith("q1_net.")}
     hidden, layer_norm = saved_layout(q1)
-    critic = TwinCritic(obs_dim, act_dim, hidden, layer_norm=layer_norm)
+    critic = TwinCritic(obs_dim, act_dim, hidden, layer_norm=layer_norm, standardized=standardized)
     critic.load_state_dict(state["critic"])
     return actor.requires_grad_(False), critic.requires_grad_(False)

@@ -23,6 +23,8 @@ def make_actor_network(
     low: np.ndarray,
     high: np.ndarray,
     config: TD3Config,
+    *,
+    extra_inputs: int = 0,
 ) -> Actor:
     """Builds the TD3 actor architecture, e.g. for an actor loading broadcast weights.
 
@@ -31,12 +33,17 @@ def make_actor_network(
         act_dim: Action size.
         low: Lower action bounds, shape [act_dim].
         high: Upper action bounds, shape [act_dim].
-        config: Supplies `hidden_sizes`.
+        config: Supplies `hidden_sizes` and `standardize_observations`.
+        extra_inputs: Inputs after the observation's (the backbone's μ(s)), as the
+            learner's `TD3Learner` takes them.
 
     Returns:
         A freshly initialised `Actor` whose `state_dict` matches `TD3Learner.policy_state()`.
     """
-    return Actor(obs_dim, act_dim, low, high, config.hidden_sizes)
+    standardized = obs_dim if config.standardize_observations else 0
+    return Actor(
+        obs_dim + extra_inputs, act_dim, low, high, config.hidden_sizes, standardized=standardized
+    )
 
 
 def critic_layer_norm_for(setting: str | bool, obs_space: spaces.Space) -> str:

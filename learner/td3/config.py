@@ -50,6 +50,11 @@ class TD3Config:
     ``auto`` (``all`` where the observation space leaves a bound open, ``none`` where every
     bound is finite: `learner.td3.builder.critic_layer_norm_for`); a bool reads as
     ``all``/``none``. The actor stays a plain MLP."""
+    standardize_observations: bool = False
+    """The actor and the critics centre each observation feature on its mean and divide
+    it by its standard deviation where that exceeds 1, both measured on the first batch the
+    learner trains on (the warm-up data) and fixed from then on
+    (`learner.td3.networks.fit_standardizers`); they travel with the weights."""
     batch_size: int = 256
     """Transitions per learner update (sampled by the learner loop, not by `update`)."""
     exploration_noise: float = 0.1

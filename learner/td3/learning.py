@@ -19,7 +19,7 @@ from learner.checkpoint import load_generator_state
 from learner.device import Adam, CompileMode, compile_networks
 from learner.td3.captured import CapturedTD3
 from learner.td3.config import TD3Config
-from learner.td3.networks import Actor, TwinCritic
+from learner.td3.networks import Actor, TwinCritic, fit_standardizers
 
 
 @torch.no_grad()
@@ -149,6 +149,7 @@ class TD3Learner:
         seed: int,
         device: str | torch.device = "cpu",
         compile: CompileMode = "off",
+        extra_inputs: int = 0,
     ) -> None:
         """Builds the networks (seeded, without touching the global RNG) and optimisers.
 
@@ -164,6 +165,8 @@ class TD3Learner:
             compile: Compile the networks' forward passes (`learner.device.compile_networks`),
                 or run each delay cycle as one captured step (``captured``,
                 `learner.td3.captured`).
+            extra_inputs: Inputs the networks see after the observation's (the
+                backbone's μ(s)); never standardized.
         """
         self.device = torch.device(device)
         self._gamma = config.gamma
@@ -176,9 +179,17 @@ class TD3Learner:
         init_seed, noise_seed = np.random.SeedSequence(seed).generate_state(2)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(init_seed))
-            self.actor = Actor(obs_dim, act_dim, action_low, action_high, config.hidden_sizes)
+            self._standardized = obs_dim if config.standardize_observations else 0
+            in_dim, sizes = obs_dim + extra_inputs, config.hidden_sizes
+            self.actor = Actor(
+                in_dim, act_dim, action_low, action_high, sizes, standardized=self._standardized
+            )
             self.critic = TwinCritic(
-                obs_dim, act_dim, config.hidden_sizes, layer_norm=config.critic_layer_norm
+                in_dim,
+                act_dim,
+                sizes,
+                layer_norm=config.critic_layer_norm,
+                standardized=self._standardized,
             )
         self.actor.to(self.device)
         self.critic.to(self.device)
@@ -197,6 +208,9 @@ class TD3Learner:
         self._generator = torch.Generator(device=self.device)
         self._generator.manual_seed(int(noise_seed))
 
+        self.standardizers_fitted = not self._standardized
+        """The networks' `Standardize` layers hold the first batch's statistics (or there
+        are none)."""
         self.num_updates = 0
         """Calls to `update` so far (= critic updates)."""
         self.num_actor_updates = 0
@@ -255,7 +269,12 @@ class TD3Learner:
         self, batch: dict[str, torch.Tensor], *, step: int, train_actor: bool, key: str = "online"
     ) -> dict[str, float]:
         """Critic step; actor (if `train_actor`) and targets when `step % policy_delay == 0`.
-        Captured, the step joins its delay cycle (`key` names the counter `step` is of)."""
+        Captured, the step joins its delay cycle (`key` names the counter `step` is of). The
+        first step of all fits the standardizers on its observations."""
+        if not self.standardizers_fitted:
+            obs = batch["obs"].to(self.device)[:, : self._standardized]
+            fit_standardizers(self._networks(), obs)
+            self.standardizers_fitted = True
         if self.captures:
             captured = self._captured or self.capture()
             return captured.step(batch, step=step, train_actor=train_actor, key=key)
@@ -375,6 +394,7 @@ class TD3Learner:
             "num_updates": self.num_updates,
             "num_actor_updates": self.num_actor_updates,
             "noise_rng": self._generator.get_state(),
+            "standardizers_fitted": self.standardizers_fitted,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -392,5 +412,6 @@ class TD3Learner:
         self.num_updates = int(state["num_updates"])
         self.num_actor_updates = int(state["num_actor_updates"])
         load_generator_state(self._generator, state["noise_rng"])
+        self.standardizers_fitted = bool(state.get("standardizers_fitted", True))
         if self._captured is not None:  # its graphs hold the old optimiser state
             self._captured = CapturedTD3(self, compiled=self._captured.compiled)

@@ -13,10 +13,50 @@ from learner.td3.config import layer_norm_setting
 from service.core import as_arrays
 
 
+class Standardize(nn.Module):
+    """The first `features` inputs centred and scaled, ``(x - shift) / scale``, the rest
+    as they are: the identity until `fit_standardizers` sets both from data; buffers, so
+    they travel with the weights (published, checkpointed) and Polyak averaging leaves
+    them alone."""
+
+    shift: torch.Tensor
+    scale: torch.Tensor
+
+    def __init__(self, features: int) -> None:
+        super().__init__()
+        self.register_buffer("shift", torch.zeros(features))
+        self.register_buffer("scale", torch.ones(features))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        n = self.shift.shape[0]
+        return torch.cat([(x[..., :n] - self.shift) / self.scale, x[..., n:]], dim=-1)
+
+
+@torch.no_grad()
+def fit_standardizers(networks: Sequence[nn.Module], obs: torch.Tensor) -> None:
+    """Sets every `Standardize` in `networks` from observations [B, O]: the shift is each
+    feature's mean, the scale its standard deviation where that exceeds 1 and 1 elsewhere
+    (large raw scales shrink to one; nothing is amplified, so a feature that barely moved
+    in these data cannot blow up later)."""
+    shift = obs.mean(dim=0)
+    scale = obs.std(dim=0, correction=0).clamp_min(1.0)
+    for module in (m for network in networks for m in network.modules()):
+        if isinstance(module, Standardize):
+            n = module.shift.shape[0]
+            module.shift.copy_(shift[:n])
+            module.scale.copy_(scale[:n])
+
+
 def mlp(
-    in_dim: int, hidden_sizes: Sequence[int], out_dim: int, *, layer_norm: str | bool = "none"
+    in_dim: int,
+    hidden_sizes: Sequence[int],
+    out_dim: int,
+    *,
+    layer_norm: str | bool = "none",
+    standardized: int = 0,
 ) -> nn.Sequential:
-    """Builds ``Linear -> [LayerNorm ->] ReLU -> ... -> Linear`` with the given hidden widths.
+    """Builds ``[Standardize ->] Linear -> [LayerNorm ->] ReLU -> ... -> Linear`` with the
+    given hidden widths.
 
     Args:
         in_dim: Input features.
@@ -26,6 +66,8 @@ def mlp(
             ``first`` (the first hidden layer: features of raw, unscaled observations on
             one scale) or ``all`` (RLPD's critics, Ball et al., 2023: it bounds Q's growth
             off the data); a bool reads as ``all``/``none`` (`layer_norm_setting`).
+        standardized: How many leading inputs (the observation's) a `Standardize` takes
+            first; 0: none.
 
     Returns:
         The MLP.
@@ -34,7 +76,7 @@ def mlp(
     if setting == "auto":
         raise ValueError("layer_norm='auto' is resolved against the observation space first")
     normed = {"none": 0, "first": 1, "all": len(hidden_sizes)}[setting]
-    layers: list[nn.Module] = []
+    layers: list[nn.Module] = [Standardize(standardized)] if standardized else []
     for i, width in enumerate(hidden_sizes):
         layers += [nn.Linear(in_dim, width), *([nn.LayerNorm(width)] if i < normed else [])]
         layers.append(nn.ReLU())
@@ -46,7 +88,7 @@ def mlp(
 def saved_layout(state: Mapping[str, torch.Tensor]) -> tuple[tuple[int, ...], str]:
     """A saved `mlp`'s hidden widths and where its LayerNorms are (``none``, ``first`` or
     ``all``), read from its weights alone: a Linear's weight is 2-d ([out, in]), a
-    LayerNorm's 1-d."""
+    LayerNorm's 1-d (a `Standardize`'s shift and scale are neither)."""
     weights = [w for k, w in state.items() if k.endswith(".weight")]
     widths = tuple(int(w.shape[0]) for w in weights if w.dim() == 2)[:-1]
     normed = sum(w.dim() == 1 for w in weights)
@@ -73,6 +115,8 @@ class Actor(nn.Module):
         action_low: np.ndarray,
         action_high: np.ndarray,
         hidden_sizes: Sequence[int],
+        *,
+        standardized: int = 0,
     ) -> None:
         """Creates the actor.
 
@@ -82,6 +126,7 @@ class Actor(nn.Module):
             action_low: Lower action bounds, shape [act_dim], finite.
             action_high: Upper action bounds, shape [act_dim], finite and > low.
             hidden_sizes: Widths of the hidden ReLU layers.
+            standardized: Leading inputs a `Standardize` takes first (`mlp`).
 
         Raises:
             ValueError: If the bounds have the wrong shape, are not finite or are empty.
@@ -100,7 +145,7 @@ class Actor(nn.Module):
                 f"action bounds must be finite with low < high, got low={low.tolist()}, "
                 f"high={high.tolist()}; a tanh actor cannot cover an unbounded box."
             )
-        self.net = mlp(obs_dim, hidden_sizes, act_dim)
+        self.net = mlp(obs_dim, hidden_sizes, act_dim, standardized=standardized)
         self.register_buffer("action_low", low)
         self.register_buffer("action_high", high)
 
@@ -121,6 +166,7 @@ class TwinCritic(nn.Module):
         hidden_sizes: Sequence[int],
         *,
         layer_norm: str | bool = "none",
+        standardized: int = 0,
     ) -> None:
         """Creates both critics.
 
@@ -129,10 +175,15 @@ class TwinCritic(nn.Module):
             act_dim: Action size.
             hidden_sizes: Widths of the hidden ReLU layers of each critic.
             layer_norm: Where each critic gets a LayerNorm (`mlp`).
+            standardized: Leading observation inputs each critic standardizes first.
         """
         super().__init__()
-        self.q1_net = mlp(obs_dim + act_dim, hidden_sizes, 1, layer_norm=layer_norm)
-        self.q2_net = mlp(obs_dim + act_dim, hidden_sizes, 1, layer_norm=layer_norm)
+        self.q1_net, self.q2_net = (
+            mlp(
+                obs_dim + act_dim, hidden_sizes, 1, layer_norm=layer_norm, standardized=standardized
+            )
+            for _ in range(2)
+        )
 
     def forward(self, obs: torch.Tensor, act: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Returns (Q1(s, a), Q2(s, a)), each of shape [B]."""
@@ -142,3 +193,10 @@ class TwinCritic(nn.Module):
     def q1(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
         """Returns Q1(s, a), shape [B]; the actor is trained against this head only."""
         return self.q1_net(torch.cat([obs, act], dim=-1)).squeeze(-1)
+
+
+def saved_standardized(state: Mapping[str, torch.Tensor], prefix: str = "") -> int:
+    """How many inputs a saved `mlp` (its keys under `prefix`) standardizes: its
+    `Standardize`'s width, 0 without one."""
+    shift = state.get(f"{prefix}0.shift")
+    return 0 if shift is None else int(shift.shape[0])

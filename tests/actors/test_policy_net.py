@@ -8,10 +8,19 @@ import torch
 
 from actors.policy_net import PolicyNet, TwinQ
 from learner.dqn.networks import make_q_network
-from learner.td3.networks import Actor, TwinCritic, acting_copy, mlp
+from learner.td3.networks import Actor, Standardize, TwinCritic, acting_copy, mlp
 from service.core import as_arrays
 
 LOW, HIGH = np.array([-2.0, 0.0], np.float32), np.array([2.0, 3.0], np.float32)
+
+
+def _standardized(network: torch.nn.Module) -> torch.nn.Module:
+    """`network` with its Standardize's shift and scale away from 0 and 1."""
+    (standardize,) = [m for m in network.modules() if isinstance(m, Standardize)]
+    n = len(standardize.shift)
+    standardize.shift.copy_(torch.linspace(-2.0, 3.0, n))
+    standardize.scale.copy_(torch.linspace(1.0, 9.0, n))
+    return network
 
 
 @pytest.mark.parametrize(
@@ -22,6 +31,14 @@ LOW, HIGH = np.array([-2.0, 0.0], np.float32), np.array([2.0, 3.0], np.float32)
         pytest.param(lambda: make_q_network(5, 4, (16,)), id="q network"),
         pytest.param(lambda: mlp(5, (16, 8), 3, layer_norm="all"), id="with LayerNorm"),
         pytest.param(lambda: mlp(5, (16, 8), 3, layer_norm="first"), id="LayerNorm first only"),
+        pytest.param(
+            lambda: _standardized(Actor(5, 2, LOW, HIGH, (16,), standardized=3)),
+            id="actor, 3 of 5 inputs standardized",
+        ),
+        pytest.param(
+            lambda: _standardized(mlp(5, (16, 8), 3, layer_norm="all", standardized=5)),
+            id="standardized, with LayerNorm",
+        ),
     ],
 )
 def test_the_numpy_forward_pass_equals_torchs(network) -> None:
@@ -91,10 +108,16 @@ def test_layers_run_in_index_order_not_name_order() -> None:
     np.testing.assert_allclose(out, expected)
 
 
-@pytest.mark.parametrize("layer_norm", ["none", "first", "all"])
-def test_the_twin_critic_in_numpy_is_the_smaller_of_torchs_two_estimates(layer_norm) -> None:
+@pytest.mark.parametrize(
+    ("layer_norm", "standardized"), [("none", 0), ("first", 0), ("all", 0), ("all", 4)]
+)
+def test_the_twin_critic_in_numpy_is_the_smaller_of_torchs_two_estimates(
+    layer_norm, standardized
+) -> None:
     torch.manual_seed(0)
-    critic = TwinCritic(4, 2, (16, 16), layer_norm=layer_norm)
+    critic = TwinCritic(4, 2, (16, 16), layer_norm=layer_norm, standardized=standardized)
+    if standardized:
+        _standardized(critic.q1_net), _standardized(critic.q2_net)
     for p in critic.parameters():  # LayerNorm's scale and shift away from 1 and 0 too
         torch.nn.init.normal_(p, std=0.7)
     rng = np.random.default_rng(0)

@@ -147,6 +147,27 @@ def test_observing_learner_appends_mu_to_obs_and_next_obs():
     assert math.isfinite(metrics["losses/critic"])
 
 
+def test_the_observing_learner_standardizes_s_and_not_mu_and_its_behaviour_fits_its_weights():
+    from learner.backbone.learning import ObservingBackboneLearner
+    from learner.td3.builder import make_actor_network
+    from learner.td3.config import TD3Config
+    from learner.td3.networks import TwinCritic
+
+    config = TD3Config(hidden_sizes=(8,), standardize_observations=True)
+    bound = np.array([4.0], np.float32)
+    learner = ObservingBackboneLearner(3, bound, np.array([2.0]), config=config, seed=0)
+    batch = _batch(6)
+    batch["obs"] = torch.arange(18.0).reshape(6, 3) * 4  # μ(s) / scale = 1 in every row
+    learner.update(batch)
+    standardize = learner.actor.net[0]
+    torch.testing.assert_close(standardize.shift, batch["obs"].mean(dim=0))
+    assert learner.actor.net[1].in_features == 4  # s (3) standardized, then μ(s) as it is
+    behaviour = make_actor_network(3, 1, -bound, bound, config, extra_inputs=1)
+    behaviour.load_state_dict(learner.actor.state_dict())  # the same names and shapes
+    critic = TwinCritic(4, 1, (8,), standardized=3)
+    critic.load_state_dict(learner.critic.state_dict())
+
+
 def test_observe_backbone_refuses_a_teacher():
     from learner.backbone.config import BackboneConfig
 
@@ -445,17 +466,24 @@ def test_clone_tree_fits_a_standalone_pi_to_the_tree_while_the_actor_is_frozen()
         BackboneConfig(observe_backbone=True, clone_tree=True)
 
 
-def test_a_teacher_with_layer_norm_critics_loads_as_it_trained(tmp_path):
-    """A TD3 teacher with `td3.critic_layer_norm` and widths of its own loads from its
-    checkpoint alone (no config.yaml beside it) as the networks it trained."""
+@pytest.mark.parametrize("standardize", [False, True])
+def test_a_teacher_with_layer_norm_critics_loads_as_it_trained(tmp_path, standardize):
+    """A TD3 teacher with `td3.critic_layer_norm`, widths of its own and standardized
+    observations or not loads from its checkpoint alone (no config.yaml beside it) as the
+    networks it trained."""
     import dataclasses
 
     from learner.backbone.networks import load_teacher
     from learner.checkpoint import save_checkpoint
-    from tests.learner.helpers import ACT_DIM, HIGH, LOW, OBS_DIM, SMALL, td3_learner
+    from tests.learner.helpers import ACT_DIM, HIGH, LOW, OBS_DIM, SMALL, td3_batch, td3_learner
 
-    config = dataclasses.replace(SMALL, critic_layer_norm=True, hidden_sizes=(12, 10))
+    config = dataclasses.replace(
+        SMALL, critic_layer_norm=True, hidden_sizes=(12, 10), standardize_observations=standardize
+    )
     teacher = td3_learner(config)
+    batch = td3_batch(seed=3)
+    batch["obs"] = 10 * batch["obs"] + 4
+    teacher.update(batch)  # fits the standardizers, when there are any
     save_checkpoint(tmp_path / "checkpoints", {"algorithm": teacher.state_dict()}, updates=1)
     actor, critic = load_teacher(str(tmp_path), OBS_DIM, ACT_DIM, LOW, HIGH)
     obs, act = torch.randn(5, OBS_DIM), torch.randn(5, ACT_DIM)

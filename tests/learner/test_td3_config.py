@@ -26,6 +26,7 @@ LEARNER_FIELDS = {
     "hidden_sizes": (16, 8),
     "critic_layer_norm": "first",
     "frozen_actor_updates": 2,
+    "standardize_observations": True,
 }
 
 

@@ -11,6 +11,7 @@ import torch
 from gymnasium import spaces
 from torch import nn
 
+from actors.policy_net import PolicyNet
 from learner.agent import Budget
 from learner.td3.builder import (
     TD3Builder,
@@ -18,8 +19,9 @@ from learner.td3.builder import (
     make_actor_network,
     make_td3_learner,
 )
-from learner.td3.networks import Actor, TwinCritic, saved_layout
-from tests.learner.helpers import ACT_DIM, HIGH, LOW, OBS_DIM, SMALL, td3_batch
+from learner.td3.networks import Actor, Standardize, TwinCritic, saved_layout
+from service.core import as_arrays
+from tests.learner.helpers import ACT_DIM, HIGH, LOW, OBS_DIM, SMALL, td3_batch, td3_learner
 
 # --- networks -------------------------------------------------------------------------
 
@@ -133,3 +135,49 @@ def test_a_saved_critic_says_its_widths_and_where_its_layer_norms_are(layer_norm
     assert saved_layout(q1) == (hidden, expected)
     actor = Actor(3, 2, np.full(2, -1.0), np.ones(2), hidden).state_dict()
     assert saved_layout(actor) == (hidden, "none")
+
+
+# --- standardized observations ----------------------------------------------------------
+
+
+def _standardizers(learner) -> list[Standardize]:
+    networks = (learner.actor, learner.critic, learner.target_actor, learner.target_critic)
+    return [m for n in networks for m in n.modules() if isinstance(m, Standardize)]
+
+
+def test_standardize_observations_fits_every_network_on_the_first_batch_and_keeps_it():
+    """Each observation feature centred on its mean and divided by its std where that
+    exceeds 1, both from the first batch trained on, in the actor, the critics and their
+    targets; fixed from then on, published with the weights and kept through a resume."""
+    learner = td3_learner(dataclasses.replace(SMALL, standardize_observations=True))
+    found = _standardizers(learner)
+    assert len(found) == 6  # actor, two critics, and the same in the targets
+    assert all(torch.equal(m.shift, torch.zeros(OBS_DIM)) for m in found)  # identity first
+    first = td3_batch(n=256, seed=0)
+    first["obs"] = first["obs"] * torch.tensor([20.0, 0.5, 3.0]) + torch.tensor([5.0, -1.0, 0.0])
+    learner.update(first)
+    shift, std = first["obs"].mean(dim=0), first["obs"].std(dim=0, correction=0)
+    assert std[0] > 15 and std[1] < 1  # a wide feature is scaled, a narrow one only centred
+    for m in found:
+        torch.testing.assert_close(m.shift, shift)
+        torch.testing.assert_close(m.scale, torch.stack([std[0], torch.tensor(1.0), std[2]]))
+    learner.update(td3_batch(n=256, seed=1))  # other data: the statistics stay
+    assert all(torch.equal(m.shift, shift) for m in _standardizers(learner))
+    # The critics standardize the observation only, not the action after it.
+    assert learner.critic.q1_net[0].shift.shape == (OBS_DIM,)
+
+    obs = first["obs"][:7].numpy()
+    np.testing.assert_allclose(
+        PolicyNet(as_arrays(learner.policy_state()))(obs), learner.act(obs), rtol=1e-5, atol=1e-5
+    )
+    resumed = td3_learner(dataclasses.replace(SMALL, standardize_observations=True), seed=5)
+    resumed.load_state_dict(learner.state_dict())
+    resumed.update(td3_batch(n=256, seed=2))  # a resumed learner does not fit again
+    assert resumed.standardizers_fitted
+    assert all(torch.equal(m.shift, shift) for m in _standardizers(resumed))
+
+
+def test_without_standardize_observations_the_networks_are_as_before():
+    learner = td3_learner()
+    assert not _standardizers(learner) and learner.standardizers_fitted
+    assert not any(k.endswith(("shift", "scale")) for k in learner.policy_state())
