@@ -35,14 +35,17 @@ ROWS = {
     **bench.PRESETS,
     "options (Retrace)": "pendulum-options",
     "backbone_td3 standalone (IBRL)": "pendulum-backbone",
+    "backbone_td3 standalone, standardized observations": "pendulum-backbone",
 }
 """Every learner class: TD3, pre-training, backbone (with and without a teacher; a
-standalone actor with the tree in the TD target), Double DQN, options with intra-option
-learning and with Retrace (eq. 14)."""
+standalone actor with the tree in the TD target, with standardized observations too),
+Double DQN, options with intra-option learning and with Retrace (eq. 14)."""
+_IBRL = {"backbone.residual": False, "backbone.tree_in_target": True}
 ROW_SETTINGS = {
-    "backbone_td3 standalone (IBRL)": {
-        "backbone.residual": False,
-        "backbone.tree_in_target": True,
+    "backbone_td3 standalone (IBRL)": _IBRL,
+    "backbone_td3 standalone, standardized observations": {
+        **_IBRL,
+        "td3.standardize_observations": True,
     },
 }
 """A row's settings beyond its preset's."""
