@@ -273,7 +273,8 @@ class TD3Learner:
         first step of all fits the standardizers on its observations."""
         if not self.standardizers_fitted:
             obs = batch["obs"].to(self.device)[:, : self._standardized]
-            fit_standardizers(self._networks(), obs)
+            networks = (self.actor, self.critic, self.target_actor, self.target_critic)
+            fit_standardizers(networks, obs)
             self.standardizers_fitted = True
         if self.captures:
             captured = self._captured or self.capture()
