@@ -153,7 +153,7 @@ class BackboneBuilder:
                 t.act_dim,
                 t.config.hidden_sizes,
                 layer_norm=t.config.critic_layer_norm,
-                standardized=t.obs_dim if t.config.standardize_observations else 0,
+                standardized=t.config.standardized(t.obs_dim),
             )
             critic = TwinQ(as_arrays(twin.state_dict()))
         return BackboneBehaviour(

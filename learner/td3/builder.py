@@ -40,7 +40,7 @@ def make_actor_network(
     Returns:
         A freshly initialised `Actor` whose `state_dict` matches `TD3Learner.policy_state()`.
     """
-    standardized = obs_dim if config.standardize_observations else 0
+    standardized = config.standardized(obs_dim)
     return Actor(
         obs_dim + extra_inputs, act_dim, low, high, config.hidden_sizes, standardized=standardized
     )

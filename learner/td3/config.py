@@ -66,6 +66,11 @@ class TD3Config:
     `frozen_actor_updates` >= it: a critic burn-in on the warm-up data, e.g. the backbone's
     prefill). Counted in updates, not env steps."""
 
+    def standardized(self, obs_dim: int) -> int:
+        """How many leading inputs the networks standardize: the observation's `obs_dim`
+        with `standardize_observations`, none without."""
+        return obs_dim if self.standardize_observations else 0
+
     def __post_init__(self) -> None:
         """Refuses settings that cannot train, with a message naming the field."""
         # Presets parsed from YAML give lists; keep the dataclass hashable and immutable.

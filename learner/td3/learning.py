@@ -179,7 +179,7 @@ class TD3Learner:
         init_seed, noise_seed = np.random.SeedSequence(seed).generate_state(2)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(init_seed))
-            self._standardized = obs_dim if config.standardize_observations else 0
+            self._standardized = config.standardized(obs_dim)
             in_dim, sizes = obs_dim + extra_inputs, config.hidden_sizes
             self.actor = Actor(
                 in_dim, act_dim, action_low, action_high, sizes, standardized=self._standardized
