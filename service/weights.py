@@ -25,7 +25,9 @@ only compares two integers unless new weights have arrived.
 A follower (a relay's, or a process's) that cannot reach its parent, its node cut off
 from the head's network for a while, keeps asking for up to UNREACHABLE_S and goes on
 from the newest version once the parent answers again; only a parent that died, or one
-unreachable for longer, ends the broadcast for it.
+unreachable for longer, ends the broadcast for it. A process whose relay died (its node
+declared dead while the relay was placed there, or the relay killed) asks the broadcaster
+for a new one and goes on; only the broadcaster's own death ends the broadcast.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from typing import TYPE_CHECKING, Any, Optional
 
 import ray
 from ray import ObjectRef
-from ray.exceptions import ActorUnavailableError
+from ray.exceptions import ActorDiedError, ActorUnavailableError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from service.core import as_arrays
@@ -152,6 +154,8 @@ class WeightBroadcaster(_Latest):
         self._node_id = ray.get_runtime_context().get_node_id()
         self._attached: dict[str, int] = {}
         self._relays: dict[tuple[str, int], BroadcasterHandle] = {}
+        self._group_of: dict[str, tuple[str, int]] = {}
+        """Every relay started this run, by actor id: the (node, group) it serves."""
 
     async def publish(self, version: int, weights_ref: list[ObjectRef[Payload]]) -> None:
         if version <= self._version:
@@ -172,11 +176,24 @@ class WeightBroadcaster(_Latest):
         if node_id == self._node_id and group == 0:
             return ray.get_runtime_context().current_actor
         if (node_id, group) not in self._relays:
-            # Owned by this actor: relays end with the broadcaster.
-            self._relays[node_id, group] = WeightRelay.options(  # type: ignore[attr-defined]
-                scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=True)
-            ).remote(ray.get_runtime_context().current_actor)
+            self._start_relay((node_id, group))
         return self._relays[node_id, group]
+
+    async def replace(self, lost: BroadcasterHandle) -> BroadcasterHandle:
+        """The relay that now serves the group `lost` (a relay that died) served: one
+        started anew, or the one another process of the group asked for first."""
+        key = self._group_of[lost._actor_id.hex()]
+        if self._relays[key]._actor_id == lost._actor_id:
+            self._start_relay(key)
+        return self._relays[key]
+
+    def _start_relay(self, key: tuple[str, int]) -> None:
+        # Owned by this actor: relays end with the broadcaster. Soft: a node that died
+        # meanwhile gets its group's relay placed elsewhere.
+        relay = WeightRelay.options(  # type: ignore[attr-defined]
+            scheduling_strategy=NodeAffinitySchedulingStrategy(key[0], soft=True)
+        ).remote(ray.get_runtime_context().current_actor)
+        self._relays[key], self._group_of[relay._actor_id.hex()] = relay, key
 
     async def reset(self, fanout: int) -> None:
         """Starts over for another run: no version, not stopped, no subscribers, and the
@@ -184,6 +201,7 @@ class WeightBroadcaster(_Latest):
         for relay in self._relays.values():
             ray.kill(relay)
         self._relays.clear()
+        self._group_of.clear()
         self._attached.clear()
         self._fanout = fanout
         self._version, self._weights_ref, self._stopped = -1, [], False
@@ -272,6 +290,11 @@ class _ProcessFollower:
                 except ActorUnavailableError as error:
                     reach.failed(error)
                     time.sleep(RETRY_S)
+                    continue
+                except ActorDiedError:
+                    if source._actor_id == self._broadcaster._actor_id:
+                        raise
+                    source = ray.get(self._broadcaster.replace.remote(source))
                     continue
                 reach.answered()
                 version, weights_ref, stopped = reply

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pickle
+import time
 
 import numpy as np
 import pytest
@@ -10,6 +11,21 @@ import ray
 import torch
 
 from service.weights import BroadcastPublisher, WeightRelay, WeightSubscriber
+
+
+@ray.remote(num_cpus=0)
+class Follower:
+    """An actor following the broadcast in a process of its own (its own long-poll)."""
+
+    def follow(
+        self, subscriber: WeightSubscriber, last: int
+    ) -> tuple[list[int], dict[str, np.ndarray]]:
+        versions, weights = [], None
+        while subscriber.version < last:
+            if (new := subscriber.poll(block_s=1.0)) is not None:
+                versions.append(subscriber.version)
+                weights = new
+        return versions, weights
 
 
 def adopt(subscriber: WeightSubscriber) -> dict[str, np.ndarray]:
@@ -65,20 +81,8 @@ def test_stop_reaches_every_subscriber_and_old_versions_are_refused(ray_local):
 
 
 def test_subscribers_past_the_fanout_follow_relays_and_all_get_the_newest_version(ray_local):
-    @ray.remote(num_cpus=0)
-    class Follower:  # an actor each: five processes, five long-polls
-        def follow(
-            self, subscriber: WeightSubscriber, last: int
-        ) -> tuple[list[int], dict[str, np.ndarray]]:
-            versions, weights = [], None
-            while subscriber.version < last:
-                if (new := subscriber.poll(block_s=1.0)) is not None:
-                    versions.append(subscriber.version)
-                    weights = new
-            return versions, weights
-
     publisher = BroadcastPublisher(fanout=2)
-    followers = [Follower.remote() for _ in range(5)]
+    followers = [Follower.remote() for _ in range(5)]  # an actor each: five long-polls
     runs = [f.follow.remote(publisher.subscriber(), 2) for f in followers]
     for version in range(3):
         publisher.publish(version, {"w": torch.full((3,), float(version))})
@@ -90,6 +94,30 @@ def test_subscribers_past_the_fanout_follow_relays_and_all_get_the_newest_versio
     publisher.stop()
     for f in followers:
         ray.kill(f)
+
+
+def test_a_process_whose_relay_died_follows_a_new_one_and_gets_the_next_version(ray_local):
+    # A relay dies when Ray declares its node dead (placed on a node cut off from the
+    # cluster's network); its subscribers must not: the broadcaster starts another.
+    publisher = BroadcastPublisher(fanout=1)
+    adopt_first = publisher.subscriber()  # this process: the broadcaster's one long-poll
+    publisher.publish(0, {"w": torch.zeros(1)})
+    adopt(adopt_first)
+    follower = Follower.remote()  # another process on the node: a relay's
+    run = follower.follow.remote(publisher.subscriber(), 1)
+    while not (relays := ray.get(publisher.broadcaster.relays.remote())):
+        time.sleep(0.1)  # until the follower's process has attached
+    [relay] = relays
+    while ray.get(relay.version.remote()) < 0:
+        time.sleep(0.1)
+    ray.kill(relay)
+    publisher.publish(1, {"w": torch.ones(1)})
+    versions, weights = ray.get(run, timeout=60)
+    assert versions[-1] == 1 and np.array_equal(weights["w"], np.ones(1))
+    [new] = ray.get(publisher.broadcaster.relays.remote())
+    assert new._actor_id != relay._actor_id
+    publisher.stop()
+    ray.kill(follower)
 
 
 def test_subscribers_in_one_process_share_one_long_poll(ray_local):
