@@ -200,8 +200,11 @@ class Evaluator:
         self.env, self.seed = env, seed
         self.behaviour = behaviour
 
-    def evaluate(self, weights: WeightArrays, *, episodes: int, tag: EvalTag) -> Evaluation:
-        """Returns mean and std of the episode returns, echoing `tag` back.
+    def evaluate(
+        self, weights: WeightArrays, *, episodes: int, tag: EvalTag, first: int = 0
+    ) -> Evaluation:
+        """Returns mean and std of the returns of episodes `first`, ..., `first` +
+        `episodes` − 1 (reset seeds from the evaluator's seed + `first`), echoing `tag` back.
 
         `stats` carries what the behaviour counted while acting greedily (e.g. how often
         each option ran) and the means of the environment's own episode metrics.
@@ -209,7 +212,7 @@ class Evaluator:
         self.behaviour.load(weights)
         self.behaviour.stats()  # drop anything counted before these weights
         played = play_episodes(
-            self.behaviour.greedy, env=self.env, episodes=episodes, seed=self.seed
+            self.behaviour.greedy, env=self.env, episodes=episodes, seed=self.seed + first
         )
         return {
             "tag": tag,
@@ -267,17 +270,27 @@ class RemoteEvaluator:
         ray.kill(kept)  # still scoring a finished run's last evaluation
         return self._start()
 
-    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
+    def evaluate(
+        self, weights: Weights, *, episodes: int, tag: EvalTag, first: int = 0
+    ) -> Future[Evaluation]:
         """Starts the episodes in the actor (sent as numpy arrays) and returns at once."""
         result: Future[Evaluation] = Future()
-        self._submit(as_arrays(weights), episodes, tag, result)
+        self._submit(as_arrays(weights), (episodes, first), tag, result)
         return result
 
     def _submit(
-        self, weights: WeightArrays, episodes: int, tag: EvalTag, result: Future[Evaluation]
+        self,
+        weights: WeightArrays,
+        episodes: tuple[int, int],
+        tag: EvalTag,
+        result: Future[Evaluation],
     ) -> None:
+        """`episodes`: how many, and the first's index."""
         actor = self._actor
-        ref: ObjectRef[Evaluation] = actor.evaluate.remote(weights, episodes=episodes, tag=tag)
+        count, first = episodes
+        ref: ObjectRef[Evaluation] = actor.evaluate.remote(
+            weights, episodes=count, tag=tag, first=first
+        )
 
         def retry(error: Exception) -> None:
             try:

@@ -6,6 +6,8 @@ not how they learn, so one run scores all of them on the same held-out episodes:
     selected   the run's final policy as `graft eval` scores it (switching, then selection)
     switching  the same networks with switching, the selection undone
     policy     the same networks acting π (or argmax Q) everywhere: neither part
+    alone      with `selection.best_in_run`: what the selection would have kept from the
+               final policy alone, tested at its uncorrected z (the final policy or the tree)
 
 (`bench/improve.py --parts`; the learning-side parts — the penalty, the burn-in, the decayed
 margin loss — need runs of their own: `--set` them off.)
@@ -20,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any, Optional
 
 import numpy as np
 
@@ -53,9 +56,39 @@ def part_scores(run_dir: Path, *, episodes: int, seed: int) -> dict[str, float]:
             behaviour.greedy, env=config.env_spec(), episodes=episodes, seed=seed
         )
         scores[part] = played.mean
+    alone = final_alone(run_dir, behaviour, scores, config=config, episodes=episodes, seed=seed)
+    scores |= {ALONE: alone} if alone is not None else {}
     saved[key] = scores
     cache.write_text(json.dumps(saved))
     return scores
+
+
+ALONE = "alone"
+
+
+def final_alone(
+    run_dir: Path, behaviour: Any, scores: dict[str, float], *, config: Any, episodes: int,
+    seed: int,
+) -> Optional[float]:  # fmt: skip
+    """For a run whose selection had its best in-run policy as a candidate: the score of
+    what the selection would have kept from the final policy alone (the summary's
+    ``policy_alone_kept``): the final networks with switching (saved in RUN/unselected when
+    the earlier policy was kept), or the tree. None for other runs."""
+    from graft.trained import load_behaviour
+    from learner.loop import UNSELECTED
+
+    record = json.loads((run_dir / "summary.json").read_text()).get("selection") or {}
+    if "best" not in record:
+        return None
+    if record["policy_alone_kept"]:
+        unselected = sorted((run_dir / UNSELECTED).glob("ckpt-*.pt"))
+        if not unselected:  # the final networks are the run's own
+            return scores["switching"]
+        behaviour, _ = load_behaviour(unselected[-1])
+    else:
+        behaviour.tree_only = True
+    played = graft.evaluate(behaviour.greedy, env=config.env_spec(), episodes=episodes, seed=seed)
+    return played.mean
 
 
 def reselect(
@@ -109,13 +142,19 @@ def reselect(
 
 def parts_table(rows: dict[str, list[tuple[int, float, float, dict[str, float]]]]) -> str:
     """Markdown: per task and seed, the tree, each variant and the final, minus the tree."""
+    alone = any(ALONE in scores for seeds in rows.values() for *_, scores in seeds)
+    shown = [*reversed(PARTS), *([ALONE] if alone else [])]
     lines = [
-        "| task | seed | tree | π everywhere | with switching | selected (final) |",
-        "|---|---|---|---|---|---|",
+        "| task | seed | tree | π everywhere | with switching |"
+        + (" final policy alone, selected |" if alone else "")
+        + " selected (final) |",
+        "|---|---|---|---|---|" + ("---|" if alone else "") + "---|",
     ]
     for task, seeds in rows.items():
         for seed, tree, final, scores in seeds:
-            cells = [f"{scores[p]:.1f} ({scores[p] - tree:+.1f})" for p in reversed(PARTS)]
+            cells = [
+                f"{scores[p]:.1f} ({scores[p] - tree:+.1f})" if p in scores else "–" for p in shown
+            ]
             lines.append(
                 f"| {task} | {seed} | {tree:.1f} | {' | '.join(cells)} "
                 f"| {final:.1f} ({final - tree:+.1f}) |"

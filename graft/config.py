@@ -228,12 +228,15 @@ class TrainConfig:
                 f"<= {seeds.BLOCK}: a run's environments reset from one block of "
                 f"{seeds.BLOCK} seeds (graft/seeds.py)"
             )
-        most = max(self.eval_episodes, self.selection.episodes)
-        if most > seeds.BLOCK:
+        # With best_in_run the selection plays the episodes after the in-run ones.
+        after = self.eval_episodes if self.selection.best_in_run else 0
+        if max(self.eval_episodes, after + self.selection.episodes) > seeds.BLOCK:
+            sum_of = " (their sum, with selection.best_in_run)" if after else ""
             raise ValueError(
                 f"eval_episodes={self.eval_episodes} and selection.episodes="
-                f"{self.selection.episodes} must be <= {seeds.BLOCK}: a run's evaluation "
-                f"episodes reset from one block of {seeds.BLOCK} seeds (graft/seeds.py)"
+                f"{self.selection.episodes} must be <= {seeds.BLOCK}{sum_of}: a run's "
+                f"evaluation episodes reset from one block of {seeds.BLOCK} seeds "
+                "(graft/seeds.py)"
             )
         if not 0 <= self.seed < 2**32:
             raise ValueError(f"seed={self.seed} must lie in [0, 2**32) (numpy's seed range)")

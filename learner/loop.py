@@ -11,7 +11,8 @@
             every log_every updates:     log metrics, perf/policy_lag from the batch
             every checkpoint_every:      self.checkpoint()  (model, optimiser, counters)
         evaluate at the end of every phase
-    with a final selection: score the policy and the tree alone, keep the better (`_select`)
+    with a final selection: score the policy and the tree alone, keep the better (`_select`);
+    with best_in_run the best in-run evaluation's policy is scored too
 
 In reproducible mode (a `Lockstep`) the loop also drives the actors: before each update
 it has the actors insert, one batch at a time in a fixed order, until the phase's held
@@ -22,12 +23,13 @@ evaluation is logged as soon as it is done.
 from __future__ import annotations
 
 import concurrent.futures
+import copy
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional, Protocol, runtime_checkable
+from typing import Any, Optional, Protocol, runtime_checkable
 
 import torch
 
@@ -39,7 +41,7 @@ from learner.feed import make_feed
 from learner.lockstep import Lockstep as Lockstep  # re-exported: the run builds one
 from learner.lockstep import LockstepFeed
 from learner.lockstep import updates_allowed as updates_allowed  # re-exported
-from learner.selection import SelectionConfig, tree_wins
+from learner.selection import SelectionConfig, choose, tree_wins
 from service.core import (
     Algorithm,
     Columns,
@@ -55,6 +57,9 @@ from service.metrics import MetricsLogger, PolicyLag
 
 STALL_CHECK_S = 10.0
 """Seconds without a sampled batch before the loop asks its watchdog what is wrong."""
+UNSELECTED = "unselected"
+"""RUN/UNSELECTED/ckpt-*.pt: the final policy, when the selection kept an earlier one
+(best_in_run), for comparing the two (`graft eval RUN/unselected/ckpt-….pt`)."""
 
 
 def to_tensors(batch: Columns) -> TensorBatch:
@@ -81,7 +86,10 @@ class LoopState:
     """Seconds until the first batch: the table filling to its minimum size."""
     evaluations: list[Evaluation] = field(default_factory=list)
     selection: dict[str, float] = field(default_factory=dict)
-    """The final selection's scores (``policy``, ``tree``) and ``tree_kept`` (1 or 0)."""
+    """The final selection's scores (``policy``, ``tree``) and ``tree_kept`` (1 or 0); with
+    an earlier policy as a candidate (best_in_run) also its score ``best``, the env steps it
+    was evaluated at ``best_env_steps``, ``best_kept``, and ``policy_alone_kept``: whether
+    the final policy alone, tested at the uncorrected z, would have been kept."""
     guard: dict[str, float] = field(default_factory=dict)
     """The newest in-run evaluation judged against the tree (`LearnerLoop` with a
     selection): ``policy``, ``tree`` and ``tree_kept`` (1: a run stopped there plays the
@@ -158,6 +166,10 @@ class LearnerLoop:
         self._pending_evals: list[Future[Evaluation]] = []
         self._tree_eval: Optional[Future[Evaluation]] = None
         """The tree alone on the in-run evaluation's episodes (the same every time)."""
+        self._states: dict[Future[Evaluation], tuple[Weights, dict[str, Any]]] = {}
+        """With best_in_run: the weights and learner state each pending evaluation scores."""
+        self._best: Optional[tuple[Evaluation, Weights, dict[str, Any]]] = None
+        """With best_in_run: the best in-run evaluation so far, its weights and state."""
         # The run's env steps when the table was empty: a table refilled on resume counts
         # from zero (offset: the checkpoint's env steps), a restored one goes on counting.
         self._env_steps_offset = (
@@ -184,7 +196,11 @@ class LearnerLoop:
             "wall_s": time.perf_counter() - self._started,
         }
         episodes = self.settings.eval_episodes
-        self._pending_evals.append(self.evaluator.evaluate(weights, episodes=episodes, tag=tag))
+        future = self.evaluator.evaluate(weights, episodes=episodes, tag=tag)
+        self._pending_evals.append(future)
+        if self.settings.selection.best_in_run:  # copies: training goes on meanwhile
+            state = copy.deepcopy(self.algorithm.state_dict())
+            self._states[future] = ({k: v.clone() for k, v in weights.items()}, state)
         if self._guarded is not None and self._tree_eval is None:
             self._tree_eval = self.evaluator.evaluate(
                 self._guarded.tree_state(), episodes=episodes, tag=tag
@@ -212,12 +228,20 @@ class LearnerLoop:
                 continue
             result = future.result()
             self.state.evaluations.append(result)
+            self._offer(future, result)
             tag = result["tag"]
             scalars = {"eval/return_mean": result["mean"], "eval/return_std": result["std"]}
             scalars.update({f"eval/{k}": v for k, v in result.get("stats", {}).items()})
             if self._tree_eval is not None:
                 scalars.update(self._guard(result, self._tree_eval.result()))
             self.logger.log(scalars, env_steps=tag["env_steps"], updates=tag["updates"])
+
+    def _offer(self, future: Future[Evaluation], result: Evaluation) -> None:
+        """With best_in_run: the policy `future` scored becomes the best in-run one if its
+        score beats every earlier one's."""
+        kept = self._states.pop(future, None)
+        if kept is not None and (self._best is None or result["mean"] > self._best[0]["mean"]):
+            self._best = (result, *kept)
 
     def _guard(self, policy: Evaluation, tree: Evaluation) -> dict[str, float]:
         """The final selection's paired test applied to an in-run evaluation: what a run
@@ -278,21 +302,43 @@ class LearnerLoop:
         return s
 
     def _select(self, weights: Weights, algorithm: FallsBack) -> None:
-        """Scores the final policy and the tree alone on the evaluator's episodes (the
-        training side's, never a benchmark's held-out ones); keeps the tree unless the
-        policy beats it (`tree_wins`)."""
+        """Scores the final policy, the tree alone and, with best_in_run, the best in-run
+        evaluation's policy on the evaluator's episodes (the training side's, never a
+        benchmark's held-out ones); keeps the tree unless a policy beat it (`choose`)."""
         c, s = self.settings.selection, self.state
+        candidates = {"policy": weights}
+        if self._best is not None and self._best[0]["tag"]["updates"] != s.updates:
+            candidates["best"] = self._best[1]  # an earlier policy than the final one
+        first = self.settings.eval_episodes if c.best_in_run else 0
         tag: EvalTag = {"env_steps": s.env_steps, "updates": s.updates, "wall_s": 0.0}
-        scored = [
-            self.evaluator.evaluate(w, episodes=c.episodes, tag=tag)
-            for w in (weights, algorithm.tree_state())
-        ]
-        policy, tree = (future.result() for future in scored)
-        kept = tree_wins(policy.get("returns", []), tree.get("returns", []), z=c.z)
-        if kept:
+        scored = {
+            name: self.evaluator.evaluate(w, episodes=c.episodes, tag=tag, first=first)
+            for name, w in {**candidates, "tree": algorithm.tree_state()}.items()
+        }
+        results = {name: future.result() for name, future in scored.items()}
+        returns = {name: results[name].get("returns", []) for name in candidates}
+        chosen = choose(returns, results["tree"].get("returns", []), z=c.z)
+        if chosen == "best" and self._best is not None:
+            final = {"algorithm": self.algorithm.state_dict()}
+            save_checkpoint(self.checkpoint_dir.parent / UNSELECTED, final, updates=s.updates)
+            self.algorithm.load_state_dict(self._best[2])
+        elif chosen is None:
             algorithm.keep_tree()
+        if chosen != "policy":
             self.publish()
-        s.selection = {"policy": policy["mean"], "tree": tree["mean"], "tree_kept": float(kept)}
+        s.selection = {
+            "policy": results["policy"]["mean"],
+            "tree": results["tree"]["mean"],
+            "tree_kept": float(chosen is None),
+        }
+        if "best" in candidates and self._best is not None:
+            alone = not tree_wins(returns["policy"], results["tree"].get("returns", []), z=c.z)
+            s.selection |= {
+                "best": results["best"]["mean"],
+                "best_env_steps": float(self._best[0]["tag"]["env_steps"]),
+                "best_kept": float(chosen == "best"),
+                "policy_alone_kept": float(alone),
+            }
         self.logger.log(
             {f"select/{k}": v for k, v in s.selection.items()},
             env_steps=s.env_steps,

@@ -2,14 +2,18 @@
 hard-coded one on training-side evaluation episodes, else fall back to the tree.
 
 `LearnerLoop.run` scores both on the evaluator's episodes (its reset seeds, never the
-held-out ones a benchmark tests on) and calls `keep_tree` when `tree_wins` says so.
+held-out ones a benchmark tests on) and calls `keep_tree` when `tree_wins` says so. With
+``best_in_run`` the policy of the run's best in-run evaluation is a second candidate
+(`choose`): π often peaks before the end of a short budget and falls back (Hopper).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
+from typing import Optional
 
 import numpy as np
 
@@ -28,6 +32,12 @@ class SelectionConfig:
     """The learned policy is kept only if its mean gain over the tree, episode by episode
     on the same starts, exceeds z standard errors of that gain (a one-sided paired test;
     0: any gain)."""
+    best_in_run: bool = False
+    """Also a candidate: the policy of the run's best in-run evaluation (the learner's
+    whole state at that evaluation, kept in memory). Each candidate must then beat the tree
+    at z corrected for their number (`corrected_z`), the best scoring of those that do is
+    kept, and the selection plays the evaluation episodes after the in-run ones, so that
+    the episodes that picked a candidate do not also judge it."""
 
     def __post_init__(self) -> None:
         if self.episodes < 0:
@@ -55,6 +65,36 @@ def tree_wins(policy_returns: Sequence[float], tree_returns: Sequence[float], *,
     gains = np.asarray(policy_returns, dtype=np.float64) - np.asarray(tree_returns)
     error = float(gains.std(ddof=1)) / math.sqrt(len(gains))
     return not float(gains.mean()) > z * error
+
+
+def corrected_z(z: float, candidates: int) -> float:
+    """The z each of `candidates` tests needs so that the chance any one of them passes by
+    luck stays that of one test at `z` (Bonferroni: a one-sided tail of 1 − Φ(z), split
+    evenly)."""
+    if candidates <= 1:
+        return z
+    tail = (1.0 - NormalDist().cdf(z)) / candidates
+    return NormalDist().inv_cdf(1.0 - tail)
+
+
+def choose(
+    candidates: Mapping[str, Sequence[float]], tree_returns: Sequence[float], *, z: float
+) -> Optional[str]:
+    """The candidate to keep, by name: of those whose returns beat the tree's on the same
+    episodes (`tree_wins` at `corrected_z`), the one with the highest mean; None: the tree.
+
+    Raises:
+        ValueError: there are no candidates, or one was not scored on the tree's episodes.
+    """
+    if not candidates:
+        raise ValueError("the selection needs at least one candidate besides the tree")
+    z_each = corrected_z(z, len(candidates))
+    beat = {
+        name: float(np.mean(returns))
+        for name, returns in candidates.items()
+        if not tree_wins(returns, tree_returns, z=z_each)
+    }
+    return max(beat, key=beat.__getitem__) if beat else None
 
 
 def with_tree_only(weights: Weights, tree_only: bool) -> Weights:

@@ -226,7 +226,7 @@ class Evaluation(TypedDict):
     mean: float
     std: float
     stats: dict[str, float]  # what the behaviour counted while acting greedily
-    returns: NotRequired[list[float]]  # episode by episode, reset seeds seed, seed + 1, ...
+    returns: NotRequired[list[float]]  # episode by episode: reset seeds seed + first, + 1, ...
 
 
 class Evaluator(Protocol):
@@ -239,8 +239,11 @@ class Evaluator(Protocol):
             state.evaluations.append(future.result())  # and logged: eval/return_mean
     """
 
-    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
-        """Starts `episodes` greedy episodes with `weights`; the future holds their returns."""
+    def evaluate(
+        self, weights: Weights, *, episodes: int, tag: EvalTag, first: int = 0
+    ) -> Future[Evaluation]:
+        """Starts `episodes` greedy episodes with `weights`, the run's evaluation episodes
+        `first`, `first` + 1, ...; the future holds their returns."""
 
 
 class LockstepActors(Protocol):

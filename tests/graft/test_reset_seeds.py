@@ -70,3 +70,8 @@ def test_more_evaluation_or_selection_episodes_than_a_block_are_refused():
         load_preset(improve.TASKS["pendulum"], eval_episodes=1001)
     with pytest.raises(ValueError, match="selection.episodes=1001 must be <= 1000"):
         load_preset(improve.TASKS["pendulum"], **{"selection.episodes": 1001})
+    # With best_in_run the selection plays the episodes after the in-run ones.
+    best = {"selection.best_in_run": True}
+    load_preset(improve.TASKS["pendulum"], eval_episodes=950, **best)
+    with pytest.raises(ValueError, match=r"selection.episodes=50 must be <= 1000 \(their sum"):
+        load_preset(improve.TASKS["pendulum"], eval_episodes=951, **best)

@@ -68,7 +68,9 @@ class RecordingPublisher:
 class ImmediateEvaluator:
     """An `Evaluator` whose result is ready at once: the return is the policy's update count."""
 
-    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
+    def evaluate(
+        self, weights: Weights, *, episodes: int, tag: EvalTag, first: int = 0
+    ) -> Future[Evaluation]:
         future: Future[Evaluation] = Future()
         value = float(weights["updates"])
         future.set_result({"tag": tag, "mean": value, "std": 0.0, "stats": {}})
@@ -272,7 +274,9 @@ class EpisodeEvaluator:
     def __init__(self) -> None:
         self.asked: list[float] = []
 
-    def evaluate(self, weights: Weights, *, episodes: int, tag: EvalTag) -> Future[Evaluation]:
+    def evaluate(
+        self, weights: Weights, *, episodes: int, tag: EvalTag, first: int = 0
+    ) -> Future[Evaluation]:
         tree = float(weights["tree"]) == 1.0
         self.asked.append(-1.0 if tree else float(weights["updates"]))
         gain = 0.0 if tree else float(weights["updates"]) - 3.0
