@@ -275,27 +275,26 @@ class RemoteEvaluator:
     ) -> Future[Evaluation]:
         """Starts the episodes in the actor (sent as numpy arrays) and returns at once."""
         result: Future[Evaluation] = Future()
-        self._submit(as_arrays(weights), (episodes, first), tag, result)
+        self._submit(as_arrays(weights), episodes, first, tag, result)
         return result
 
     def _submit(
         self,
         weights: WeightArrays,
-        episodes: tuple[int, int],
+        episodes: int,
+        first: int,
         tag: EvalTag,
         result: Future[Evaluation],
     ) -> None:
-        """`episodes`: how many, and the first's index."""
         actor = self._actor
-        count, first = episodes
         ref: ObjectRef[Evaluation] = actor.evaluate.remote(
-            weights, episodes=count, tag=tag, first=first
+            weights, episodes=episodes, tag=tag, first=first
         )
 
         def retry(error: Exception) -> None:
             try:
                 self._replace(actor, error)
-                self._submit(weights, episodes, tag, result)
+                self._submit(weights, episodes, first, tag, result)
             except BaseException as failed:
                 result.set_exception(failed)
 

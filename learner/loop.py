@@ -316,8 +316,9 @@ class LearnerLoop:
             for name, w in {**candidates, "tree": algorithm.tree_state()}.items()
         }
         results = {name: future.result() for name, future in scored.items()}
-        returns = {name: results[name].get("returns", []) for name in candidates}
-        chosen = choose(returns, results["tree"].get("returns", []), z=c.z)
+        returns = {name: result.get("returns", []) for name, result in results.items()}
+        tree = returns.pop("tree")
+        chosen = choose(returns, tree, z=c.z)
         if chosen == "best" and self._best is not None:
             final = {"algorithm": self.algorithm.state_dict()}
             save_checkpoint(self.checkpoint_dir.parent / UNSELECTED, final, updates=s.updates)
@@ -332,7 +333,7 @@ class LearnerLoop:
             "tree_kept": float(chosen is None),
         }
         if "best" in candidates and self._best is not None:
-            alone = not tree_wins(returns["policy"], results["tree"].get("returns", []), z=c.z)
+            alone = not tree_wins(returns["policy"], tree, z=c.z)
             s.selection |= {
                 "best": results["best"]["mean"],
                 "best_env_steps": float(self._best[0]["tag"]["env_steps"]),
