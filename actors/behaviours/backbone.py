@@ -73,6 +73,7 @@ class BackboneBehaviour:
         low: np.ndarray,
         high: np.ndarray,
         observe_backbone: bool = False,
+        tree_input: Optional[bool] = None,
         gate: Optional[Callable[[np.ndarray], np.ndarray]] = None,
         critic: Optional[TwinQ] = None,
         switch_margin: Optional[float] = None,
@@ -89,7 +90,10 @@ class BackboneBehaviour:
             prefill_std: Std of ε in the prefill actions μ(s) + ε.
             low: Lower action bounds [A].
             high: Upper action bounds [A].
-            observe_backbone: π's input is [s, μ(s) / high] instead of s.
+            observe_backbone: Replay stores μ(s') too, and π's and the critic's input is
+                [s, μ(s) / high] instead of s.
+            tree_input: With observe_backbone, False keeps the networks' input s alone
+                (μ(s) only the tree's proposal). None: as observe_backbone.
             gate: Where it returns False ([B] bool from the observation) the greedy
                 policy drops the correction and acts μ(s) alone (e.g. the tree's recovery
                 when progress stalls). Exploration ignores it.
@@ -118,6 +122,7 @@ class BackboneBehaviour:
         self._switched: list[float] = []
         self.correction = correction
         self.observe_backbone = observe_backbone
+        self.tree_input = observe_backbone if tree_input is None else tree_input
         self._next_mu: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         """Per environment, (s', μ(s')) from `next_columns`: s' is its next step's s unless
         its episode ended."""
@@ -165,10 +170,12 @@ class BackboneBehaviour:
                 mu[j] = k[1]
         return mu
 
+    def _input(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
+        """The networks' input: [s, μ(s) / high] where they see the tree, else s."""
+        return backbone_input(obs, mu, self.high.astype(np.float32)) if self.tree_input else obs
+
     def _pi(self, obs: np.ndarray, mu: np.ndarray) -> np.ndarray:
-        if self.observe_backbone:
-            obs = backbone_input(obs, mu, self.high.astype(np.float32))
-        return self.correction(obs)
+        return self.correction(self._input(obs, mu))
 
     def _tree(self, mu: np.ndarray) -> np.ndarray:
         """The tree's proposal as π's output, [B, A]: the correction 0 (residual), or a
@@ -187,8 +194,7 @@ class BackboneBehaviour:
     ) -> np.ndarray:
         """[B] bool: where the critic values π's correction above the tree's proposal."""
         assert self.critic is not None and self.switch_margin is not None
-        if self.observe_backbone:
-            obs = backbone_input(obs, mu, self.high.astype(np.float32))
+        obs = self._input(obs, mu)
         q_tree = self.critic(obs, tree)
         q_policy = self.critic(obs, correction)
         use = switch_mask(q_tree, q_policy, self.switch_margin)
@@ -232,11 +238,7 @@ class BackboneBehaviour:
         mean = tree if warmup else self._pi(obs, mu)
         if self.propose_tree and not warmup:  # IBRL: around whichever the critic values more
             assert self.critic is not None
-            x = (
-                backbone_input(obs, mu, self.high.astype(np.float32))
-                if self.observe_backbone
-                else obs
-            )
+            x = self._input(obs, mu)
             better = self.critic(x, mean) > self.critic(x, tree)
             mean = np.where(better[:, None], mean, tree).astype(np.float32)
         std = self.prefill_std if warmup else self.std

@@ -97,6 +97,7 @@ class BackboneBuilder:
                 tree_in_target=self.config.tree_in_target,
                 centre=self.centre,
                 clone_tree=self.config.clone_tree,
+                tree_input=self.config.tree_input,
             )
         else:
             learner = TD3Learner(
@@ -142,7 +143,8 @@ class BackboneBuilder:
 
     def make_behaviour(self, *, num_actors: int) -> BackboneBehaviour:
         t = self.td3
-        extra = t.act_dim if self.config.observe_backbone else 0
+        tree_input = self.config.observe_backbone and self.config.tree_input
+        extra = t.act_dim if tree_input else 0
         correction = make_actor_network(
             t.obs_dim, t.act_dim, -self.bound, self.bound, t.config, extra_inputs=extra
         )
@@ -165,6 +167,7 @@ class BackboneBuilder:
             low=t.low,
             high=t.high,
             observe_backbone=self.config.observe_backbone,
+            tree_input=tree_input,
             critic=critic,
             switch_margin=self.config.switch_margin,
             propose_tree=self.config.tree_in_acting,

@@ -20,6 +20,12 @@ class BackboneConfig:
     """Give μ(s) (scaled to [−1, 1]) to the correction actor and the critics as an extra
     input, as residual policy learning does. The paper's π(s) sees s only; with a bang-bang
     μ the correction it needs is discontinuous in s (μ flips with sign θ̇) but not in μ(s)."""
+    tree_input: bool = True
+    """With observe_backbone: π and the critics see μ(s) beside s. False: they see s alone,
+    as IBRL's networks do (a standalone actor's best action is a function of s; a bang-bang
+    μ(s) beside it is an input that flips where the action should be smooth, at Pendulum's
+    top as θ̇ changes sign), and μ(s) travels in the batches only as the tree's proposal
+    (tree_in_acting, tree_in_target, switching)."""
 
     correction_penalty: float = 0.0
     """β, conservative updates near the backbone: the actor minimises
@@ -99,6 +105,12 @@ class BackboneConfig:
             raise ValueError(
                 f"{name}={getattr(self, name)} needs observe_backbone=True (the residual "
                 "learner); set backbone.observe_backbone: true"
+            )
+        if not self.tree_input and (self.residual or not self.observe_backbone):
+            raise ValueError(
+                "tree_input=False needs a standalone actor (residual=False, which needs "
+                "observe_backbone=True): a residual correction is defined next to μ(s); set "
+                "backbone.residual: false or backbone.tree_input: true"
             )
         if not self.residual:
             self._check_standalone()

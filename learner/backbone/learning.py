@@ -126,6 +126,7 @@ class ObservingBackboneLearner(TD3Learner):
         tree_in_target: bool = False,
         centre: Optional[np.ndarray] = None,
         clone_tree: bool = False,
+        tree_input: bool = True,
     ) -> None:
         """`bound` is L per action dimension; `scale` the half-width of the action box;
         `correction_penalty` β of `conservative_actor_loss` (0: TD3's actor loss);
@@ -136,7 +137,9 @@ class ObservingBackboneLearner(TD3Learner):
         `centre`: a standalone actor, whose output is the action minus this centre, so
         that the tree's proposal is μ(s) − centre (None: the residual, the correction 0);
         `clone_tree`: while the actor is frozen, its delayed steps fit π(s) to the tree's
-        proposal instead (eq. 8's `imitation_loss`; needs `centre`, and eager updates)."""
+        proposal instead (eq. 8's `imitation_loss`; needs `centre`, and eager updates);
+        `tree_input`: the networks see [s, μ(s) / scale] (False: s alone, the batches'
+        μ(s) and μ(s') only the tree's proposal)."""
         act_dim = bound.shape[0]
         super().__init__(
             obs_dim,
@@ -147,8 +150,9 @@ class ObservingBackboneLearner(TD3Learner):
             seed=seed,
             device=device,
             compile=compile,
-            extra_inputs=act_dim,
+            extra_inputs=act_dim if tree_input else 0,
         )
+        self._tree_input = tree_input
         self._scale = torch.as_tensor(scale, dtype=torch.float32, device=self.device)
         self._bound = torch.tensor(bound, dtype=torch.float32, device=self.device)  # a copy
         self._penalty = correction_penalty
@@ -290,7 +294,10 @@ class ObservingBackboneLearner(TD3Learner):
         return super().update(self._observe(batch))
 
     def _observe(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """[s, μ(s) / scale] and [s', μ(s') / scale] in place of ``obs`` and ``next_obs``."""
+        """[s, μ(s) / scale] and [s', μ(s') / scale] in place of ``obs`` and ``next_obs``
+        (without `tree_input`, the batch as it is)."""
+        if not self._tree_input:
+            return batch
         return dict(
             batch,
             obs=backbone_input(batch["obs"], batch["backbone_action"], self._scale),

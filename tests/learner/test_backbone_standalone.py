@@ -182,3 +182,56 @@ def test_the_standalone_builder_spans_the_box_and_keeps_td3s_initialisation():
     behaviour = standalone.make_behaviour(num_actors=1)
     assert behaviour.centre is not None and behaviour.centre.tolist() == [0.0]
     assert behaviour.limit == 2.0 and residual.make_behaviour(num_actors=1).centre is None
+
+
+def test_without_tree_input_the_networks_see_s_alone_and_mu_stays_the_proposal():
+    box = spaces.Box(-2.0, 2.0, (1,), np.float32)
+    td3 = TD3Builder(
+        spaces.Box(-np.inf, np.inf, (3,), np.float32),
+        box,
+        config=TD3Config(hidden_sizes=(8,), batch_size=4),
+        budget=Budget(env_steps=100, learning_starts=10, updates_per_env_step=1.0,
+                      slack_env_steps=0),
+        seed=0,
+        method="backbone_td3",
+    )  # fmt: skip
+
+    def build(tree_input: bool) -> BackboneBuilder:
+        config = BackboneConfig(
+            observe_backbone=True,
+            residual=False,
+            tree_in_target=True,
+            tree_in_acting=True,
+            tree_input=tree_input,
+        )
+        return BackboneBuilder("actors.trees.pendulum:swing_up", td3, config=config)
+
+    seeing, blind = build(True), build(False)
+    assert seeing.make_learner().actor.net[0].in_features == 4  # [s, μ(s)]
+    learner = blind.make_learner()
+    assert learner.actor.net[0].in_features == 3 and learner.critic.q1_net[0].in_features == 4
+    gen = torch.Generator().manual_seed(0)
+    batch = {
+        "obs": torch.randn(4, 3, generator=gen),
+        "action": torch.rand(4, 1, generator=gen) * 4 - 2,
+        "reward": torch.randn(4, generator=gen),
+        "next_obs": torch.randn(4, 3, generator=gen),
+        "terminated": torch.zeros(4, dtype=torch.bool),
+        "backbone_action": torch.full((4, 1), 2.0),
+        "next_backbone_action": torch.full((4, 1), 2.0),
+    }
+    learner.update(batch)  # trains on s alone, the batch's μ columns beside it
+    flipped = dict(batch, next_backbone_action=torch.full((4, 1), -2.0))
+    # μ(s') is still the tree's proposal in the TD target.
+    assert not torch.allclose(learner._critic_target(batch), learner._critic_target(flipped))
+    behaviour = blind.make_behaviour(num_actors=1)
+    behaviour.load({k: v.numpy() for k, v in learner.policy_state().items()})
+    obs = np.array([[1.0, 0.0, 0.5], [1.0, 0.0, -0.5]], np.float32)  # μ flips with θ̇
+    action, columns = behaviour.act(obs, np.random.default_rng(0), warmup=False)
+    assert action.shape == (2, 1) and columns["backbone_action"].tolist() == [[-2.0], [2.0]]
+    assert set(behaviour.next_columns(obs)) == {"next_backbone_action"}
+
+
+def test_tree_input_false_needs_a_standalone_actor():
+    with pytest.raises(ValueError, match="tree_input=False needs a standalone actor"):
+        BackboneConfig(observe_backbone=True, tree_input=False)
