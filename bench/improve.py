@@ -295,9 +295,11 @@ def commit() -> str:
 def report(
     summaries: Sequence[dict[str, Any]], results: Mapping[str, Mapping[str, list[SeedRow]]],
     out: Path, stem: str, *, code: str, parts: bool = False,
+    settings: Optional[Mapping[str, Sequence[str]]] = None,
 ) -> list[dict[str, Any]]:  # fmt: skip
     """Prints the tables, writes OUT/STEM.json (with `code`, the commit the runs were
-    made at) and a figure per task; the task rows."""
+    made at, and the `--set`s they ran with, when given) and a figure per task; the task
+    rows."""
     tasks = [compare(task, arms) for task, arms in results.items()]
     print()
     print(task_table(tasks))
@@ -316,6 +318,8 @@ def report(
         "seeds": {t: {a: [asdict(r) for r in rs] for a, rs in arms.items()}
                   for t, arms in results.items()},
     }  # fmt: skip
+    if settings is not None:
+        saved["settings"] = dict(settings)
     (out / f"{stem}.json").write_text(json.dumps(saved, indent=1))
     for task, arms in results.items():
         plot_task(task, arms, out / f"improve-{task}.png")
@@ -386,7 +390,10 @@ def main(argv: Optional[Sequence[str]] = None) -> list[dict[str, Any]]:
             results.setdefault(task, {})[arm] = rows
             print(f"{task} {arm}: {summary['improvement_line']}", flush=True)
     stem = "improve" if args.suite else f"improve-{args.task}"
-    return report(summaries, results, args.out, stem, code=commit(), parts=args.parts)
+    settings = {"set": args.set, "scratch_set": args.scratch_set}
+    return report(
+        summaries, results, args.out, stem, code=commit(), parts=args.parts, settings=settings
+    )
 
 
 def budget_of(env_steps: float) -> int:

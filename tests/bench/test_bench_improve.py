@@ -130,7 +130,8 @@ def test_fewer_than_three_seeds_get_no_interval_and_no_ci_target():
 def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, capsys, monkeypatch):
     # Its `graft train` joins the session's cluster, as on a user's (RAY_ADDRESS).
     monkeypatch.setenv("RAY_ADDRESS", ray.get_runtime_context().gcs_address)
-    (task,) = improve.main(["--task", "pendulum", "--quick", "--out", str(tmp_path)])
+    given = ["--set", "eval_episodes=2"]  # --quick's own value: recorded, nothing changed
+    (task,) = improve.main(["--task", "pendulum", "--quick", *given, "--out", str(tmp_path)])
     assert task["task"] == "pendulum" and task["recipe"]["seeds"] == task["scratch"]["seeds"] == [0]
     assert np.isfinite(task["recipe"]["mean"]) and np.isfinite(task["scratch"]["mean"])
     assert -1000.0 < task["tree"] < -200.0  # the swing-up tree on --quick's 10 episodes
@@ -140,7 +141,7 @@ def test_quick_run_of_one_task_trains_scores_and_plots(ray_local, tmp_path, caps
         ("scratch", "td3"),
         ("recipe", "backbone_td3"),
     ]
-    assert saved["commit"]
+    assert saved["commit"] and saved["settings"] == {"set": ["eval_episodes=2"], "scratch_set": []}
     first = saved["seeds"]["pendulum"]["recipe"][0]
     assert first["evaluations"]  # the in-run evaluations were read, each judged by the guard
     assert len(first["guarded"]) == len(first["evaluations"])
