@@ -58,8 +58,8 @@ class Grid:
 
 def solve(grid: Grid, torques: np.ndarray) -> np.ndarray:
     """V[t] for t = 0..HORIZON on the grid (V[HORIZON] = 0): the best return from step t."""
-    theta, speed = np.meshgrid(grid.theta, grid.speed, indexing="ij")
-    theta, speed = theta.ravel(), speed.ravel()
+    mesh = np.meshgrid(grid.theta, grid.speed, indexing="ij")
+    theta, speed = mesh[0].ravel(), mesh[1].ravel()
     steps = [model_step(theta, speed, np.full_like(theta, u)) for u in torques]
     corners = [grid.corners(t2, s2) for t2, s2, _ in steps]
     rewards = np.stack([r for _, _, r in steps])
