@@ -158,17 +158,21 @@ def test_the_standalone_ibrl_target_values_mu_of_s_prime_minus_the_centre():
     assert not torch.allclose(residual._critic_target(batch), expected)
 
 
-def test_the_standalone_builder_spans_the_box_and_keeps_td3s_initialisation():
-    box = spaces.Box(-2.0, 2.0, (1,), np.float32)
-    td3 = TD3Builder(
+def _pendulum_td3(**config) -> TD3Builder:
+    """TD3's builder on Pendulum's spaces (open observation bounds, torque in ±2)."""
+    return TD3Builder(
         spaces.Box(-np.inf, np.inf, (3,), np.float32),
-        box,
-        config=TD3Config(hidden_sizes=(8,)),
+        spaces.Box(-2.0, 2.0, (1,), np.float32),
+        config=TD3Config(hidden_sizes=(8,), **config),
         budget=Budget(env_steps=100, learning_starts=10, updates_per_env_step=1.0,
                       slack_env_steps=0),
         seed=0,
         method="backbone_td3",
     )  # fmt: skip
+
+
+def test_the_standalone_builder_spans_the_box_and_keeps_td3s_initialisation():
+    td3 = _pendulum_td3()
 
     def build(residual: bool) -> BackboneBuilder:
         config = BackboneConfig(correction_limit=4.0, observe_backbone=True, residual=residual)
@@ -185,16 +189,7 @@ def test_the_standalone_builder_spans_the_box_and_keeps_td3s_initialisation():
 
 
 def test_without_tree_input_the_networks_see_s_alone_and_mu_stays_the_proposal():
-    box = spaces.Box(-2.0, 2.0, (1,), np.float32)
-    td3 = TD3Builder(
-        spaces.Box(-np.inf, np.inf, (3,), np.float32),
-        box,
-        config=TD3Config(hidden_sizes=(8,), batch_size=4),
-        budget=Budget(env_steps=100, learning_starts=10, updates_per_env_step=1.0,
-                      slack_env_steps=0),
-        seed=0,
-        method="backbone_td3",
-    )  # fmt: skip
+    td3 = _pendulum_td3(batch_size=4)
 
     def build(tree_input: bool) -> BackboneBuilder:
         config = BackboneConfig(
