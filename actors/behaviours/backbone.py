@@ -73,7 +73,7 @@ class BackboneBehaviour:
         low: np.ndarray,
         high: np.ndarray,
         observe_backbone: bool = False,
-        tree_input: Optional[bool] = None,
+        tree_input: bool = True,
         gate: Optional[Callable[[np.ndarray], np.ndarray]] = None,
         critic: Optional[TwinQ] = None,
         switch_margin: Optional[float] = None,
@@ -93,7 +93,7 @@ class BackboneBehaviour:
             observe_backbone: Replay stores μ(s') too, and π's and the critic's input is
                 [s, μ(s) / high] instead of s.
             tree_input: With observe_backbone, False keeps the networks' input s alone
-                (μ(s) only the tree's proposal). None: as observe_backbone.
+                (μ(s) only the tree's proposal).
             gate: Where it returns False ([B] bool from the observation) the greedy
                 policy drops the correction and acts μ(s) alone (e.g. the tree's recovery
                 when progress stalls). Exploration ignores it.
@@ -122,7 +122,7 @@ class BackboneBehaviour:
         self._switched: list[float] = []
         self.correction = correction
         self.observe_backbone = observe_backbone
-        self.tree_input = observe_backbone if tree_input is None else tree_input
+        self.tree_input = observe_backbone and tree_input
         self._next_mu: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         """Per environment, (s', μ(s')) from `next_columns`: s' is its next step's s unless
         its episode ended."""
