@@ -67,7 +67,7 @@ from bench.improve_report import (
     worst_drop,
 )
 from bench.improve_sb3 import HYPERPARAMETERS, require, run_arm
-from bench.seeds import SeedResult, run_seed
+from bench.seeds import SeedResult, asked, refuse_other_settings, run_seed
 from graft.api import Policy
 from graft.cli.flags import parse_settings
 from graft.config import load_preset
@@ -239,6 +239,9 @@ def run_task(
     config = load_preset(preset, **settings, **({"env_steps": env_steps} if env_steps else {}))
     tree = graft.load_policy("hardcoded", preset=preset)
     rows: list[SeedRow] = []
+    asks = {s: asked(str(preset), s, overrides=overrides, env_steps=env_steps) for s in seeds}
+    refuse_other_settings({out / task / arm / f"s{s}": ask for s, ask in asks.items()},
+                          ignoring=("selection.",) if reselected else ())  # fmt: skip
     for seed in seeds:
         start, run_dir = time.perf_counter(), out / task / arm / f"s{seed}"
         if reselected and arm == "recipe" and (run_dir / "summary.json").exists():
@@ -424,11 +427,19 @@ def gather(saved: Sequence[Path]) -> tuple[Gathered, dict[tuple[str, int, str], 
             arms = arms if isinstance(arms, dict) else {"recipe": arms}  # before the arms
             for arm, rows in arms.items():
                 budget = budget_of(given[(task, arm)]["env_steps"])
-                algorithms[(task, budget, arm)] = given[(task, arm)]["algorithm"]
-                kept = runs.setdefault((task, budget), {}).setdefault(arm, {})
+                name = probe_name(arm, data.get("settings", {}))
+                algorithms[(task, budget, name)] = given[(task, arm)]["algorithm"]
+                kept = runs.setdefault((task, budget), {}).setdefault(name, {})
                 for row in (SeedRow(**r) for r in rows):
                     _replace(kept, row, path, f"{task} {arm} seed {row.seed} at {budget:,}")
     return runs, algorithms, commits
+
+
+def probe_name(arm: str, settings: Mapping[str, Sequence[str]]) -> str:
+    """An arm's name in the tables: one run with `--set`s (the recipe's) or `--scratch-set`s
+    is a probe beside the arm, named by them, never pooled with the arm's own seeds."""
+    given = settings.get({"recipe": "set", "scratch": "scratch_set"}.get(arm, ""), [])
+    return f"{arm} [{', '.join(given)}]" if given else arm
 
 
 def _replace(kept: dict[int, tuple[SeedRow, Path]], row: SeedRow, path: Path, what: str) -> None:

@@ -3,9 +3,10 @@
 Each seed is the documented pair of commands, each in its own process with its own local
 Ray instance, so up to `parallel` seeds run side by side. A seed whose `eval.json` exists
 is read back, not re-run, so an interrupted benchmark continues where it stopped; a seed
-whose training ended (its summary.json, not interrupted) but was never evaluated is only
-evaluated; any other seed folder is started afresh, so give each benchmark process its own
-`--out`.
+whose training ended (its summary.json, not interrupted) but was never evaluated, or was on
+other episodes, is only evaluated; any other seed folder is started afresh. A folder trained
+with other settings (preset, seed, `--set`s, env steps: its `.request.json` beside it) is
+refused before any process starts, so give each benchmark process its own `--out`.
 A seed whose run fails is reported with its log and left out; the others go on.
 """
 
@@ -15,7 +16,7 @@ import json
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,7 @@ from typing import Any
 from graft.experiments.stats import summarize
 
 GRAFT = [sys.executable, "-m", "graft.cli"]
+REPO = Path(__file__).resolve().parents[1]
 
 
 @dataclass(frozen=True)
@@ -57,14 +59,17 @@ def run_seed(
     done = run_dir / "eval.json"
     if done.exists():
         saved = json.loads(done.read_text())
-        return SeedResult(seed, saved["mean"], saved["std"], run_dir, saved.get("wall_s", 0.0))
+        if (saved["episodes"], saved.get("seed", eval_seed)) == (episodes, eval_seed):
+            return SeedResult(seed, saved["mean"], saved["std"], run_dir, saved.get("wall_s", 0.0))
     trained = trained_wall_s(run_dir)
-    if trained is not None:  # trained, then stopped before its evaluation
+    if trained is not None:  # trained, then stopped before its evaluation (or another one)
         wall_s = trained
     else:
         if run_dir.exists():  # an interrupted run: start it again from an empty folder
             subprocess.run(["rm", "-rf", str(run_dir)], check=True)
         run_dir.parent.mkdir(parents=True, exist_ok=True)
+        request = asked(preset, seed, overrides=overrides, env_steps=env_steps)
+        _request_file(run_dir).write_text(json.dumps(request))
         train = [*GRAFT, "train", "--preset", preset, "--seed", str(seed)]
         train += ["--run-dir", str(run_dir), "--no-progress"]
         train += [a for o in overrides for a in ("--set", o)]
@@ -85,9 +90,49 @@ def evaluate_run(run_dir: Path, *, episodes: int, eval_seed: int, wall_s: float)
     evaluate += ["--seed", str(eval_seed), "--json"]
     out = subprocess.run(evaluate, check=True, capture_output=True, text=True).stdout
     saved: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
-    saved["wall_s"] = wall_s
+    saved["seed"], saved["wall_s"] = eval_seed, wall_s
     (run_dir / "eval.json").write_text(json.dumps(saved))
     return saved
+
+
+def asked(
+    preset: str, seed: int, *, overrides: Sequence[str], env_steps: int | None
+) -> dict[str, Any]:
+    """What a seed folder is trained with, as its `.request.json` records it (a preset
+    inside the repository by its path from the repository's root, so that another checkout
+    resumes it)."""
+    path = Path(preset).resolve()
+    name = str(path.relative_to(REPO)) if path.is_relative_to(REPO) else preset
+    sets = dict(o.split("=", 1) for o in overrides)  # in any order, a later one winning
+    return {"preset": name, "seed": seed, "env_steps": env_steps, "sets": sets}
+
+
+def _request_file(run_dir: Path) -> Path:
+    return run_dir.parent / f"{run_dir.name}.request.json"
+
+
+def refuse_other_settings(
+    requests: Mapping[Path, dict[str, Any]], *, ignoring: tuple[str, ...] = ()
+) -> None:
+    """Stops, in one line naming what differs, at the first seed folder that holds a run
+    trained with other settings than its request (`asked`), `--set`s starting with one of
+    `ignoring` aside; a folder from before the record is taken as it is. The benchmarks
+    call it for all their seeds before the first starts."""
+
+    def flat(request: dict[str, Any]) -> dict[str, Any]:
+        sets = {f"--set {k}": v for k, v in request["sets"].items() if not k.startswith(ignoring)}
+        return {**{k: v for k, v in request.items() if k != "sets"}, **sets}
+
+    for run_dir, request in requests.items():
+        recorded = _request_file(run_dir)
+        if not (run_dir.exists() and recorded.exists()):
+            continue
+        before, now = flat(json.loads(recorded.read_text())), flat(request)
+        keys = dict.fromkeys([*before, *now])
+        if differ := [f"{k} {before.get(k)} there, {now.get(k)} now"
+                      for k in keys if before.get(k) != now.get(k)]:  # fmt: skip
+            raise SystemExit(f"{run_dir} holds a run of other settings ({'; '.join(differ)}): "
+                             "give this benchmark a fresh --out")  # fmt: skip
 
 
 def trained_wall_s(run_dir: Path) -> float | None:
@@ -110,6 +155,8 @@ def run_seeds(
     episodes: int = 100,
 ) -> list[SeedResult]:
     """Runs every seed into `out/s<seed>`, `parallel` at a time, printing each as it ends."""
+    refuse_other_settings({out / f"s{s}": asked(preset, s, overrides=overrides, env_steps=env_steps)
+                           for s in seeds})  # fmt: skip
     start = time.perf_counter()
 
     def one(seed: int) -> SeedResult | None:

@@ -237,3 +237,21 @@ def test_plot_gives_a_task_a_row_per_budget_and_takes_a_seed_in_two_files_from_t
     assert f"{files[3]}'s (250.0) replaces {files[1]}'s (302.0)" in said
     assert str(files[2]) not in said  # an identical seed is not a replacement
     assert (tmp_path / "fig" / "improve-t-30k.png").stat().st_size > 0
+
+
+def test_plot_keeps_a_probe_run_with_sets_beside_the_arm_not_pooled_into_it(tmp_path):
+    plain = [_row(s, 100.0, 150.0, [100.0]) for s in range(3)]
+    probe = [_row(s, 100.0, 400.0, [100.0]) for s in range(3)]
+    files = [
+        _saved(tmp_path / f"{n}.json", "t", rows, 30_000)
+        for n, rows in (("a", plain), ("b", probe))
+    ]
+    data = json.loads(files[1].read_text())
+    settings = {"set": ["td3.tau=0.01"], "scratch_set": []}
+    files[1].write_text(json.dumps({**data, "settings": settings}))
+    (row,) = improve.main(["--plot", *map(str, files), "--out", str(tmp_path / "fig")])
+    assert row["recipe"]["mean"] == pytest.approx(150.0)  # the plain recipe's seeds alone
+    redrawn = json.loads((tmp_path / "fig" / "improve.json").read_text())
+    assert sorted(redrawn["seeds"]["t"]) == ["recipe", "recipe [td3.tau=0.01]"]
+    assert improve.probe_name("scratch", {"set": ["a=1"], "scratch_set": []}) == "scratch"
+    assert improve.probe_name("sb3-sac", {"set": ["a=1"]}) == "sb3-sac"
