@@ -59,6 +59,8 @@ from bench.improve_report import (
     ARMS,
     REFERENCE_ARMS,
     SeedRow,
+    along_budget,
+    along_budget_table,
     compare,
     plot_task,
     summarise,
@@ -308,6 +310,9 @@ def report(
     print(task_table(tasks))
     print()
     print(table(summaries))
+    if along := {t: points for t, arms in results.items() if (points := along_budget(arms))}:
+        print("\nIn-run evaluations along the budget (the same episodes for both arms):\n")
+        print(along_budget_table(along))
     if parts:
         recipe = {t: arms["recipe"] for t, arms in results.items() if "recipe" in arms}
         print()
@@ -317,6 +322,7 @@ def report(
     saved = {
         "commit": code,
         "tasks": tasks,
+        "along_budget": along,
         "summaries": list(summaries),
         "seeds": {t: {a: [asdict(r) for r in rs] for a, rs in arms.items()}
                   for t, arms in results.items()},

@@ -174,6 +174,53 @@ def reference_margin(by_seed: Mapping[str, Mapping[int, SeedRow]]) -> dict[str, 
     }
 
 
+def along_budget(arms: Mapping[str, Sequence[SeedRow]]) -> list[dict[str, Any]]:
+    """Where along the budget the recipe leads: at each env-step count (to the nearest
+    thousand) where every seed of both evaluated, the recipe's in-run evaluation minus
+    from scratch's, paired by seed (the same in-run episodes), with its 95 % bootstrap CI
+    over seeds; empty without both arms."""
+
+    def by_thousand(row: SeedRow) -> dict[int, float]:
+        return {round(s / 1000) * 1000: e for s, e in zip(row.steps, row.evaluations, strict=True)}
+
+    recipe = {r.seed: by_thousand(r) for r in arms.get("recipe", [])}
+    scratch = {r.seed: by_thousand(r) for r in arms.get("scratch", [])}
+    seeds = sorted(set(recipe) & set(scratch))
+    if not seeds:
+        return []
+    common = set.intersection(*(set(recipe[s]) & set(scratch[s]) for s in seeds))
+    points = []
+    for step in sorted(common):
+        lead = [recipe[s][step] - scratch[s][step] for s in seeds]
+        points.append({
+            "env_steps": step,
+            "scratch": float(np.mean([scratch[s][step] for s in seeds])),
+            "recipe": float(np.mean([recipe[s][step] for s in seeds])),
+            "lead": float(np.mean(lead)),
+            "lead_ci": list(mean_ci(lead)),
+            "seeds": seeds,
+        })  # fmt: skip
+    return points
+
+
+def along_budget_table(tasks: Mapping[str, Sequence[Mapping[str, Any]]]) -> str:
+    """`along_budget`'s points of each task, a row each."""
+    lines = [
+        "| task | env steps | from scratch (graft), in-run | recipe, in-run "
+        "| recipe − from scratch, paired [95 % CI] (seeds) |",
+        "|---|---|---|---|---|",
+    ]
+    for task, points in tasks.items():
+        for p in points:
+            low, high = p["lead_ci"]
+            ci = f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else ""
+            lines.append(
+                f"| {task} | {p['env_steps']:,} | {p['scratch']:.1f} | {p['recipe']:.1f} "
+                f"| {p['lead']:+.1f}{ci} ({len(p['seeds'])}) |"
+            )
+    return "\n".join(lines)
+
+
 def _mean_ci(value: Mapping[str, Any]) -> str:
     low, high = value["ci"]
     ci = f" [{low:.1f}, {high:.1f}]" if np.isfinite(low) else ""

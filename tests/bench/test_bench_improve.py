@@ -255,3 +255,23 @@ def test_plot_keeps_a_probe_run_with_sets_beside_the_arm_not_pooled_into_it(tmp_
     assert sorted(redrawn["seeds"]["t"]) == ["recipe", "recipe [td3.tau=0.01]"]
     assert improve.probe_name("scratch", {"set": ["a=1"], "scratch_set": []}) == "scratch"
     assert improve.probe_name("sb3-sac", {"set": ["a=1"]}) == "sb3-sac"
+
+
+def test_along_the_budget_pairs_each_seeds_in_run_evaluations_at_the_same_env_steps():
+    recipe = [
+        dataclasses.replace(
+            _row(s, 100.0, 0.0, [150.0, 160.0, 170.0 + s]), steps=[3008, 10016, 20000]
+        )
+        for s in range(3)
+    ]
+    scratch = [
+        dataclasses.replace(_row(s, 100.0, 0.0, [0.0, 180.0 - s]), steps=[9984, 20000])
+        for s in range(3)
+    ]
+    points = improve_report.along_budget({"recipe": recipe, "scratch": scratch})
+    assert [p["env_steps"] for p in points] == [10_000, 20_000]  # 3,008: from scratch had none
+    assert points[0]["lead"] == pytest.approx(160.0) and points[0]["lead_ci"][0] > 0
+    assert points[1]["lead"] == pytest.approx(np.mean([-10.0 + 2 * s for s in range(3)]))
+    assert improve_report.along_budget({"recipe": recipe}) == []
+    table = improve_report.along_budget_table({"t": points})
+    assert "| t | 20,000 | 179.0 | 171.0 | -8.0 [" in table
