@@ -129,7 +129,7 @@ def refuse_other_settings(
             continue
         before, now = flat(json.loads(recorded.read_text())), flat(request)
         keys = dict.fromkeys([*before, *now])
-        if differ := [f"{k} {before.get(k)} there, {now.get(k)} now"
+        if differ := [f"{k} {before.get(k, 'unset')} there, {now.get(k, 'unset')} now"
                       for k in keys if before.get(k) != now.get(k)]:  # fmt: skip
             raise SystemExit(f"{run_dir} holds a run of other settings ({'; '.join(differ)}): "
                              "give this benchmark a fresh --out")  # fmt: skip

@@ -41,7 +41,7 @@ def test_a_folder_trained_with_other_settings_is_refused_in_one_line_and_left_as
     line = str(refused.value)
     assert "\n" not in line and str(run_dir) in line and "fresh --out" in line
     assert "env_steps 30000 there, 600 now" in line
-    assert "--set learning_starts None there, 200 now" in line
+    assert "--set learning_starts unset there, 200 now" in line
     assert (run_dir / "summary.json").exists()  # nothing removed
     reselected = asked(preset, 3, overrides=["td3.tau=0.01", "selection.z=3"], env_steps=30_000)
     refuse_other_settings({run_dir: reselected}, ignoring=("selection.",))
