@@ -212,13 +212,17 @@ def along_budget_table(tasks: Mapping[str, Sequence[Mapping[str, Any]]]) -> str:
     ]
     for task, points in tasks.items():
         for p in points:
-            low, high = p["lead_ci"]
-            ci = f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else ""
             lines.append(
                 f"| {task} | {p['env_steps']:,} | {p['scratch']:.1f} | {p['recipe']:.1f} "
-                f"| {p['lead']:+.1f}{ci} ({len(p['seeds'])}) |"
+                f"| {p['lead']:+.1f}{_signed_ci(p['lead_ci'], '')} ({len(p['seeds'])}) |"
             )
     return "\n".join(lines)
+
+
+def _signed_ci(ci: Sequence[float], missing: str = " (no CI below 3 seeds)") -> str:
+    """' [+low, +high]' of a difference's interval, `missing` where there is none."""
+    low, high = ci
+    return f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else missing
 
 
 def _mean_ci(value: Mapping[str, Any]) -> str:
@@ -232,8 +236,7 @@ def _margin(t: Mapping[str, Any], key: str, seeds: Sequence[int]) -> str:
     '-' with no paired seed."""
     if not seeds:
         return "-"
-    low, high = t[f"{key}_ci"]
-    ci = f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else " (no CI below 3 seeds)"
+    ci = _signed_ci(t[f"{key}_ci"])
     return f"{t[key]:+.1f}{ci}"
 
 
@@ -279,8 +282,7 @@ def table(summaries: Sequence[Mapping[str, Any]]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
-        low, high = s["improvement_ci"]
-        ci = f" [{low:+.1f}, {high:+.1f}]" if np.isfinite(low) else " (no CI below 3 seeds)"
+        ci = _signed_ci(s["improvement_ci"])
         lines.append(
             f"| {s['task']} | {s.get('arm', 'recipe')}: {s['algorithm']} | {s['env_steps']:,} "
             f"| {s['tree']:.1f} "
