@@ -69,14 +69,13 @@ from bench.improve_report import (
     worst_drop,
 )
 from bench.improve_sb3 import HYPERPARAMETERS, require, run_arm
-from bench.seeds import SeedResult, asked, refuse_other_settings, run_seed
+from bench.seeds import REPO, SeedResult, asked, refuse_other_settings, run_seed
 from graft.api import Policy
 from graft.cli.flags import parse_settings
 from graft.config import load_preset
 from graft.seeds import LEGACY_EVALUATION, held_out_seed
 from service.metrics import read_metric
 
-REPO = Path(__file__).resolve().parents[1]
 TASKS = {
     "pendulum": REPO / "bench" / "tasks" / "pendulum.yaml",
     "mountaincar": REPO / "examples" / "mountaincar" / "presets" / "recipe.yaml",
@@ -241,8 +240,8 @@ def run_task(
     config = load_preset(preset, **settings, **({"env_steps": env_steps} if env_steps else {}))
     tree = graft.load_policy("hardcoded", preset=preset)
     rows: list[SeedRow] = []
-    asks = {s: asked(str(preset), s, overrides=overrides, env_steps=env_steps) for s in seeds}
-    refuse_other_settings({out / task / arm / f"s{s}": ask for s, ask in asks.items()},
+    refuse_other_settings({out / task / arm / f"s{s}": asked(str(preset), s, overrides=overrides,
+                                                            env_steps=env_steps) for s in seeds},
                           ignoring=("selection.",) if reselected else ())  # fmt: skip
     for seed in seeds:
         start, run_dir = time.perf_counter(), out / task / arm / f"s{seed}"

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from graft.cli.flags import parse_settings
 from graft.experiments.stats import summarize
 
 GRAFT = [sys.executable, "-m", "graft.cli"]
@@ -103,7 +104,7 @@ def asked(
     resumes it)."""
     path = Path(preset).resolve()
     name = str(path.relative_to(REPO)) if path.is_relative_to(REPO) else preset
-    sets = dict(o.split("=", 1) for o in overrides)  # in any order, a later one winning
+    sets = parse_settings(list(overrides))  # in any order, a later one winning
     return {"preset": name, "seed": seed, "env_steps": env_steps, "sets": sets}
 
 
