@@ -21,6 +21,9 @@ export RAY_AUTH_MODE=token
 # The GCS keeps 10,000 task events, not Ray's 100,000: each actor call is one, and their
 # history grew a run's GCS by 130-170 MiB an hour (graft/orchestration/ray_session.py).
 export RAY_task_events_max_num_task_in_gcs=${RAY_task_events_max_num_task_in_gcs:-10000}
+# A Ray Client (ray://) session's own server process gets 120 s to come up, not Ray's 30:
+# on a loaded head it took longer, and the client failed with "Initialization failure".
+export RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S=${RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S:-120}
 
 die() { echo "ray-node.sh: $*" >&2; exit 2; }
 
