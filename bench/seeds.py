@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from graft.cli.flags import parse_settings
+from graft.config import load_preset
 from graft.experiments.stats import summarize
 
 GRAFT = [sys.executable, "-m", "graft.cli"]
@@ -108,6 +109,16 @@ def asked(
     return {"preset": name, "seed": seed, "env_steps": env_steps, "sets": sets}
 
 
+def _budget(request: dict[str, Any]) -> dict[str, Any]:
+    """`request` with the preset's own budget where it names none (a record from before:
+    None), so that asking for that budget by number is the same run."""
+    if request["env_steps"] is not None:
+        return request
+    preset = request["preset"]
+    path = preset if Path(preset).is_absolute() or not (REPO / preset).exists() else REPO / preset
+    return {**request, "env_steps": load_preset(path).env_steps}
+
+
 def _request_file(run_dir: Path) -> Path:
     return run_dir.parent / f"{run_dir.name}.request.json"
 
@@ -121,6 +132,7 @@ def refuse_other_settings(
     call it for all their seeds before the first starts."""
 
     def flat(request: dict[str, Any]) -> dict[str, Any]:
+        request = _budget(request)
         sets = {f"--set {k}": v for k, v in request["sets"].items() if not k.startswith(ignoring)}
         return {**{k: v for k, v in request.items() if k != "sets"}, **sets}
 

@@ -47,5 +47,10 @@ def test_a_folder_trained_with_other_settings_is_refused_in_one_line_and_left_as
     refuse_other_settings({run_dir: reselected}, ignoring=("selection.",))
     with pytest.raises(SystemExit):
         refuse_other_settings({run_dir: reselected})
+    budget = asked(preset, 3, overrides=["td3.tau=0.01"], env_steps=None)  # the preset's
+    (tmp_path / "s3.request.json").write_text(json.dumps(budget))
+    refuse_other_settings({run_dir: asked(preset, 3, overrides=["td3.tau=0.01"], env_steps=20_000)})
+    with pytest.raises(SystemExit):
+        refuse_other_settings({run_dir: request})  # 30,000: not the preset's 20,000
     (tmp_path / "s3.request.json").unlink()  # a folder from before the record
     refuse_other_settings({run_dir: quick})
