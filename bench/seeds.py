@@ -114,9 +114,9 @@ def _budget(request: dict[str, Any]) -> dict[str, Any]:
     None), so that asking for that budget by number is the same run."""
     if request["env_steps"] is not None:
         return request
-    preset = request["preset"]
-    path = preset if Path(preset).is_absolute() or not (REPO / preset).exists() else REPO / preset
-    return {**request, "env_steps": load_preset(path).env_steps}
+    path = REPO / request["preset"]  # an absolute path stays itself
+    preset = path if path.exists() else request["preset"]  # else a preset's name
+    return {**request, "env_steps": load_preset(preset).env_steps}
 
 
 def _request_file(run_dir: Path) -> Path:
