@@ -79,6 +79,7 @@ class BackboneBehaviour:
         switch_margin: Optional[float] = None,
         propose_tree: bool = False,
         centre: Optional[np.ndarray] = None,
+        prefill_uniform: bool = False,
     ) -> None:
         """Initialises the behaviour.
 
@@ -109,6 +110,8 @@ class BackboneBehaviour:
                 around it: `limit` its largest half-width), and wherever the residual's
                 tree proposes c = 0 (prefill, `propose_tree`, switching, `gate`) this one's
                 proposes c = μ(s) − centre. None: the residual, a = μ(s) + c.
+            prefill_uniform: The prefill acts uniformly in the box (c = a − μ(s), or
+                a − centre; a residual's c clipped to ±limit) instead of μ(s) + ε.
         """
         check_margin("switch_margin", switch_margin)
         if critic is None and (switch_margin is not None or propose_tree):
@@ -132,6 +135,7 @@ class BackboneBehaviour:
         self.limit = float(limit)
         self.low, self.high = np.asarray(low), np.asarray(high)
         self.std, self.prefill_std = float(std), float(prefill_std)
+        self.prefill_uniform = prefill_uniform
         for name in ("std", "prefill_std"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name}={getattr(self, name)} must be > 0 (log_prob needs it)")
@@ -234,6 +238,8 @@ class BackboneBehaviour:
         envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
         mu = self._mu(obs, envs)
+        if warmup and self.prefill_uniform:
+            return self._uniform(mu, rng)
         tree = self._tree(mu)  # the prefill acts around the tree: a = μ(s) + ε
         mean = tree if warmup else self._pi(obs, mu)
         if self.propose_tree and not warmup:  # IBRL: around whichever the critic values more
@@ -247,6 +253,20 @@ class BackboneBehaviour:
         log_prob = gaussian_log_prob(correction, mean, std).astype(np.float32)
         action = self._compose(mu, correction)
         return action, {"action": correction, "backbone_action": mu, "log_prob": log_prob}
+
+    def _uniform(self, mu: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Columns]:
+        """A prefill step drawn uniformly from the box, stored as the correction that
+        composes it (a − μ(s), or a − centre); its density is 1 / the box's volume."""
+        action = rng.uniform(self.low, self.high, size=mu.shape).astype(np.float32)
+        base = mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
+        correction = (action - base).astype(np.float32)
+        volume = float(np.sum(np.log(self.high - self.low)))
+        log_prob = np.full(len(mu), -volume, dtype=np.float32)
+        return self._compose(mu, correction), {
+            "action": correction,
+            "backbone_action": mu,
+            "log_prob": log_prob,
+        }
 
     def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
         pass  # a new episode's first s differs from the cached s': μ is ticked anew

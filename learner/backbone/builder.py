@@ -164,6 +164,7 @@ class BackboneBuilder:
             limit=self._limit(),
             std=t.exploration_std,
             prefill_std=self.config.prefill_noise,
+            prefill_uniform=self.config.prefill == "uniform",
             low=t.low,
             high=t.high,
             observe_backbone=self.config.observe_backbone,

@@ -5,6 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
+PREFILLS = ("tree", "uniform")
+"""What a backbone run's prefill may act (`BackboneConfig.prefill`)."""
+
 
 @dataclass(frozen=True)
 class BackboneConfig:
@@ -14,6 +17,10 @@ class BackboneConfig:
     """L: the correction is clipped to [−L, L] (action units); narrow = stable, wide = room."""
     prefill_noise: float = 0.5
     """Std of ε in the prefill actions a = μ(s) + ε (action units)."""
+    prefill: str = "tree"
+    """What the prefill (the first ``learning_starts`` steps) acts: ``tree``, μ(s) + ε;
+    ``uniform``, actions drawn uniformly from the box, as TD3 from scratch warms up (the
+    tree then still proposes μ(s) in the TD target, in acting and in the greedy policy)."""
     teacher: Optional[str] = None
     """A trained TD3 run folder (or checkpoint) as backbone μ̂ with critic Q̂: eq. (11)."""
     observe_backbone: bool = False
@@ -83,6 +90,8 @@ class BackboneConfig:
             )
         if not self.prefill_noise > 0.0:
             raise ValueError(f"prefill_noise={self.prefill_noise} must be > 0 (log_prob needs it)")
+        if self.prefill not in PREFILLS:
+            raise ValueError(f"prefill={self.prefill!r} must be one of {', '.join(PREFILLS)}")
         if not self.correction_penalty >= 0.0:
             raise ValueError(f"correction_penalty={self.correction_penalty} must be >= 0")
         if self.switch_margin is not None and not self.switch_margin >= 0.0:

@@ -101,6 +101,27 @@ def test_the_standalone_prefill_acts_the_tree_and_stores_mu_minus_centre_plus_no
     assert 0.08 < float(noise.std()) < 0.12 and abs(float(noise.mean())) < 0.02
 
 
+def test_a_uniform_prefill_spans_the_box_and_stores_the_correction_that_composes_it():
+    behaviour = _standalone([1.5, 0.2], prefill_uniform=True)
+    obs = np.zeros((4000, 3), np.float32)
+    action, columns = behaviour.act(obs, np.random.default_rng(0), warmup=True)
+    assert (action >= LOW).all() and (action <= HIGH).all()
+    # Uniform on [−1, 3] x [0, 1]: means 1 and 0.5, stds 4/√12 and 1/√12; the tree's
+    # (0.5, 0.9) and π's output play no part in it.
+    np.testing.assert_allclose(action.mean(axis=0), CENTRE, atol=0.05)
+    np.testing.assert_allclose(action.std(axis=0), (HIGH - LOW) / np.sqrt(12), rtol=0.05)
+    np.testing.assert_allclose(CENTRE + columns["action"], action, atol=1e-6)
+    np.testing.assert_allclose(columns["backbone_action"], _tree(obs))
+    np.testing.assert_allclose(columns["log_prob"], -np.log(4.0 * 1.0))  # 1 / the box's area
+    acting, _ = behaviour.act(obs[:500], np.random.default_rng(0), warmup=False)
+    np.testing.assert_allclose(acting.mean(axis=0), [2.5, 0.7], atol=0.02)  # after: π's
+
+
+def test_a_prefill_that_is_neither_tree_nor_uniform_is_refused_by_name():
+    with pytest.raises(ValueError, match="prefill='random' must be one of tree, uniform"):
+        BackboneConfig(prefill="random")
+
+
 @pytest.mark.parametrize(
     "a1, a2, expected",
     [
