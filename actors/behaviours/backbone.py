@@ -79,7 +79,7 @@ class BackboneBehaviour:
         switch_margin: Optional[float] = None,
         propose_tree: bool = False,
         centre: Optional[np.ndarray] = None,
-        prefill_uniform: bool = False,
+        prefill_uniform: float = 0.0,
     ) -> None:
         """Initialises the behaviour.
 
@@ -110,8 +110,10 @@ class BackboneBehaviour:
                 around it: `limit` its largest half-width), and wherever the residual's
                 tree proposes c = 0 (prefill, `propose_tree`, switching, `gate`) this one's
                 proposes c = μ(s) − centre. None: the residual, a = μ(s) + c.
-            prefill_uniform: The prefill acts uniformly in the box (c = a − μ(s), or
-                a − centre; a residual's c clipped to ±limit) instead of μ(s) + ε.
+            prefill_uniform: The share of prefill steps (each env's, each step drawn
+                apart) that act uniformly in the box (c = a − μ(s), or a − centre; a
+                residual's c clipped to ±limit) instead of μ(s) + ε: 0 the tree's alone,
+                1 uniform alone.
         """
         check_margin("switch_margin", switch_margin)
         if critic is None and (switch_margin is not None or propose_tree):
@@ -135,7 +137,9 @@ class BackboneBehaviour:
         self.limit = float(limit)
         self.low, self.high = np.asarray(low), np.asarray(high)
         self.std, self.prefill_std = float(std), float(prefill_std)
-        self.prefill_uniform = prefill_uniform
+        self.prefill_uniform = float(prefill_uniform)
+        if not 0.0 <= self.prefill_uniform <= 1.0:
+            raise ValueError(f"prefill_uniform={prefill_uniform} must be a share in [0, 1]")
         for name in ("std", "prefill_std"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name}={getattr(self, name)} must be > 0 (log_prob needs it)")
@@ -238,9 +242,11 @@ class BackboneBehaviour:
         envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
         mu = self._mu(obs, envs)
-        if warmup and self.prefill_uniform:
+        if warmup and self.prefill_uniform == 1.0:
             return self._uniform(mu, rng)
         tree = self._tree(mu)  # the prefill acts around the tree: a = μ(s) + ε
+        if warmup and self.prefill_uniform > 0.0:
+            return self._mixed(mu, tree, rng)
         mean = tree if warmup else self._pi(obs, mu)
         if self.propose_tree and not warmup:  # IBRL: around whichever the critic values more
             assert self.critic is not None
@@ -260,13 +266,34 @@ class BackboneBehaviour:
         action = rng.uniform(self.low, self.high, size=mu.shape).astype(np.float32)
         base = mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
         correction = (action - base).astype(np.float32)
-        volume = float(np.sum(np.log(self.high - self.low)))
-        log_prob = np.full(len(mu), -volume, dtype=np.float32)
+        log_prob = np.full(len(mu), -self._log_volume(), dtype=np.float32)
         return self._compose(mu, correction), {
             "action": correction,
             "backbone_action": mu,
             "log_prob": log_prob,
         }
+
+    def _log_volume(self) -> float:
+        return float(np.sum(np.log(self.high - self.low)))
+
+    def _mixed(
+        self, mu: np.ndarray, tree: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, Columns]:
+        """A prefill step that acts uniformly in the box with probability
+        `prefill_uniform`, else μ(s) + ε; its log-likelihood is the mixture's."""
+        share = self.prefill_uniform
+        _, uniform = self._uniform(mu, rng)
+        around = (tree + self.prefill_std * rng.standard_normal(tree.shape)).astype(np.float32)
+        pick = rng.random(len(mu)) < share
+        correction = np.where(pick[:, None], uniform["action"], around).astype(np.float32)
+        base = mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
+        inside = np.all((base + correction >= self.low) & (base + correction <= self.high), axis=1)
+        with np.errstate(divide="ignore"):
+            log_uniform = np.where(inside, np.log(share) - self._log_volume(), -np.inf)
+        log_tree = np.log1p(-share) + gaussian_log_prob(correction, tree, self.prefill_std)
+        log_prob = np.logaddexp(log_uniform, log_tree).astype(np.float32)
+        action = self._compose(mu, correction)
+        return action, {"action": correction, "backbone_action": mu, "log_prob": log_prob}
 
     def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
         pass  # a new episode's first s differs from the cached s': μ is ticked anew

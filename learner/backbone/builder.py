@@ -12,7 +12,7 @@ from actors.behaviours.backbone import BackboneBehaviour
 from actors.hardcoded import HardCodedPolicy, required_policy
 from actors.policy_net import TwinQ
 from learner.agent import Phase
-from learner.backbone.config import BackboneConfig
+from learner.backbone.config import PREFILLS, BackboneConfig
 from learner.backbone.learning import ObservingBackboneLearner, TeacherBackboneLearner
 from learner.backbone.networks import load_teacher, zero_output_
 from learner.device import CPU, CompileMode
@@ -164,7 +164,7 @@ class BackboneBuilder:
             limit=self._limit(),
             std=t.exploration_std,
             prefill_std=self.config.prefill_noise,
-            prefill_uniform=self.config.prefill == "uniform",
+            prefill_uniform=PREFILLS[self.config.prefill],
             low=t.low,
             high=t.high,
             observe_backbone=self.config.observe_backbone,

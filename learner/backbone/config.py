@@ -5,8 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
-PREFILLS = ("tree", "uniform")
-"""What a backbone run's prefill may act (`BackboneConfig.prefill`)."""
+PREFILLS = {"tree": 0.0, "mixed": 0.5, "uniform": 1.0}
+"""What a backbone run's prefill may act (`BackboneConfig.prefill`) -> the share of its
+steps that act uniformly in the box."""
 
 
 @dataclass(frozen=True)
@@ -20,7 +21,9 @@ class BackboneConfig:
     prefill: str = "tree"
     """What the prefill (the first ``learning_starts`` steps) acts: ``tree``, μ(s) + ε;
     ``uniform``, actions drawn uniformly from the box, as TD3 from scratch warms up (the
-    tree then still proposes μ(s) in the TD target, in acting and in the greedy policy)."""
+    tree then still proposes μ(s) in the TD target, in acting and in the greedy policy);
+    ``mixed``, each step either, at even odds: uniform actions in the states the tree
+    leads to."""
     teacher: Optional[str] = None
     """A trained TD3 run folder (or checkpoint) as backbone μ̂ with critic Q̂: eq. (11)."""
     observe_backbone: bool = False

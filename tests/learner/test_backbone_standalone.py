@@ -102,7 +102,7 @@ def test_the_standalone_prefill_acts_the_tree_and_stores_mu_minus_centre_plus_no
 
 
 def test_a_uniform_prefill_spans_the_box_and_stores_the_correction_that_composes_it():
-    behaviour = _standalone([1.5, 0.2], prefill_uniform=True)
+    behaviour = _standalone([1.5, 0.2], prefill_uniform=1.0)
     obs = np.zeros((4000, 3), np.float32)
     action, columns = behaviour.act(obs, np.random.default_rng(0), warmup=True)
     assert (action >= LOW).all() and (action <= HIGH).all()
@@ -117,8 +117,24 @@ def test_a_uniform_prefill_spans_the_box_and_stores_the_correction_that_composes
     np.testing.assert_allclose(acting.mean(axis=0), [2.5, 0.7], atol=0.02)  # after: π's
 
 
-def test_a_prefill_that_is_neither_tree_nor_uniform_is_refused_by_name():
-    with pytest.raises(ValueError, match="prefill='random' must be one of tree, uniform"):
+def test_a_mixed_prefill_acts_either_at_even_odds_with_the_mixtures_log_likelihood():
+    behaviour = _standalone([1.5, 0.2], prefill_uniform=0.5)
+    obs = np.zeros((4000, 3), np.float32)
+    action, columns = behaviour.act(obs, np.random.default_rng(0), warmup=True)
+    near_tree = np.all(np.abs(action - [0.5, 0.9]) < 0.5, axis=1)  # μ(s) + ε, σ = 0.1
+    # Half the steps are the tree's; of the uniform half, 1/4 x 0.6 fall near it too.
+    assert 0.53 < near_tree.mean() < 0.62  # 0.5 + 0.5 x 0.15 = 0.575
+    correction = columns["action"]
+    tree_density = np.exp(
+        -0.5 * (((correction - (_tree(obs) - CENTRE)) / 0.1) ** 2).sum(axis=1)
+    ) / (2 * np.pi * 0.1**2)
+    inside = np.all((CENTRE + correction >= LOW) & (CENTRE + correction <= HIGH), axis=1)
+    expected = np.log(0.5 * tree_density + 0.5 * inside / 4.0)
+    np.testing.assert_allclose(columns["log_prob"], expected, rtol=1e-4, atol=1e-5)
+
+
+def test_a_prefill_that_is_none_of_tree_mixed_uniform_is_refused_by_name():
+    with pytest.raises(ValueError, match="prefill='random' must be one of tree, mixed, uniform"):
         BackboneConfig(prefill="random")
 
 
