@@ -194,8 +194,13 @@ class BackboneBehaviour:
 
     def _compose(self, mu: np.ndarray, correction: np.ndarray) -> np.ndarray:
         """The applied action: μ(s) + clip(c) (residual) or centre + clip(c), in the box."""
-        base = mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
-        return compose_action(base, correction, limit=self.limit, low=self.low, high=self.high)
+        return compose_action(
+            self._base(mu), correction, limit=self.limit, low=self.low, high=self.high
+        )
+
+    def _base(self, mu: np.ndarray) -> np.ndarray:
+        """What the correction is added to: μ(s) (residual) or the box's centre, [B, A]."""
+        return mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
 
     def _switch(
         self, obs: np.ndarray, mu: np.ndarray, correction: np.ndarray, tree: np.ndarray
@@ -263,15 +268,18 @@ class BackboneBehaviour:
     def _uniform(self, mu: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Columns]:
         """A prefill step drawn uniformly from the box, stored as the correction that
         composes it (a − μ(s), or a − centre); its density is 1 / the box's volume."""
-        action = rng.uniform(self.low, self.high, size=mu.shape).astype(np.float32)
-        base = mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
-        correction = (action - base).astype(np.float32)
+        correction = self._uniform_correction(mu, rng)
         log_prob = np.full(len(mu), -self._log_volume(), dtype=np.float32)
         return self._compose(mu, correction), {
             "action": correction,
             "backbone_action": mu,
             "log_prob": log_prob,
         }
+
+    def _uniform_correction(self, mu: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The corrections that compose actions drawn uniformly from the box, [B, A]."""
+        action = rng.uniform(self.low, self.high, size=mu.shape).astype(np.float32)
+        return (action - self._base(mu)).astype(np.float32)
 
     def _log_volume(self) -> float:
         return float(np.sum(np.log(self.high - self.low)))
@@ -280,20 +288,22 @@ class BackboneBehaviour:
         self, mu: np.ndarray, tree: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, Columns]:
         """A prefill step that acts uniformly in the box with probability
-        `prefill_uniform`, else μ(s) + ε; its log-likelihood is the mixture's."""
+        `prefill_uniform` (in (0, 1)), else μ(s) + ε; its log-likelihood is the mixture's."""
         share = self.prefill_uniform
-        _, uniform = self._uniform(mu, rng)
+        uniform = self._uniform_correction(mu, rng)
         around = (tree + self.prefill_std * rng.standard_normal(tree.shape)).astype(np.float32)
         pick = rng.random(len(mu)) < share
-        correction = np.where(pick[:, None], uniform["action"], around).astype(np.float32)
-        base = mu if self.centre is None else np.broadcast_to(self.centre, mu.shape)
-        inside = np.all((base + correction >= self.low) & (base + correction <= self.high), axis=1)
-        with np.errstate(divide="ignore"):
-            log_uniform = np.where(inside, np.log(share) - self._log_volume(), -np.inf)
+        correction = np.where(pick[:, None], uniform, around).astype(np.float32)
+        action = self._base(mu) + correction  # inside the box up to float32's rounding:
+        inside = np.all((action >= self.low - 1e-5) & (action <= self.high + 1e-5), axis=1)
+        log_uniform = np.where(inside, np.log(share) - self._log_volume(), -np.inf)
         log_tree = np.log1p(-share) + gaussian_log_prob(correction, tree, self.prefill_std)
         log_prob = np.logaddexp(log_uniform, log_tree).astype(np.float32)
-        action = self._compose(mu, correction)
-        return action, {"action": correction, "backbone_action": mu, "log_prob": log_prob}
+        return self._compose(mu, correction), {
+            "action": correction,
+            "backbone_action": mu,
+            "log_prob": log_prob,
+        }
 
     def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
         pass  # a new episode's first s differs from the cached s': μ is ticked anew
