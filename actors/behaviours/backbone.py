@@ -110,10 +110,8 @@ class BackboneBehaviour:
                 around it: `limit` its largest half-width), and wherever the residual's
                 tree proposes c = 0 (prefill, `propose_tree`, switching, `gate`) this one's
                 proposes c = μ(s) − centre. None: the residual, a = μ(s) + c.
-            prefill_uniform: The share of prefill steps (each env's, each step drawn
-                apart) that act uniformly in the box (c = a − μ(s), or a − centre; a
-                residual's c clipped to ±limit) instead of μ(s) + ε: 0 the tree's alone,
-                1 uniform alone.
+            prefill_uniform: The share of prefill steps, each drawn apart, that act
+                uniformly in the box (a residual's c clipped to ±limit), not μ(s) + ε.
         """
         check_margin("switch_margin", switch_margin)
         if critic is None and (switch_margin is not None or propose_tree):
