@@ -81,6 +81,10 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     parser.add_argument("--episodes", type=int, default=50)
     args = parser.parse_args()
+    for runs in (args.runs_a, args.runs_b):
+        missing = [s for s in args.seeds if not Path(runs.format(s=s)).is_dir()]
+        if "{s}" not in runs or missing:
+            parser.error(f"{runs}: no run folder for seed(s) {missing} (put {{s}} for the seed)")
     print("seed | A, B | A − B | episodes A wins, B wins (by > 1) | swing-up A, B | top A, B"
           " | balancing |θ| A, B | |torque| A, B | sign flips A, B")  # fmt: skip
     for seed in args.seeds:
