@@ -70,8 +70,7 @@ def play(
                 *(np.mean(x) if x else np.nan for x in (angle, torque, flips)),
             )
         )
-    names = ("return", "swing", "top", "angle", "torque", "flips")
-    return dict(zip(names, np.array(rows).T, strict=True))
+    return dict(zip([key for key, _ in FIELDS], np.array(rows).T, strict=True))
 
 
 def main() -> None:
@@ -82,9 +81,11 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50)
     args = parser.parse_args()
     for runs in (args.runs_a, args.runs_b):
+        if "{s}" not in runs:
+            parser.error(f"{runs}: put {{s}} where the seed goes in the run folders' path")
         missing = [s for s in args.seeds if not Path(runs.format(s=s)).is_dir()]
-        if "{s}" not in runs or missing:
-            parser.error(f"{runs}: no run folder for seed(s) {missing} (put {{s}} for the seed)")
+        if missing:
+            parser.error(f"{runs}: no run folder for seed(s) {missing}")
     print("seed | A, B | A − B | episodes A wins, B wins (by > 1) | swing-up A, B | top A, B"
           " | balancing |θ| A, B | |torque| A, B | sign flips A, B")  # fmt: skip
     for seed in args.seeds:
