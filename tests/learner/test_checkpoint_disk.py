@@ -16,6 +16,7 @@ from learner.checkpoint import (
 from tests.tools.small_disk import small_disk
 
 
+@pytest.mark.service  # a subprocess: a server, a mount or a cgroup
 def test_a_full_disk_leaves_the_last_good_checkpoint_and_no_temporary(tmp_path) -> None:
     with small_disk(tmp_path / "disk", "256k") as disk:
         folder = disk / "checkpoints"

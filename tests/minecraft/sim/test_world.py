@@ -276,6 +276,7 @@ def test_diamond_keep_reaches_the_world_from_the_server_and_the_mission() -> Non
         WorldServer(port=0, diamond_keep=-0.1)
 
 
+@pytest.mark.service  # a subprocess: a server, a mount or a cgroup
 def test_serve_refuses_a_diamond_keep_outside_0_1_in_one_line() -> None:
     import subprocess
     import sys

@@ -43,6 +43,7 @@ def _serve(
         config.unlink()
 
 
+@pytest.mark.service  # a subprocess: a server, a mount or a cgroup
 def test_a_table_larger_than_the_machine_is_refused_in_one_line() -> None:
     # numpy's _ArrayMemoryError traceback before: 394 GiB asked for at once.
     done = _serve([{"name": "frames", "max_size": 20_000_000, "signature": FRAMES}])
@@ -56,6 +57,7 @@ def test_a_table_larger_than_the_machine_is_refused_in_one_line() -> None:
     assert str(memory_budget()) in lines[0]
 
 
+@pytest.mark.service  # a subprocess: a server, a mount or a cgroup
 def test_max_memory_bounds_the_tables_together_and_max_bytes_caps_one() -> None:
     tables = [
         {"name": "a", "max_size": 1000, "signature": FRAMES},  # 20.2 MiB
@@ -87,6 +89,7 @@ def test_max_memory_bounds_the_tables_together_and_max_bytes_caps_one() -> None:
         assert b'graft_replay_table_bytes_used{table="a"} 0.0' in metrics
 
 
+@pytest.mark.service  # a subprocess: a server, a mount or a cgroup
 def test_bytes_used_grow_with_the_items_stored() -> None:
     with ReplayProcess([{"name": "t", "max_size": 100, "signature": SCALAR_SIGNATURE}]) as s:
         client = ReplayClient(s.address)
@@ -148,6 +151,7 @@ def _cgroup(limit: int) -> Path:
     raise AssertionError("root could not make a memory cgroup (v1 or v2) under /sys/fs/cgroup")
 
 
+@pytest.mark.service  # a subprocess: a server, a mount or a cgroup
 def test_a_table_larger_than_the_cgroup_limit_is_refused_naming_it() -> None:
     # The red team's case: 200,000 frames (4.2 GB) in a 1.5 GiB cgroup were accepted, and
     # the kernel killed the server at 72,128 items.
