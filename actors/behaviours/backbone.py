@@ -245,11 +245,7 @@ class BackboneBehaviour:
         envs: Optional[np.ndarray] = None,
     ) -> tuple[np.ndarray, Columns]:
         mu = self._mu(obs, envs)
-        if warmup and self.prefill_uniform == 1.0:
-            return self._uniform(mu, rng)
         tree = self._tree(mu)  # the prefill acts around the tree: a = μ(s) + ε
-        if warmup and self.prefill_uniform > 0.0:
-            return self._mixed(mu, tree, rng)
         mean = tree if warmup else self._pi(obs, mu)
         if self.propose_tree and not warmup:  # IBRL: around whichever the critic values more
             assert self.critic is not None
@@ -259,49 +255,31 @@ class BackboneBehaviour:
         std = self.prefill_std if warmup else self.std
         # Noise on the correction only; the sample is stored unclipped (ratios are taken on it).
         correction = (mean + std * rng.standard_normal(mean.shape)).astype(np.float32)
-        log_prob = gaussian_log_prob(correction, mean, std).astype(np.float32)
+        if warmup and self.prefill_uniform > 0.0:  # `backbone.prefill`: uniform or mixed
+            correction, log_prob = self._uniform_share(mu, tree, correction, rng)
+        else:
+            log_prob = gaussian_log_prob(correction, mean, std)
         action = self._compose(mu, correction)
+        log_prob = log_prob.astype(np.float32)
         return action, {"action": correction, "backbone_action": mu, "log_prob": log_prob}
 
-    def _uniform(self, mu: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Columns]:
-        """A prefill step drawn uniformly from the box, stored as the correction that
-        composes it (a − μ(s), or a − centre); its density is 1 / the box's volume."""
-        correction = self._uniform_correction(mu, rng)
-        log_prob = np.full(len(mu), -self._log_volume(), dtype=np.float32)
-        return self._compose(mu, correction), {
-            "action": correction,
-            "backbone_action": mu,
-            "log_prob": log_prob,
-        }
-
-    def _uniform_correction(self, mu: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """The corrections that compose actions drawn uniformly from the box, [B, A]."""
-        action = rng.uniform(self.low, self.high, size=mu.shape).astype(np.float32)
-        return (action - self._base(mu)).astype(np.float32)
-
-    def _log_volume(self) -> float:
-        return float(np.sum(np.log(self.high - self.low)))
-
-    def _mixed(
-        self, mu: np.ndarray, tree: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, Columns]:
-        """A prefill step that acts uniformly in the box with probability
-        `prefill_uniform` (in (0, 1)), else μ(s) + ε; its log-likelihood is the mixture's."""
+    def _uniform_share(
+        self, mu: np.ndarray, tree: np.ndarray, around: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The prefill's corrections with each row replaced, at odds `prefill_uniform`, by
+        one that composes an action drawn uniformly from the box; and the mixture's
+        log-likelihood of each (the uniform density is 1 / the box's volume)."""
         share = self.prefill_uniform
-        uniform = self._uniform_correction(mu, rng)
-        around = (tree + self.prefill_std * rng.standard_normal(tree.shape)).astype(np.float32)
+        uniform = rng.uniform(self.low, self.high, size=mu.shape) - self._base(mu)
         pick = rng.random(len(mu)) < share
         correction = np.where(pick[:, None], uniform, around).astype(np.float32)
         action = self._base(mu) + correction  # inside the box up to float32's rounding:
         inside = np.all((action >= self.low - 1e-5) & (action <= self.high + 1e-5), axis=1)
-        log_uniform = np.where(inside, np.log(share) - self._log_volume(), -np.inf)
-        log_tree = np.log1p(-share) + gaussian_log_prob(correction, tree, self.prefill_std)
-        log_prob = np.logaddexp(log_uniform, log_tree).astype(np.float32)
-        return self._compose(mu, correction), {
-            "action": correction,
-            "backbone_action": mu,
-            "log_prob": log_prob,
-        }
+        volume = float(np.sum(np.log(self.high - self.low)))
+        log_uniform = np.where(inside, np.log(share) - volume, -np.inf)
+        with np.errstate(divide="ignore"):  # uniform alone: the tree's weight log 0
+            log_tree = np.log1p(-share) + gaussian_log_prob(correction, tree, self.prefill_std)
+        return correction, np.logaddexp(log_uniform, log_tree)
 
     def end_episodes(self, ended: np.ndarray, envs: Optional[np.ndarray] = None) -> None:
         pass  # a new episode's first s differs from the cached s': μ is ticked anew
